@@ -1,0 +1,394 @@
+"""Past-time metric LTL formulas: the AST, FRET-syntax printer and parser.
+
+This is the core language every stage shares (formalize produces it, interpret
+judges it, c99/copilot compile it).  Terms are immutable and hashable so that
+common subformulas can be shared.
+
+Syntax (FRET's past-time output, fully parenthesized when printed):
+  booleans   ! & | xor -> <->           (=>, <=> accepted when parsing)
+  relations  = != < <= > >=
+  arithmetic + - * / mod ^ and unary -
+  temporal   Y p (previous, false at tick 0)   Z p (weak previous, true at tick 0)
+             H p, O p, H[l,r] p, O[l,r] p, a S b, a S[l,r] b, a T b, a T[l,r] b
+  constants  TRUE FALSE, integer and real literals; FTP is Z FALSE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+from lark import Lark, Token, Transformer
+
+BOOL_OPS = ("&", "|", "xor", "->", "<->")
+REL_OPS = ("=", "!=", "<", "<=", ">", ">=")
+ARITH_OPS = ("+", "-", "*", "/", "mod", "^")
+UNARY_TEMPORAL = ("Y", "Z", "H", "O")
+BINARY_TEMPORAL = ("S", "T")
+
+
+class Formula:
+    """Base class of all formula nodes."""
+
+    __slots__ = ()
+
+    def children(self) -> tuple[Formula, ...]:
+        return ()
+
+    def __str__(self) -> str:
+        return to_fret(self)
+
+
+@dataclass(frozen=True, slots=True)
+class Const(Formula):
+    value: bool | int | float
+
+
+@dataclass(frozen=True, slots=True)
+class Var(Formula):
+    name: str
+
+
+@dataclass(frozen=True, slots=True)
+class Not(Formula):
+    arg: Formula
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.arg,)
+
+
+@dataclass(frozen=True, slots=True)
+class Neg(Formula):
+    """Arithmetic negation."""
+
+    arg: Formula
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.arg,)
+
+
+@dataclass(frozen=True, slots=True)
+class BinOp(Formula):
+    """Boolean connective, relation or arithmetic operator (see *_OPS)."""
+
+    op: str
+    left: Formula
+    right: Formula
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.left, self.right)
+
+
+@dataclass(frozen=True, slots=True)
+class Past(Formula):
+    """Unary temporal operator.
+
+    op is Y, Z, H or O.  For H and O, ``lo``/``hi`` bound the distance in ticks
+    into the past (``hi is None``: unbounded).  Y and Z have lo = hi = None.
+    """
+
+    op: str
+    arg: Formula
+    lo: int | None = None
+    hi: int | None = None
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.arg,)
+
+
+@dataclass(frozen=True, slots=True)
+class Since(Formula):
+    """``left S[lo,hi] right`` (op 'S') or its dual trigger ``left T right`` (op 'T')."""
+
+    op: str
+    left: Formula
+    right: Formula
+    lo: int | None = None
+    hi: int | None = None
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.left, self.right)
+
+
+TRUE = Const(True)
+FALSE = Const(False)
+FTP = Past("Z", FALSE)
+
+
+# ---------------------------------------------------------------- constructors
+# Small smart constructors used by the formalizer; they fold constants so that
+# generated formulas stay readable, and never change the meaning.
+
+
+def not_(a: Formula) -> Formula:
+    if isinstance(a, Const) and isinstance(a.value, bool):
+        return Const(not a.value)
+    return Not(a)
+
+
+def and_(*args: Formula) -> Formula:
+    out: Formula | None = None
+    for a in args:
+        if a == TRUE:
+            continue
+        if a == FALSE:
+            return FALSE
+        out = a if out is None else BinOp("&", out, a)
+    return TRUE if out is None else out
+
+
+def or_(*args: Formula) -> Formula:
+    out: Formula | None = None
+    for a in args:
+        if a == FALSE:
+            continue
+        if a == TRUE:
+            return TRUE
+        out = a if out is None else BinOp("|", out, a)
+    return FALSE if out is None else out
+
+
+def implies(a: Formula, b: Formula) -> Formula:
+    if a == TRUE:
+        return b
+    if a == FALSE or b == TRUE:
+        return TRUE
+    return BinOp("->", a, b)
+
+
+def Y(a: Formula) -> Formula:  # noqa: N802 - named after the operator
+    return Past("Y", a)
+
+
+def Z(a: Formula) -> Formula:  # noqa: N802
+    return Past("Z", a)
+
+
+def H(a: Formula, lo: int | None = None, hi: int | None = None) -> Formula:  # noqa: N802
+    return Past("H", a, lo, hi)
+
+
+def O(a: Formula, lo: int | None = None, hi: int | None = None) -> Formula:  # noqa: N802, E743
+    return Past("O", a, lo, hi)
+
+
+def S(a: Formula, b: Formula, lo: int | None = None, hi: int | None = None) -> Formula:  # noqa: N802
+    return Since("S", a, b, lo, hi)
+
+
+# ---------------------------------------------------------------- traversal
+
+
+def subterms(f: Formula) -> list[Formula]:
+    """All distinct subterms, children before parents (a topological order)."""
+    seen: dict[Formula, None] = {}
+
+    def visit(g: Formula) -> None:
+        if g in seen:
+            return
+        for c in g.children():
+            visit(c)
+        seen[g] = None
+
+    visit(f)
+    return list(seen)
+
+
+def variables(f: Formula) -> list[str]:
+    """Variable names in order of first appearance."""
+    return list(dict.fromkeys(g.name for g in subterms(f) if isinstance(g, Var)))
+
+
+def max_bound(f: Formula) -> int:
+    """Largest finite time bound in the formula (0 when there is none)."""
+    best = 0
+    for g in subterms(f):
+        for b in (getattr(g, "lo", None), getattr(g, "hi", None)):
+            if isinstance(b, int):
+                best = max(best, b)
+    return best
+
+
+def is_temporal(f: Formula) -> bool:
+    return any(isinstance(g, Past | Since) for g in subterms(f))
+
+
+# ---------------------------------------------------------------- printer
+
+
+def _bounds(lo: int | None, hi: int | None) -> str:
+    if hi is None and (lo is None or lo == 0):
+        return ""
+    return f"[{lo or 0},{'inf' if hi is None else hi}]"
+
+
+def _const(v: bool | int | float) -> str:
+    if isinstance(v, bool):
+        return "TRUE" if v else "FALSE"
+    return repr(v)
+
+
+def to_fret(f: Formula) -> str:
+    """Print in FRET's past-time syntax, fully parenthesized like FRET does."""
+    match f:
+        case Const(v):
+            return _const(v)
+        case Var(n):
+            return n
+        case Not(a):
+            return f"(! {to_fret(a)})"
+        case Neg(a):
+            return f"(- {to_fret(a)})"
+        case BinOp(op, a, b):
+            return f"({to_fret(a)} {op} {to_fret(b)})"
+        case Past(op, a, lo, hi):
+            return f"({op}{_bounds(lo, hi)} {to_fret(a)})"
+        case Since(op, a, b, lo, hi):
+            return f"({to_fret(a)} {op}{_bounds(lo, hi)} {to_fret(b)})"
+    raise TypeError(f"not a formula: {f!r}")
+
+
+# ---------------------------------------------------------------- parser
+
+_GRAMMAR = r"""
+?start: impl
+?impl: equiv | equiv ("->" | "=>") impl        -> implies
+?equiv: disj | equiv ("<->" | "<=>") disj      -> iff
+?disj: xor_ | disj "|" xor_                    -> or_
+?xor_: conj | xor_ "xor" conj                  -> xor
+?conj: since | conj "&" since                  -> and_
+?since: rel | since SINCE_OP bounds? rel       -> since
+?rel: sum | sum REL_OP sum                     -> rel
+?sum: prod | sum ADD_OP prod                   -> arith
+?prod: power | prod MUL_OP power               -> arith
+?power: unary | unary "^" power                -> pow
+?unary: atom
+      | "!" unary                              -> not_
+      | "-" unary                              -> neg
+      | PAST_OP bounds? unary                  -> past
+bounds: "[" INT "," (INT | "inf") "]"
+      | "[" CMP_BOUND "]"                      -> fret_bad_bounds
+?atom: "(" impl ")"
+     | "TRUE"                                  -> true
+     | "FALSE"                                 -> false
+     | "FTP"                                   -> ftp
+     | NUMBER                                  -> number
+     | NAME                                    -> var
+SINCE_OP.2: /[ST](?![A-Za-z0-9_])/
+PAST_OP.2: /[YZHO](?![A-Za-z0-9_])/
+REL_OP: "<=" | ">=" | "!=" | "=" | "<" | ">"
+ADD_OP: "+" | "-"
+MUL_OP: "*" | "/" | /mod(?![A-Za-z0-9_])/
+CMP_BOUND: /[<=>]+[^\]]*/
+NAME: /(?!(TRUE|FALSE|FTP|mod|xor|inf)(?![A-Za-z0-9_]))[A-Za-z_][A-Za-z0-9_]*/
+NUMBER: /\d+(\.\d+)?([eE][+-]?\d+)?/
+INT: /-?\d+/
+%import common.WS
+%ignore WS
+"""
+
+
+class FormulaSyntaxError(ValueError):
+    """A formula string that is not in FRET's past-time syntax."""
+
+
+class _Build(Transformer):
+    def implies(self, a: list) -> Formula:
+        return BinOp("->", a[0], a[1])
+
+    def iff(self, a: list) -> Formula:
+        return BinOp("<->", a[0], a[1])
+
+    def or_(self, a: list) -> Formula:
+        return BinOp("|", a[0], a[1])
+
+    def xor(self, a: list) -> Formula:
+        return BinOp("xor", a[0], a[1])
+
+    def and_(self, a: list) -> Formula:
+        return BinOp("&", a[0], a[1])
+
+    def since(self, a: list) -> Formula:
+        if len(a) == 4:
+            (lo, hi) = a[2]
+            if hi is not None and hi < lo:
+                return TRUE if str(a[1]) == "T" else FALSE
+            return Since(str(a[1]), a[0], a[3], lo, hi)
+        return Since(str(a[1]), a[0], a[2])
+
+    def rel(self, a: list) -> Formula:
+        return BinOp(str(a[1]), a[0], a[2])
+
+    def arith(self, a: list) -> Formula:
+        return BinOp(str(a[1]), a[0], a[2])
+
+    def pow(self, a: list) -> Formula:
+        return BinOp("^", a[0], a[1])
+
+    def not_(self, a: list) -> Formula:
+        return Not(a[0])
+
+    def neg(self, a: list) -> Formula:
+        if isinstance(a[0], Const) and not isinstance(a[0].value, bool):
+            return Const(-a[0].value)
+        return Neg(a[0])
+
+    def past(self, a: list) -> Formula:
+        op = str(a[0])
+        if len(a) == 3:
+            lo, hi = a[1]
+            if op in ("Y", "Z"):
+                raise FormulaSyntaxError(f"{op} takes no time bounds")
+            if hi is not None and hi < lo:  # empty window: FRET prints O[0,-1] for 'within 0'
+                return TRUE if op == "H" else FALSE
+            return Past(op, a[2], lo, hi)
+        return Past(op, a[1])
+
+    def bounds(self, a: list) -> tuple[int, int | None]:
+        lo = int(a[0])
+        hi = int(a[1]) if len(a) > 1 else None
+        if lo < 0:
+            raise FormulaSyntaxError(f"malformed time bounds [{lo},{hi}]")
+        return lo, hi
+
+    def fret_bad_bounds(self, a: list) -> tuple[int, int]:
+        raise FormulaSyntaxError(
+            f"malformed time bounds [{a[0]}] (FRET writes these for non-integer durations)"
+        )
+
+    def true(self, _: list) -> Formula:
+        return TRUE
+
+    def false(self, _: list) -> Formula:
+        return FALSE
+
+    def ftp(self, _: list) -> Formula:
+        return FTP
+
+    def number(self, a: list) -> Formula:
+        text = str(a[0])
+        if any(c in text for c in ".eE"):
+            return Const(float(text))
+        return Const(int(text))
+
+    def var(self, a: list[Token]) -> Formula:
+        return Var(str(a[0]))
+
+
+@cache
+def _parser() -> Lark:
+    return Lark(_GRAMMAR, parser="lalr", maybe_placeholders=False)
+
+
+def parse_formula(text: str) -> Formula:
+    """Parse FRET past-time syntax (what FRET prints as ``ptLTL``/``pt``)."""
+    from lark.exceptions import LarkError, VisitError
+
+    try:
+        return _Build().transform(_parser().parse(text))
+    except VisitError as e:
+        if isinstance(e.orig_exc, FormulaSyntaxError):
+            raise e.orig_exc from None
+        raise
+    except LarkError as e:
+        raise FormulaSyntaxError(str(e).splitlines()[0]) from None
