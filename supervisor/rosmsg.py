@@ -1,0 +1,114 @@
+"""ROS 2 message types by name, and dotted field paths into them.
+
+Used by ``check`` (an unknown type or field is a config error, not a run-time
+crash) and by the node (to read a field and to build a message from a mapping).
+Only rosidl's generated Python classes are needed, so this imports no rclpy.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from monitors.errors import UserError
+
+INT_TYPES = {
+    "int8",
+    "int16",
+    "int32",
+    "int64",
+    "uint8",
+    "uint16",
+    "uint32",
+    "uint64",
+    "byte",
+    "octet",
+    "char",
+}
+REAL_TYPES = {"float", "double", "float32", "float64"}
+# Which ROS leaf field types may feed which monitor variable type.
+COMPATIBLE = {
+    "bool": {"boolean"},
+    "int64": INT_TYPES,
+    "double": REAL_TYPES | INT_TYPES,
+}
+
+
+def message_class(name: str) -> type:
+    """'std_msgs/msg/Int64' (also 'std_msgs/Int64', 'std_msgs::msg::Int64') -> class."""
+    parts = [p for p in name.replace("::", "/").split("/") if p]
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    if len(parts) != 3 or parts[1] not in ("msg", "srv", "action"):
+        raise UserError(
+            f"'{name}' is not a ROS 2 message type", hint="write it as package/msg/Name"
+        )
+    pkg, kind, cls = parts
+    try:
+        module = importlib.import_module(f"{pkg}.{kind}")
+    except ImportError:
+        raise UserError(
+            f"ROS 2 package '{pkg}' is not installed (message type '{name}')",
+            hint=f"install ros-jazzy-{pkg.replace('_', '-')}",
+        ) from None
+    klass = getattr(module, cls, None)
+    if klass is None or not hasattr(klass, "get_fields_and_field_types"):
+        raise UserError(f"package '{pkg}' has no message '{cls}'")
+    return klass
+
+
+def field_type(msg_class: type, path: str) -> str:
+    """The ROS type name of a dotted field path ('linear.x' -> 'double')."""
+    klass: Any = msg_class
+    parts = path.split(".")
+    for i, part in enumerate(parts):
+        fields = klass.get_fields_and_field_types()
+        if part not in fields:
+            known = ", ".join(fields) or "none"
+            raise UserError(f"message {klass.__name__} has no field '{part}' (fields: {known})")
+        t = fields[part]
+        if i == len(parts) - 1:
+            return t
+        if "/" not in t or t.startswith("sequence") or "[" in t:
+            raise UserError(f"field '{'.'.join(parts[: i + 1])}' is {t}, not a message with fields")
+        klass = message_class(t)
+    raise AssertionError("unreachable")
+
+
+def check_field(msg_name: str, path: str, var_type: str) -> str:
+    """Validate that msg_name.path exists and can feed a variable of var_type."""
+    leaf = field_type(message_class(msg_name), path)
+    if leaf not in COMPATIBLE[var_type]:
+        raise UserError(
+            f"field '{path}' of {msg_name} is {leaf}, which cannot feed a {var_type} variable"
+        )
+    return leaf
+
+
+def get_field(msg: Any, path: str) -> Any:
+    for part in path.split("."):
+        msg = getattr(msg, part)
+    return msg
+
+
+def build_message(msg_class: type, value: Any, where: str = "value") -> Any:
+    """A message instance from a nested mapping ({linear: {x: 0.0}})."""
+    msg = msg_class()
+    if value is None:
+        return msg
+    if not isinstance(value, dict):
+        raise UserError(f"{where} must be a mapping of field names, e.g. {{data: true}}")
+    fields = msg_class.get_fields_and_field_types()
+    for key, v in value.items():
+        if key not in fields:
+            raise UserError(
+                f"{where}: message {msg_class.__name__} has no field '{key}' (fields: {', '.join(fields)})"
+            )
+        t = fields[key]
+        if isinstance(v, dict):
+            v = build_message(message_class(t), v, f"{where}.{key}")
+        try:
+            setattr(msg, key, v)
+        except (AssertionError, TypeError, ValueError) as e:
+            raise UserError(f"{where}.{key}: {v!r} is not a valid {t} ({e})") from None
+    return msg

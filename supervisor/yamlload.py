@@ -1,0 +1,115 @@
+"""YAML loading that remembers where every value came from.
+
+Safety engineers edit the config by hand; every error must point at a line.
+Mappings load as LineDict (with ``.line`` and ``.key_line(k)``) and sequences
+as LineList (with ``.line`` and ``.item_line(i)``); duplicate keys are errors
+(PyYAML silently keeps the last one, which would hide a typo'd requirement).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from monitors.errors import UserError
+
+
+class LineDict(dict):
+    line: int = 0
+    file: str = ""
+    _key_lines: dict[str, int]
+
+    def key_line(self, key: str) -> int:
+        return self._key_lines.get(key, self.line)
+
+
+class LineList(list):
+    line: int = 0
+    file: str = ""
+    _item_lines: list[int]
+
+    def item_line(self, i: int) -> int:
+        return self._item_lines[i] if i < len(self._item_lines) else self.line
+
+
+class LineStr(str):
+    line: int = 0
+    col: int = 0
+    file: str = ""
+
+
+def _make_loader(file: str) -> type[yaml.SafeLoader]:
+    class Loader(yaml.SafeLoader):
+        pass
+
+    def construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> LineDict:
+        out = LineDict()
+        out.line = node.start_mark.line + 1
+        out.file = file
+        out._key_lines = {}
+        loader.flatten_mapping(node)
+        for key_node, value_node in node.value:
+            key = loader.construct_object(key_node, deep=True)
+            if not isinstance(key, str | int | float | bool) or key is None:
+                raise UserError(
+                    "mapping keys must be plain names", file=file, line=key_node.start_mark.line + 1
+                )
+            key = str(key)
+            if key in out:
+                raise UserError(
+                    f"duplicate key '{key}' (first at line {out._key_lines[key]})",
+                    file=file,
+                    line=key_node.start_mark.line + 1,
+                )
+            out[key] = loader.construct_object(value_node, deep=True)
+            out._key_lines[key] = key_node.start_mark.line + 1
+        return out
+
+    def construct_sequence(loader: yaml.SafeLoader, node: yaml.SequenceNode) -> LineList:
+        out = LineList(loader.construct_object(n, deep=True) for n in node.value)
+        out.line = node.start_mark.line + 1
+        out.file = file
+        out._item_lines = [n.start_mark.line + 1 for n in node.value]
+        return out
+
+    def construct_str(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> LineStr:
+        s = LineStr(loader.construct_scalar(node))
+        s.line = node.start_mark.line + 1
+        # Plain scalars start where the text starts; quoted ones one column later.
+        s.col = node.start_mark.column + 1 + (1 if node.style in ("'", '"') else 0)
+        s.file = file
+        return s
+
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, construct_mapping)
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, construct_sequence)
+    Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SCALAR_TAG, construct_str)
+    return Loader
+
+
+def load_yaml(path: Path | str, text: str | None = None) -> Any:
+    """Parse a YAML file; syntax errors become UserError at the offending line."""
+    file = str(path)
+    if text is None:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as e:
+            raise UserError(f"cannot read: {e.strerror}", file=file) from None
+        except UnicodeDecodeError:
+            raise UserError("not UTF-8 text", file=file) from None
+    try:
+        return yaml.load(text, Loader=_make_loader(file))  # noqa: S506 - SafeLoader subclass
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        line = mark.line + 1 if mark else None
+        col = mark.column + 1 if mark else None
+        raise UserError(
+            f"invalid YAML: {e.problem or e.context}", file=file, line=line, col=col
+        ) from None
+    except yaml.YAMLError as e:
+        raise UserError(f"invalid YAML: {e}", file=file) from None
+
+
+def line_of(value: object, default: int | None = None) -> int | None:
+    return getattr(value, "line", None) or default
