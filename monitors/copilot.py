@@ -1,0 +1,584 @@
+"""Copilot backend (``--backend copilot``): a MonitorSpec as a NASA Copilot spec.
+
+Emits a Haskell program in the style of NASA OGMA (``extern`` streams for the
+inputs, internal variables as bindings, one ``trigger "handler<ID>" (not phi) []``
+per requirement, ``compileWith``), runs it with GHC to get Copilot's C99
+(``<name>.c``, ``<name>.h``, ``<name>_types.h``), and builds and loads that C
+through the same cffi path as the native backend.
+
+Value semantics follow the reference interpreter (monitors/interpret.py):
+- int64 ``+ - *`` and unary ``-`` are computed in Word64 and cast back, so they
+  wrap instead of hitting C's signed-overflow undefined behaviour;
+- Copilot's ``div``/``mod`` compile to C's ``/`` and ``%`` (truncation, sign of
+  the dividend) and trap on zero and on INT64_MIN / -1: both are guarded with
+  ``mux`` to give the interpreter's 0 / wrapped results;
+- real ``/`` is IEEE, real ``^`` is C's pow(), as in the native backend.
+
+Where Copilot cannot match the interpreter (UserError or documented here):
+- real ``mod`` (C fmod): Copilot 3.13 has no fmod and no double-to-int cast,
+  so it is rejected with a UserError;
+- relations between an int64 and a double convert the int to double (as C
+  does); the interpreter compares exactly, which differs for |x| > 2^53;
+- real ``^`` edge cases where Python's math.pow raises (e.g. 0.0 ^ -1.0) follow
+  C's pow(), like the native backend.
+
+Temporal operators are our own streams, not Copilot.Library.PTLTL: Copilot
+3.13's library ``since`` holds at tick 0 when its second argument never held,
+which is not the standard past-time since.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .errors import UserError
+from .formula import (
+    ARITH_OPS,
+    BOOL_OPS,
+    REL_OPS,
+    BinOp,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    to_fret,
+)
+from .spec import MonitorSpec, c_name
+
+if TYPE_CHECKING:
+    from .load import LoadedMonitor
+
+INSTALL_HINT = (
+    "install GHC and Copilot with: sudo apt-get install ghc libghc-copilot-dev (about 1 GB)"
+)
+COPILOT_PACKAGE = "copilot-c99"
+# How GHC runs the generated program.  runghc (GHC's bytecode interpreter) is
+# faster than `ghc -O0` + link for these one-shot programs (measured: ~0.5 s vs
+# ~3 s for the sRobot spec), so it is the default.
+DEFAULT_RUNNER = "runghc"
+
+_ERR = "copilot"  # UserError 'file' for problems of the backend itself
+
+# Names the Copilot 3.13 code generator uses for its own C symbols; an input
+# with one of these names would clash in the generated C.
+_COPILOT_INTERNAL = re.compile(r"^(s\d+(_idx|_get|_gen)?|.*_cpy|.*_guard|.*_arg\d+)$")
+
+_PRELUDE = """\
+-- Helpers: the standard past-time operators as plain Copilot streams.
+
+-- Y p and Z p: p at the previous tick (false, resp. true, at tick 0).
+prev, wprev :: Stream Bool -> Stream Bool
+prev p = [False] ++ p
+wprev p = [True] ++ p
+
+-- H p and O p.
+hist, once :: Stream Bool -> Stream Bool
+hist p = h where h = p && ([True] ++ h)
+once p = o where o = p || ([False] ++ o)
+
+-- a S b (standard since: false until b has held; Language.Copilot's own `since`
+-- is not) and its dual a T b.
+sinceStd, trig :: Stream Bool -> Stream Bool -> Stream Bool
+sinceStd a b = s where s = b || (a && ([False] ++ s))
+trig a b = t where t = b && (a || ([True] ++ t))
+
+-- p delayed by k ticks, `fill` before tick k (a Copilot buffer of k values).
+delayed :: Bool -> P.Int -> Stream Bool -> Stream Bool
+delayed fill k p = if k P.== 0 then p else P.replicate k fill ++ p
+
+-- Ticks since p last held, saturating at cap (cap also means "never").
+age :: Int64 -> Stream Bool -> Stream Int64
+age cap p = n
+  where
+    n = mux p 0 (mux (before >= constant cap) (constant cap) (before + 1))
+    before = [cap] ++ n
+
+-- Consecutive ticks, up to and including now, at which a held; saturates at cap.
+runLen :: Int64 -> Stream Bool -> Stream Int64
+runLen cap a = n
+  where
+    n = mux a (mux (before >= constant cap) (constant cap) (before + 1)) 0
+    before = [0] ++ n
+
+-- O[l,l+w] p: p held between l and l+w ticks ago.
+onceIn :: P.Int -> Int64 -> Stream Bool -> Stream Bool
+onceIn l w p = age (w + 1) (delayed False l p) <= constant w
+
+-- H[l,l+w] p.
+histIn :: P.Int -> Int64 -> Stream Bool -> Stream Bool
+histIn l w p = not (onceIn l w (not p))
+
+-- O[l,inf] p and H[l,inf] p.
+onceFrom, histFrom :: P.Int -> Stream Bool -> Stream Bool
+onceFrom l p = delayed False l (once p)
+histFrom l p = delayed True l (hist p)
+
+-- a S[l,l+w] b: the latest b at least l ticks ago is at most l+w ticks ago,
+-- and a held at every tick after it.
+sinceIn :: P.Int -> Int64 -> Stream Bool -> Stream Bool -> Stream Bool
+sinceIn l w a b = (c <= constant w) && ((constant l64 + c) <= runLen (l64 + w) a)
+  where
+    c = age (w + 1) (delayed False l b)
+    l64 = P.fromIntegral l
+
+-- a S[l,inf] b: a held for the last l ticks and (a S b) held l ticks ago.
+sinceFrom :: P.Int -> Stream Bool -> Stream Bool -> Stream Bool
+sinceFrom l a b = (runLen l64 a >= constant l64) && delayed False l (sinceStd a b)
+  where
+    l64 = P.fromIntegral l
+
+-- a T[..] b = not ((not a) S[..] (not b)).
+trigIn :: P.Int -> Int64 -> Stream Bool -> Stream Bool -> Stream Bool
+trigIn l w a b = not (sinceIn l w (not a) (not b))
+
+trigFrom :: P.Int -> Stream Bool -> Stream Bool -> Stream Bool
+trigFrom l a b = not (sinceFrom l (not a) (not b))
+
+-- int64 arithmetic wraps like the reference interpreter: computed in Word64,
+-- since signed overflow is undefined behaviour in C.
+w64 :: Stream Int64 -> Stream Word64
+w64 = unsafeCast
+
+i64 :: Stream Word64 -> Stream Int64
+i64 = unsafeCast
+
+addW, subW, mulW :: Stream Int64 -> Stream Int64 -> Stream Int64
+addW a b = i64 (w64 a + w64 b)
+subW a b = i64 (w64 a - w64 b)
+mulW a b = i64 (w64 a * w64 b)
+
+negW :: Stream Int64 -> Stream Int64
+negW a = i64 (0 - w64 a)
+
+-- Copilot's div/mod are C's / and % (truncating); guard the trapping cases:
+-- x / 0 = x mod 0 = 0, INT64_MIN / -1 wraps, x mod -1 = 0.
+divW, modW :: Stream Int64 -> Stream Int64 -> Stream Int64
+divW a b = mux (b == 0) 0 (mux (b == (-1)) (negW a) (a `div` b))
+modW a b = mux ((b == 0) || (b == (-1))) 0 (a `mod` b)
+
+-- Integer power with a constant exponent: repeated wrapping multiplication.
+powW :: Stream Int64 -> P.Int -> Stream Int64
+powW _ 0 = 1
+powW a k = mulW a (powW a (k P.- 1))
+
+toD :: Stream Int64 -> Stream Double
+toD = unsafeCast
+"""
+
+_HS_TYPES = {"bool": "Bool", "int64": "Int64", "double": "Double"}
+
+
+def _hs_string(s: str) -> str:
+    """A Haskell string literal (escapes are Haskell's, not Python's)."""
+    out = []
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif 32 <= ord(ch) < 127:
+            out.append(ch)
+        else:
+            out.append(f"\\{ord(ch)}\\&")
+    return '"' + "".join(out) + '"'
+
+
+@dataclass
+class _Gen:
+    spec: MonitorSpec
+    env: dict[str, str] = field(default_factory=dict)  # formula name -> type
+    names: dict[str, str] = field(default_factory=dict)  # formula name -> Haskell binding
+    temporal: dict[Formula, str] = field(default_factory=dict)  # shared temporal streams
+    bindings: list[str] = field(default_factory=list)
+    types: dict[Formula, str] = field(default_factory=dict)
+
+    # ------------------------------------------------------------- typing
+    def type_of(self, f: Formula) -> str:
+        t = self.types.get(f)
+        if t is None:
+            t = self._type_of(f)
+            self.types[f] = t
+        return t
+
+    def _type_of(self, f: Formula) -> str:
+        match f:
+            case Const(v):
+                if isinstance(v, bool):
+                    return "bool"
+                return "int64" if isinstance(v, int) else "double"
+            case Var(name):
+                if name not in self.env:
+                    raise UserError(f"unknown variable '{name}'", file=_ERR)
+                return self.env[name]
+            case Not() | Past() | Since():
+                for c in f.children():
+                    self._expect_bool(c, f)
+                return "bool"
+            case Neg(a):
+                t = self.type_of(a)
+                if t == "bool":
+                    raise UserError(f"unary '-' needs a number in {to_fret(f)}", file=_ERR)
+                return t
+            case BinOp(op, a, b) if op in BOOL_OPS:
+                self._expect_bool(a, f)
+                self._expect_bool(b, f)
+                return "bool"
+            case BinOp(op, a, b) if op in REL_OPS:
+                ta, tb = self.type_of(a), self.type_of(b)
+                if (ta == "bool") != (tb == "bool") or (ta == "bool" and op not in ("=", "!=")):
+                    raise UserError(f"ill-typed relation {to_fret(f)}", file=_ERR)
+                return "bool"
+            case BinOp(op, a, b) if op in ARITH_OPS:
+                ta, tb = self.type_of(a), self.type_of(b)
+                if "bool" in (ta, tb):
+                    raise UserError(f"'{op}' needs numbers in {to_fret(f)}", file=_ERR)
+                return "double" if "double" in (ta, tb) else "int64"
+        raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
+
+    def _expect_bool(self, c: Formula, parent: Formula) -> None:
+        if self.type_of(c) != "bool":
+            raise UserError(f"{to_fret(c)} is not boolean in {to_fret(parent)}", file=_ERR)
+
+    # ------------------------------------------------------------- expressions
+    def expr(self, f: Formula, want: str | None = None) -> str:
+        """Haskell for f; ``want='double'`` converts an int64 term."""
+        t = self.type_of(f)
+        code = self._expr(f)
+        if want == "double" and t == "int64":
+            return f"(toD {code})"
+        return code
+
+    def _expr(self, f: Formula) -> str:
+        match f:
+            case Const(v) if isinstance(v, bool):
+                return "true" if v else "false"
+            case Const(v) if isinstance(v, int):
+                if not -(2**63) <= v < 2**63:
+                    raise UserError(f"integer constant {v} does not fit in int64", file=_ERR)
+                return f"(constant ({v} :: Int64))"
+            case Const(v):
+                if not math.isfinite(v):
+                    raise UserError(f"real constant {v} is not finite", file=_ERR)
+                return f"(constant ({float(v)!r} :: Double))"
+            case Var(name):
+                return self.names[name]
+            case Not(a):
+                return f"(not {self.expr(a)})"
+            case Neg(a):
+                fn = "negW" if self.type_of(a) == "int64" else "negate"
+                return f"({fn} {self.expr(a)})"
+            case BinOp(op, a, b) if op in BOOL_OPS:
+                x, y = self.expr(a), self.expr(b)
+                hs = {"&": "&&", "|": "||", "xor": "`xor`", "->": "==>", "<->": "=="}[op]
+                return f"({x} {hs} {y})"
+            case BinOp(op, a, b) if op in REL_OPS:
+                want = "double" if "double" in (self.type_of(a), self.type_of(b)) else None
+                x, y = self.expr(a, want), self.expr(b, want)
+                hs = {"=": "==", "!=": "/="}.get(op, op)
+                return f"({x} {hs} {y})"
+            case BinOp(op, a, b) if op in ARITH_OPS:
+                return self._arith(f, op, a, b)
+            case Past() | Since():
+                return self._temporal(f)
+        raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
+
+    def _arith(self, f: Formula, op: str, a: Formula, b: Formula) -> str:
+        if self.type_of(f) == "double":
+            if op == "mod":
+                raise UserError(
+                    f"the Copilot backend cannot compute real 'mod' in {to_fret(f)}: "
+                    "Copilot 3.13 has no fmod",
+                    file=_ERR,
+                    hint="use the native backend (--backend c99) or integer operands",
+                )
+            x, y = self.expr(a, "double"), self.expr(b, "double")
+            hs = {"+": "+", "-": "-", "*": "*", "/": "/", "^": "**"}[op]
+            return f"({x} {hs} {y})"
+        x = self.expr(a)
+        if op == "^":
+            if not (isinstance(b, Const) and isinstance(b.value, int) and 0 <= b.value <= 63):
+                raise UserError(
+                    f"integer power needs a constant exponent from 0 to 63 in {to_fret(f)}",
+                    file=_ERR,
+                )
+            return f"(powW {x} {b.value})"
+        fn = {"+": "addW", "-": "subW", "*": "mulW", "/": "divW", "mod": "modW"}[op]
+        return f"({fn} {x} {self.expr(b)})"
+
+    def _temporal(self, f: Formula) -> str:
+        """Temporal subterms become top-level bindings, shared by every requirement."""
+        name = self.temporal.get(f)
+        if name is not None:
+            return name
+        match f:
+            case Past(op, a, lo, hi):
+                body = self._past(op, self.expr(a), lo or 0, hi)
+            case Since(op, a, b, lo, hi):
+                body = self._since(op, self.expr(a), self.expr(b), lo or 0, hi)
+            case _:
+                raise AssertionError(f)
+        name = f"t{len(self.temporal)}"
+        self.temporal[f] = name
+        self.bindings.append(f"-- {to_fret(f)}\n{name} :: Stream Bool\n{name} = {body}\n")
+        return name
+
+    @staticmethod
+    def _past(op: str, x: str, lo: int, hi: int | None) -> str:
+        if op == "Y":
+            return f"prev {x}"
+        if op == "Z":
+            return f"wprev {x}"
+        if hi is not None and hi < lo:  # empty window
+            return "true" if op == "H" else "false"
+        fn = {"H": ("hist", "histFrom", "histIn"), "O": ("once", "onceFrom", "onceIn")}[op]
+        if hi is None:
+            return f"{fn[0]} {x}" if lo == 0 else f"{fn[1]} {lo} {x}"
+        return f"{fn[2]} {lo} {hi - lo} {x}"
+
+    @staticmethod
+    def _since(op: str, x: str, y: str, lo: int, hi: int | None) -> str:
+        if hi is not None and hi < lo:
+            return "true" if op == "T" else "false"
+        fn = {"S": ("sinceStd", "sinceFrom", "sinceIn"), "T": ("trig", "trigFrom", "trigIn")}[op]
+        if hi is None:
+            return f"{fn[0]} {x} {y}" if lo == 0 else f"{fn[1]} {lo} {x} {y}"
+        return f"{fn[2]} {lo} {hi - lo} {x} {y}"
+
+
+def output_name(spec: MonitorSpec) -> str:
+    """Base name of the generated files: <name>.c, <name>.h, <name>_types.h."""
+    return c_name(spec.prefix) if spec.prefix else "monitor"
+
+
+def generate_haskell(spec: MonitorSpec, out_dir: Path | None = None) -> str:
+    """The Copilot spec for ``spec`` as a Haskell program.  When run, it writes
+    the C files into ``out_dir`` (default: the current directory)."""
+    g = _Gen(spec)
+    c_names: dict[str, str] = {}
+    for kind, name, typ in [("input", v.name, v.type) for v in spec.inputs] + [
+        ("internal variable", d.name, d.type) for d in spec.defines
+    ]:
+        if typ not in _HS_TYPES:
+            raise UserError(f"{kind} '{name}' has unsupported type '{typ}'", file=_ERR)
+        cn = c_name(name)
+        if cn in c_names:
+            raise UserError(
+                f"{kind} '{name}' and '{c_names[cn]}' have the same C name '{cn}'", file=_ERR
+            )
+        if kind == "input" and (_COPILOT_INTERNAL.match(cn) or cn == spec.step_name):
+            raise UserError(
+                f"input '{name}' clashes with a name Copilot uses in its generated C",
+                file=_ERR,
+                hint="rename the variable or use the native backend",
+            )
+        c_names[cn] = name
+        g.env[name] = typ
+        g.names[name] = ("in_" if kind == "input" else "def_") + cn
+
+    lines = [
+        f"-- Copilot spec for component {spec.component!r}, generated by safety-supervisor.",
+        "module Main (main) where",
+        "",
+        "import Copilot.Compile.C99",
+        "import Language.Copilot",
+        "import qualified Prelude as P",
+        "",
+        "-- Inputs: globals defined by the host, read at each step.",
+    ]
+    for v in spec.inputs:
+        hs = _HS_TYPES[v.type]
+        n = g.names[v.name]
+        lines += [f"{n} :: Stream {hs}", f"{n} = extern {_hs_string(c_name(v.name))} Nothing", ""]
+    if spec.defines:
+        lines.append("-- Internal variables.")
+    for d in spec.defines:
+        if g.type_of(d.expr) != d.type and not (
+            d.type == "double" and g.type_of(d.expr) == "int64"
+        ):
+            raise UserError(
+                f"internal variable '{d.name}' is declared {d.type} but "
+                f"{to_fret(d.expr)} is {g.type_of(d.expr)}",
+                file=_ERR,
+            )
+        n = g.names[d.name]
+        lines += [f"{n} :: Stream {_HS_TYPES[d.type]}", f"{n} = {g.expr(d.expr, d.type)}", ""]
+
+    triggers = []
+    handlers: set[str] = set()
+    for req in spec.requirements:
+        if g.type_of(req.formula) != "bool":
+            raise UserError(f"requirement {req.id} is not a boolean condition", file=_ERR)
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", req.handler) or req.handler in handlers:
+            raise UserError(
+                f"requirement id '{req.id}' does not give a unique C handler name", file=_ERR
+            )
+        handlers.add(req.handler)
+        triggers.append(
+            f"  -- {req.id}: {to_fret(req.formula)}\n"
+            f"  trigger {_hs_string(req.handler)} (not {g.expr(req.formula)}) []"
+        )
+
+    if g.bindings:
+        lines.append("-- Temporal subformulas.")
+        lines += g.bindings
+    lines += ["spec :: Spec", "spec = do"] + (triggers or ["  P.return ()"]) + [""]
+    settings = ["mkDefaultCSettings"]
+    fields = []
+    if spec.prefix:
+        fields.append(f"cSettingsStepFunctionName = {_hs_string(spec.step_name)}")
+    if out_dir is not None:
+        fields.append(f"cSettingsOutputDirectory = {_hs_string(str(out_dir))}")
+    if fields:
+        settings = ["(mkDefaultCSettings { " + ", ".join(fields) + " })"]
+    lines += [
+        "main :: IO ()",
+        "main = do",
+        "  s <- reify spec",
+        f"  compileWith {settings[0]} {_hs_string(output_name(spec))} s",
+        "",
+        _PRELUDE,
+    ]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ running GHC
+
+
+def _tool(name: str) -> str | None:
+    return shutil.which(name)
+
+
+def copilot_available() -> bool:
+    """True when ghc and the Copilot C99 library are installed."""
+    return _missing() is None
+
+
+def _missing() -> str | None:
+    """Why Copilot cannot be used, or None."""
+    ghc = _tool("ghc")
+    if ghc is None:
+        return "GHC (the Haskell compiler) is not installed: 'ghc' is not on PATH"
+    # ghc-pkg sits next to ghc; it answers in milliseconds (ghc -e takes ~0.3 s).
+    pkg = shutil.which("ghc-pkg", path=os.path.dirname(ghc)) or _tool("ghc-pkg")
+    if pkg is None:
+        return "'ghc-pkg' is not found next to ghc, so Copilot cannot be located"
+    r = subprocess.run(
+        [pkg, "list", "--simple-output", COPILOT_PACKAGE],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if r.returncode != 0 or not r.stdout.strip():
+        return "the NASA Copilot library (copilot-c99) is not installed for GHC"
+    return None
+
+
+def require_copilot() -> None:
+    why = _missing()
+    if why is not None:
+        raise UserError(
+            f"--backend copilot needs NASA Copilot 3.x: {why}", file=_ERR, hint=INSTALL_HINT
+        )
+
+
+def _ghc_error(stderr: str) -> str:
+    """GHC's or Copilot's failure as one readable line."""
+    text = stderr.strip()
+    m = re.search(
+        r"^\S*:(\d+):(\d+)(?:-\d+)?: error:\s*(.*?)(?=^\S*:\d+:\d+|\Z)", text, re.M | re.S
+    )
+    if m:
+        body = " ".join(part.strip(" •") for part in m.group(3).splitlines() if part.strip())
+        body = re.sub(r"\s+", " ", body.split(" | ")[0])
+        return f"line {m.group(1)}:{m.group(2)} of the generated Copilot spec: {body[:300]}"
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return " ".join(lines)[:300] if lines else "no error message"
+
+
+@dataclass
+class CopilotRun:
+    c_files: list[Path]
+    seconds: float
+
+
+def compile_copilot(
+    spec: MonitorSpec, out_dir: Path, *, runner: str = DEFAULT_RUNNER, timeout: float = 600
+) -> list[Path]:
+    """Generate the Copilot spec, run it with GHC and return the generated C
+    files (``<name>.c``, ``<name>.h``, ``<name>_types.h``) in ``out_dir``.  The
+    Haskell spec is kept next to them as ``<name>.hs``."""
+    return run_copilot(spec, out_dir, runner=runner, timeout=timeout).c_files
+
+
+def run_copilot(
+    spec: MonitorSpec, out_dir: Path, *, runner: str = DEFAULT_RUNNER, timeout: float = 600
+) -> CopilotRun:
+    """compile_copilot, also reporting how long GHC took."""
+    require_copilot()
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    name = output_name(spec)
+    source = generate_haskell(spec, out_dir)
+    (out_dir / f"{name}.hs").write_text(source)
+    with tempfile.TemporaryDirectory(prefix="copilot-") as tmp:
+        hs = Path(tmp) / "Spec.hs"
+        hs.write_text(source)
+        if runner == "runghc":
+            cmds = [["runghc", str(hs)]]
+        elif runner == "ghc":
+            exe = Path(tmp) / "spec"
+            cmds = [
+                ["ghc", "-O0", "-v0", "-outputdir", tmp, "-o", str(exe), str(hs)],
+                [str(exe)],
+            ]
+        else:
+            raise ValueError(f"unknown runner {runner!r}")
+        start = time.perf_counter()
+        for cmd in cmds:
+            try:
+                r = subprocess.run(
+                    cmd, cwd=tmp, capture_output=True, text=True, timeout=timeout, check=False
+                )
+            except subprocess.TimeoutExpired:
+                raise UserError(
+                    f"GHC did not finish the Copilot spec within {timeout:.0f} s", file=_ERR
+                ) from None
+            except FileNotFoundError:
+                require_copilot()
+                raise
+            if r.returncode != 0:
+                raise UserError(f"Copilot failed: {_ghc_error(r.stderr)}", file=_ERR)
+        seconds = time.perf_counter() - start
+    files = [out_dir / f"{name}.c", out_dir / f"{name}.h", out_dir / f"{name}_types.h"]
+    for f in files:
+        if not f.exists():
+            raise UserError(f"Copilot did not produce {f.name}", file=_ERR)
+    return CopilotRun(files, seconds)
+
+
+def build_copilot_monitor(spec: MonitorSpec, out_dir: Path) -> LoadedMonitor:
+    """Compile ``spec`` with Copilot, build the C like the native backend and load it."""
+    from .build import build_library
+    from .load import load_monitor
+
+    out_dir = Path(out_dir)
+    c_files = compile_copilot(spec, out_dir / "copilot")
+    lib = build_library(
+        spec,
+        [f for f in c_files if f.suffix == ".c"],
+        c_files[0].parent,
+        out_dir,
+        reset=False,
+        reset_each=False,
+    )
+    return load_monitor(lib, spec)
