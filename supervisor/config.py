@@ -117,6 +117,7 @@ class RequirementEntry:
     assumption: bool = False
     fret_ptltl: str | None = None  # from a FRET export: FRET's own formula, cross-checked
     id_line: int | None = None
+    on_violation_line: int | None = None
 
 
 @dataclass
@@ -441,7 +442,7 @@ def load_config(path: str | Path) -> Config:
                 raise UserError(
                     f"requirement '{r.id}' names undefined mitigation '{name}'",
                     file=r.file,
-                    line=r.id_line or r.line,
+                    line=r.on_violation_line or r.id_line or r.line,
                     hint=_suggest(name, mitigations),
                 )
     if step.policy == "on_trigger":
@@ -696,6 +697,7 @@ def _load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
             entry.fret_ptltl = None if existing is None else entry.fret_ptltl
         entry.id_line = item.key_line("id")
         entry.rationale = str(item.get("rationale") or "")
+        entry.on_violation_line = item.key_line("on_violation") if "on_violation" in item else entry.id_line
         if "on_violation" in item or existing is None:
             entry.on_violation = _names(
                 item.get("on_violation", defaults.get("on_violation")), item, "on_violation"
