@@ -1,18 +1,241 @@
-"""Command line: ``safety-supervisor COMMAND``."""
+"""Command line: ``safety-supervisor COMMAND`` (also ``python -m supervisor``).
+
+Exit codes (CONTRACT.md): 0 success; 1 the input was understood and something
+is wrong with it; 2 usage error.  User errors print as ``FILE:LINE: message``;
+an unexpected internal error prints one line naming it (plus where to report),
+never a raw traceback unless SAFETY_SUPERVISOR_DEBUG=1.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from monitors.errors import UserError
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+
+
+def _out(text: str = "") -> None:
+    print(text, flush=True)
+
+
+def _err(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+# ------------------------------------------------------------------ formalize
+
+
+def cmd_formalize(args: argparse.Namespace) -> int:
+    from monitors.formalize import formalize
+    from monitors.formula import to_fret
+    from monitors.parse import parse_requirement
+
+    if args.text:
+        items = [(t, "<arg>", 1) for t in args.text]
+    else:
+        items = [(line.rstrip("\n"), "<stdin>", i) for i, line in enumerate(sys.stdin, 1)]
+        items = [it for it in items if it[0].strip() and not it[0].lstrip().startswith("#")]
+    status = EXIT_OK
+    for text, file, line in items:
+        try:
+            req = parse_requirement(text, file=file, line=line)
+            form = formalize(req, period_ms=args.period_ms, file=file, line=line)
+            formula, error = to_fret(form.formula), None
+        except UserError as e:
+            formula, error = None, str(e)
+            status = EXIT_FAIL
+        if args.json:
+            _out(json.dumps({"text": text, "formula": formula, "error": error}))
+        elif error:
+            _err(error)
+        else:
+            _out(formula or "")
+    return status
+
+
+# ------------------------------------------------------------------ explain
+
+
+def cmd_explain(args: argparse.Namespace) -> int:
+    from monitors.formalize import describe
+    from monitors.formula import to_fret, variables
+
+    from .config import load_config
+    from .pipeline import build_project
+
+    project = build_project(load_config(args.config), ros=False)
+    wanted = set(args.requirements or [])
+    unknown = wanted - {r.id for r in project.requirements}
+    if unknown:
+        project.config.requirement(sorted(unknown)[0])  # raises with the list of ids
+    status = EXIT_OK
+    for r in project.requirements:
+        if wanted and r.id not in wanted:
+            continue
+        _out(f"{r.id}")
+        _out(f"  text:      {r.entry.text}")
+        if r.entry.rationale:
+            _out(f"  rationale: {r.entry.rationale}")
+        if r.error or r.parsed is None or r.formalization is None:
+            _out(f"  error:     {r.error}")
+            status = EXIT_FAIL
+            _out()
+            continue
+        _out(f"  formula:   {to_fret(r.formula)}")
+        _out(f"  reading:   {describe(r.parsed, project.config.step.period_ms)}")
+        names = variables(r.formula)
+        expanded = []
+        for n in names:
+            v = project.config.variables.get(n)
+            if v is not None and v.define_text:
+                expanded.append(f"{n} (= {v.define_text})")
+            elif v is not None:
+                expanded.append(f"{n} ({v.type}, {v.topic})")
+            else:
+                expanded.append(n)
+        _out(f"  reads:     {', '.join(expanded)}")
+        _out(f"  handler:   handler{r.id}")
+        kind = "assumption (constrains inputs)" if r.entry.assumption else "guarantee"
+        _out(f"  role:      {kind}")
+        if r.formalization.note:
+            _out(f"  note:      {r.formalization.note}")
+        if r.entry.on_violation:
+            _out(f"  on violation: {', '.join(r.entry.on_violation)}")
+        _out()
+    return status
+
+
+# ------------------------------------------------------------------ check / compile
+
+
+def _print_project(project: object) -> int:
+    from monitors.formula import to_fret
+
+    from .pipeline import Project
+
+    assert isinstance(project, Project)
+    width = max((len(r.id) for r in project.requirements), default=2)
+    for r in project.requirements:
+        if r.ok:
+            mono = "" if r.formalization is None or r.formalization.monotone else "  [non-monotone]"
+            _out(f"ok    {r.id:<{width}}  {to_fret(r.formula)}{mono}")
+            for w in r.warnings:
+                _out(f"      {'':<{width}}  warning: {w}")
+        else:
+            _out(f"FAIL  {r.id:<{width}}  {r.error}")
+    for e in project.errors:
+        _out(f"error {e}")
+    for w in project.warnings:
+        _out(f"warning: {w}")
+    return sum(1 for r in project.requirements if not r.ok) + len(project.errors)
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from .config import load_config
+    from .pipeline import build_project, compile_project
+
+    t0 = time.perf_counter()
+    cfg = load_config(args.config)
+    project = build_project(cfg)
+    failures = _print_project(project)
+    n = len(project.requirements)
+    if failures:
+        _out(
+            f"{args.config}: {n} requirements, {n - sum(1 for r in project.requirements if not r.ok)} ok; "
+            f"{failures} error(s); monitor not compiled"
+        )
+        return EXIT_FAIL
+    with tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp:
+        compile_project(project, Path(tmp), backend="native")
+    dt = time.perf_counter() - t0
+    _out(f"{args.config}: {n} requirements ok, monitor compiled and loaded ({dt:.2f} s)")
+    return EXIT_OK
+
+
+def cmd_compile(args: argparse.Namespace) -> int:
+    from .config import load_config
+    from .pipeline import build_project, compile_project
+
+    project = build_project(load_config(args.config))
+    if not project.ok:
+        _print_project(project)
+        err = project.first_error()
+        _err(f"{args.config}: not compiled: {err}")
+        return EXIT_FAIL
+    out = Path(args.output)
+    manifest = compile_project(project, out, backend=args.backend)
+    _out(
+        f"wrote {out}/monitor.c, monitor.h, {manifest['library']} and manifest.json "
+        f"({len(manifest['requirements'])} requirements, backend {args.backend})"
+    )
+    return EXIT_OK
+
+
+# ------------------------------------------------------------------ main
+
+COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "formalize": cmd_formalize,
+    "explain": cmd_explain,
+    "check": cmd_check,
+    "compile": cmd_compile,
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="safety-supervisor", description=__doc__)
-    p.add_subparsers(dest="command", required=True)
+    p = argparse.ArgumentParser(
+        prog="safety-supervisor",
+        description="Runtime-verification safety supervisor for ROS 2 robots.",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    f = sub.add_parser("formalize", help="FRETISH sentences to past-time formulas (FRET syntax)")
+    f.add_argument("text", nargs="*", help="sentences; one per line on stdin when none are given")
+    f.add_argument(
+        "--json", action="store_true", help='one {"text","formula","error"} object per line'
+    )
+    f.add_argument(
+        "--period-ms", type=float, default=None, help="tick length for durations in time units"
+    )
+
+    e = sub.add_parser(
+        "explain", help="text, formula, reading, variables and handler of each requirement"
+    )
+    e.add_argument("config")
+    e.add_argument("requirements", nargs="*", metavar="REQ")
+
+    c = sub.add_parser("check", help="validate config and requirements, compile the monitor")
+    c.add_argument("config")
+
+    k = sub.add_parser("compile", help="write monitor.c/.h, the shared library and manifest.json")
+    k.add_argument("config")
+    k.add_argument("-o", "--output", required=True, metavar="DIR")
+    k.add_argument("--backend", choices=("native", "copilot"), default="native")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    print(f"safety-supervisor: '{args.command}' is not available yet", file=sys.stderr)
-    return 2
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except UserError as e:
+        _err(str(e))
+        return EXIT_FAIL
+    except KeyboardInterrupt:
+        return 130
+    except Exception as e:  # noqa: BLE001 - last line of defence: no raw tracebacks for users
+        if os.environ.get("SAFETY_SUPERVISOR_DEBUG"):
+            raise
+        _err(
+            f"safety-supervisor: internal error: {type(e).__name__}: {e} "
+            "(set SAFETY_SUPERVISOR_DEBUG=1 for the traceback and report it)"
+        )
+        return 3

@@ -1,0 +1,296 @@
+"""Config -> requirements -> formulas -> MonitorSpec (and on to C).
+
+One place that runs the stages in order for ``check``, ``explain``,
+``compile`` and ``run``.  Errors are collected per requirement so ``check``
+can print one status line each instead of stopping at the first.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from monitors.errors import UserError
+from monitors.formalize import Formalization, formalize
+from monitors.formula import Formula, FormulaSyntaxError, parse_formula, variables
+from monitors.interpret import verdicts
+from monitors.parse import Requirement, parse_requirement
+from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl, expand_defines
+from monitors.typecheck import check_bool, type_of
+
+from .config import Config, RequirementEntry, Variable
+from .rosmsg import check_field
+
+
+@dataclass
+class CompiledRequirement:
+    entry: RequirementEntry
+    parsed: Requirement | None = None
+    formalization: Formalization | None = None
+    error: UserError | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def id(self) -> str:
+        return self.entry.id
+
+    @property
+    def formula(self) -> Formula:
+        assert self.formalization is not None
+        return self.formalization.formula
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+@dataclass
+class Project:
+    config: Config
+    requirements: list[CompiledRequirement]
+    errors: list[UserError]  # config-level errors found after loading (types, topics, unused names)
+    warnings: list[str]
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors and all(r.ok for r in self.requirements)
+
+    def spec(self) -> MonitorSpec:
+        """The monitor for every requirement that compiled."""
+        cfg = self.config
+        return MonitorSpec(
+            component=cfg.component,
+            inputs=tuple(VarDecl(v.name, v.type) for v in cfg.inputs),
+            defines=tuple(
+                Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None
+            ),
+            requirements=tuple(RequirementSpec(r.id, r.formula) for r in self.requirements if r.ok),
+            prefix=cfg.step.prefix,
+        )
+
+    def first_error(self) -> UserError | None:
+        if self.errors:
+            return self.errors[0]
+        return next((r.error for r in self.requirements if r.error), None)
+
+
+def _env(cfg: Config) -> dict[str, str]:
+    return {v.name: v.type for v in cfg.variables.values()}
+
+
+def _located(e: UserError, file: str, line: int | None) -> UserError:
+    if e.line is None and line is not None:
+        e.line = line
+    if e.file in ("<input>", ""):
+        e.file = file
+    return e
+
+
+def compile_requirement(
+    entry: RequirementEntry, cfg: Config, env: dict[str, str]
+) -> CompiledRequirement:
+    out = CompiledRequirement(entry)
+    try:
+        req = parse_requirement(entry.text, file=entry.file, line=entry.line or 1, col=entry.col)
+        out.parsed = req
+        if req.component != cfg.component:
+            raise UserError(
+                f"requirement '{entry.id}' names component '{req.component}', but the config is for '{cfg.component}'",
+                file=entry.file,
+                line=entry.line,
+                hint=f"write '{cfg.component} shall ...' or change 'component:'",
+            )
+        form = formalize(req, period_ms=cfg.step.period_ms, file=entry.file, line=entry.line)
+        for name in variables(form.formula):
+            if name not in env:
+                raise UserError(
+                    f"requirement '{entry.id}' uses undeclared variable '{name}'",
+                    file=entry.file,
+                    line=entry.line,
+                    hint=_suggest_var(name, env),
+                )
+        try:
+            check_bool(form.formula, env)
+        except UserError as e:
+            raise _located(e, entry.file, entry.line) from None
+        out.formalization = form
+        if form.note:
+            out.warnings.append(form.note)
+        if entry.fret_ptltl:
+            out.warnings.extend(_cross_check_fret(entry, form.formula, cfg))
+    except UserError as e:
+        out.error = _located(e, entry.file, entry.line)
+    return out
+
+
+def _suggest_var(name: str, env: dict[str, str]) -> str | None:
+    import difflib
+
+    close = difflib.get_close_matches(name, list(env), n=1)
+    return f"did you mean '{close[0]}'?" if close else "declare it under 'variables:'"
+
+
+def _cross_check_fret(entry: RequirementEntry, ours: Formula, cfg: Config) -> list[str]:
+    """FRET's export carries its own ptLTL: report if our formalization differs on
+    random traces (it should not; a difference means one of the two is wrong)."""
+    try:
+        theirs = parse_formula(entry.fret_ptltl or "")
+    except FormulaSyntaxError as e:
+        return [f"FRET's ptLTL for '{entry.id}' could not be parsed ({e}); using our formalization"]
+    defines = tuple(Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None)
+    a, b = expand_defines(ours, defines), expand_defines(theirs, defines)
+    names = sorted(set(variables(a)) | set(variables(b)))
+    if any(n not in cfg.variables for n in names):
+        return [f"FRET's ptLTL for '{entry.id}' mentions unknown variables; not cross-checked"]
+    rng = random.Random(entry.id)
+    for _ in range(200):
+        n = rng.randint(1, 20)
+        trace = [{n_: _random_value(cfg.variables[n_], rng) for n_ in names} for _ in range(n)]
+        if verdicts(a, trace) != verdicts(b, trace):
+            return [
+                f"our formalization of '{entry.id}' differs from FRET's exported ptLTL on a {n}-tick trace"
+            ]
+    return []
+
+
+def _random_value(v: Variable, rng: random.Random) -> bool | int | float:
+    if v.type == "bool":
+        return rng.random() < 0.5
+    lo, hi = v.range or (-2, 12)
+    x = rng.uniform(lo - 1, hi + 1)
+    return round(x) if v.type == "int64" else x
+
+
+def check_variables(
+    cfg: Config, reqs: list[CompiledRequirement], *, ros: bool = True
+) -> tuple[list[UserError], list[str]]:
+    """Type-check defines, check message types and fields, find unused variables."""
+    errors: list[UserError] = []
+    warnings: list[str] = []
+    env = _env(cfg)
+    for v in cfg.defines:
+        try:
+            assert v.define is not None
+            for name in variables(v.define):
+                if name not in env:
+                    raise UserError(
+                        f"define of '{v.name}' uses undeclared variable '{name}'",
+                        hint=_suggest_var(name, env),
+                    )
+                if cfg.variables[name].define is not None:
+                    raise UserError(
+                        f"define of '{v.name}' uses internal variable '{name}'; write it in terms of inputs"
+                    )
+            t = type_of(v.define, env)
+            if t != v.type and not (v.type == "double" and t == "int64"):
+                raise UserError(f"'{v.name}' is declared {v.type} but its define is {t}")
+        except UserError as e:
+            errors.append(_located(e, cfg.path, v.line))
+    if ros:
+        for v in cfg.inputs:
+            try:
+                assert v.msg is not None
+                check_field(v.msg, v.field, v.type)
+            except UserError as e:
+                e.message = f"variable '{v.name}': {e.message}"
+                errors.append(_located(e, cfg.path, v.line))
+    used: set[str] = set()
+    for r in reqs:
+        if r.formalization is not None:
+            used.update(variables(r.formalization.formula))
+    for v in cfg.defines:
+        if v.name in used and v.define is not None:
+            used.update(variables(v.define))
+    if cfg.step.trigger:
+        used.add(cfg.step.trigger)
+    if all(r.ok for r in reqs):  # unused is only meaningful when every requirement was read
+        for v in cfg.variables.values():
+            if v.name not in used:
+                errors.append(
+                    UserError(
+                        f"variable '{v.name}' is declared but no requirement uses it",
+                        file=cfg.path,
+                        line=v.line,
+                        hint="remove it, or it may be a typo in a requirement",
+                    )
+                )
+    return errors, warnings
+
+
+def build_project(cfg: Config, *, ros: bool = True) -> Project:
+    env = _env(cfg)
+    reqs = [compile_requirement(e, cfg, env) for e in cfg.requirements]
+    errors, warnings = check_variables(cfg, reqs, ros=ros)
+    return Project(cfg, reqs, errors, warnings)
+
+
+def project_for(path: str | Path, *, ros: bool = True) -> Project:
+    from .config import load_config
+
+    return build_project(load_config(path), ros=ros)
+
+
+def compile_project(project: Project, out_dir: Path, *, backend: str = "native") -> dict:
+    """Write the C sources, build the library, load it once (proves it links), and
+    write manifest.json.  Returns the manifest."""
+    import json
+
+    from monitors.build import build_library
+    from monitors.c99 import write_c
+    from monitors.load import load_monitor
+    from monitors.spec import c_name
+
+    spec = project.spec()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if backend == "copilot":
+        from monitors.copilot import compile_copilot
+
+        c_files = compile_copilot(spec, out_dir)
+        lib = build_library(spec, c_files, out_dir, out_dir, reset=False, reset_each=False)
+    elif backend == "native":
+        c_path, h_path = write_c(spec, out_dir)
+        lib = build_library(spec, [c_path], out_dir, out_dir, reset=True, reset_each=True)
+    else:
+        raise UserError(f"unknown backend '{backend}' (native or copilot)")
+    load_monitor(lib, spec)  # fail here, at compile time, if it does not load
+    cfg = project.config
+    manifest = {
+        "component": cfg.component,
+        "config": cfg.path,
+        "config_sha256": cfg.sha256,
+        "backend": backend,
+        "library": lib.name,
+        "step_function": spec.step_name,
+        "reset_function": spec.reset_name if backend == "native" else None,
+        "inputs": [
+            {
+                "name": v.name,
+                "c_name": c_name(v.name),
+                "type": v.type,
+                "topic": v.topic,
+                "msg": v.msg,
+                "field": v.field,
+            }
+            for v in cfg.inputs
+        ],
+        "defines": [
+            {"name": v.name, "c_name": c_name(v.name), "type": v.type, "define": v.define_text}
+            for v in cfg.defines
+        ],
+        "requirements": [
+            {
+                "id": r.id,
+                "text": r.entry.text,
+                "formula": str(r.formula),
+                "variables": variables(r.formula),
+                "handler": f"handler{r.id}",
+                "monotone": r.formalization.monotone if r.formalization else None,
+                "on_violation": r.entry.on_violation,
+            }
+            for r in project.requirements
+            if r.ok
+        ],
+    }
+    (out_dir / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest
