@@ -19,6 +19,9 @@ from pathlib import Path
 
 from monitors.errors import UserError
 
+from .logs import add_parser as add_logs_parser
+from .logs import cmd_logs
+
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 
 
@@ -186,6 +189,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "explain": cmd_explain,
     "check": cmd_check,
     "compile": cmd_compile,
+    "logs": cmd_logs,
 }
 
 
@@ -218,6 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("config")
     k.add_argument("-o", "--output", required=True, metavar="DIR")
     k.add_argument("--backend", choices=("native", "copilot"), default="native")
+    add_logs_parser(sub)
     return p
 
 
