@@ -1,0 +1,327 @@
+"""FRETISH parser: every phrasing, FRET's error examples, error positions."""
+
+from __future__ import annotations
+
+import json
+import re
+from fractions import Fraction
+from pathlib import Path
+
+import pytest
+
+from monitors.errors import UserError
+from monitors.formula import FTP, BinOp, Const, Neg, Not, Past, Since, Var, parse_formula
+from monitors.parse import Duration, parse_requirement
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "fret-examples.jsonl"
+ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
+# FRET rejects these; we accept them on purpose (see monitors/parse.py's docstring).
+EXTENSIONS = {"condform_always_00", "condform_always_03", "condform_11"}
+ERRORS = [d for d in ALL if not d["ok"] and d["id"] not in EXTENSIONS]
+LOCATED = re.compile(r"^<input>:1:\d+: \S.*$")
+
+
+def P(text: str, **kw):  # noqa: N802
+    return parse_requirement(text, **kw)
+
+
+def err(text: str, **kw) -> UserError:
+    with pytest.raises(UserError) as e:
+        parse_requirement(text, **kw)
+    return e.value
+
+
+# ---------------------------------------------------------------- FRET's examples
+
+
+@pytest.mark.parametrize("ex", [d for d in ALL if d["ok"]], ids=lambda d: d["id"])
+def test_every_fret_ok_example_parses(ex):
+    if ex["id"] == "err_negative_duration":
+        pytest.skip("refused on purpose, tested below")
+    req = P(ex["fretish"])
+    assert req.scope is None or req.scope.kind == ex["scope_type"]
+    assert (req.condition.kind if req.condition else "null") == ex["condition"]
+    assert req.timing.kind == ex["timing"]
+
+
+@pytest.mark.parametrize("ex", ERRORS, ids=lambda d: d["id"])
+def test_every_fret_error_example_is_rejected_in_one_line(ex):
+    e = err(ex["fretish"])
+    text = str(e)
+    assert "\n" not in text and "Traceback" not in text
+    assert LOCATED.match(text), text
+
+
+def test_negative_duration_is_rejected():
+    e = err("sw shall within -3 ticks satisfy q")
+    assert "negative duration" in e.message and e.col == 17
+
+
+@pytest.mark.parametrize("id_", sorted(EXTENSIONS))
+def test_documented_extension_lowercase_is_true_false(id_):
+    ex = next(d for d in ALL if d["id"] == id_)
+    req = P(ex["fretish"])
+    expr = req.condition.expr
+    # `upon p is true` is p; `unless p is false` is p; `whenever a is false` is !a
+    assert expr in (Var("p"), Not(Var("a")))
+
+
+# ---------------------------------------------------------------- scopes
+
+SCOPE_PHRASES = [
+    ("in M", "in"),
+    ("in mode M", "in"),
+    ("in M mode", "in"),
+    ("during M", "in"),
+    ("when in M", "in"),
+    ("if in M", "in"),
+    ("when in mode M", "in"),
+    ("not in M", "notin"),
+    ("unless in M", "notin"),
+    ("except in M", "notin"),
+    ("except during M", "notin"),
+    ("except if in M", "notin"),
+    ("except when in mode M", "notin"),
+    ("when not in M", "notin"),
+    ("if not in M mode", "notin"),
+    ("only in M", "onlyIn"),
+    ("only during M", "onlyIn"),
+    ("only if in M", "onlyIn"),
+    ("only when in mode M", "onlyIn"),
+    ("after M", "after"),
+    ("after mode M", "after"),
+    ("before M", "before"),
+    ("before M mode", "before"),
+    ("only after M", "onlyAfter"),
+    ("only before mode M", "onlyBefore"),
+    ("In Mode M,", "in"),
+]
+
+
+@pytest.mark.parametrize(("phrase", "kind"), SCOPE_PHRASES)
+def test_scope_phrases(phrase, kind):
+    req = P(f"{phrase} sw shall always satisfy q")
+    assert req.scope is not None and req.scope.kind == kind
+    assert req.scope.mode == Var("M")
+
+
+@pytest.mark.parametrize(
+    ("phrase", "kind"), [("while", "in"), ("except while", "notin"), ("only while", "onlyIn")]
+)
+def test_while_takes_a_condition(phrase, kind):
+    req = P(f"{phrase} speed > 2 & armed sw shall always satisfy q")
+    assert req.scope.kind == kind
+    assert req.scope.mode == BinOp("&", BinOp(">", Var("speed"), Const(2)), Var("armed"))
+
+
+@pytest.mark.parametrize("mode", ["beforehand", "hereafter", "afterglow", "onlyone", "inmode"])
+def test_mode_names_containing_scope_words(mode):
+    req = P(f"in mode {mode} sw shall always satisfy q")
+    assert req.scope.kind == "in" and req.scope.mode == Var(mode)
+    req = P(f"after {mode} sw shall always satisfy q")
+    assert req.scope.kind == "after" and req.scope.mode == Var(mode)
+
+
+# ---------------------------------------------------------------- conditions
+
+
+def test_regular_and_holding():
+    assert P("upon p sw shall always satisfy q").condition.kind == "regular"
+    for w in ("when", "if", "where", "upon"):
+        c = P(f"{w} p sw shall always satisfy q").condition
+        assert c.kind == "regular" and c.expr == Var("p")
+    c = P("whenever p sw shall always satisfy q").condition
+    assert c.kind == "holding" and c.expr == Var("p")
+    c = P("unless p sw shall always satisfy q").condition
+    assert c.kind == "regular" and c.expr == Not(Var("p"))
+
+
+def test_qualifiers_combine():
+    c = P("In mode cruise, upon p, the sw shall, within 2 ticks, satisfy q").condition
+    assert c.expr == Var("p")
+    c = P("upon a or when b sw shall always satisfy q").condition
+    assert c.expr == BinOp("|", Var("a"), Var("b")) and c.kind == "regular"
+    c = P("when a, if b sw shall always satisfy q").condition
+    assert c.expr == BinOp("&", Var("a"), Var("b"))
+    c = P("whenever a and when b sw shall always satisfy q").condition
+    assert c.kind == "regular" and c.expr == BinOp("&", Var("a"), Var("b"))
+    c = P("whenever a or whenever b sw shall always satisfy q").condition
+    assert c.kind == "holding"
+    c = P("when a and when b or when c sw shall always satisfy q").condition
+    assert c.expr == BinOp("|", BinOp("&", Var("a"), Var("b")), Var("c"))
+
+
+def test_polarity():
+    assert P("upon p is TRUE sw shall always satisfy q").condition.expr == Var("p")
+    assert P("upon p is FALSE sw shall always satisfy q").condition.expr == Not(Var("p"))
+    assert P("unless p is FALSE sw shall always satisfy q").condition.expr == Var("p")
+    assert P("whenever a is False sw shall always satisfy q").condition.expr == Not(Var("a"))
+
+
+# ---------------------------------------------------------------- component, timing
+
+TIMINGS = [
+    ("immediately", "immediately"),
+    ("initially", "immediately"),
+    ("at the first timepoint", "immediately"),
+    ("at the same timepoint", "immediately"),
+    ("at the next timepoint", "next"),
+    ("eventually", "eventually"),
+    ("always", "always"),
+    ("never", "never"),
+    ("finally", "finally"),
+    ("at the last timepoint", "finally"),
+    ("", "null"),
+]
+
+
+@pytest.mark.parametrize(("phrase", "kind"), TIMINGS)
+def test_timing_words(phrase, kind):
+    assert P(f"the sw shall {phrase} satisfy q").timing.kind == kind
+
+
+UNITS = [
+    ("tick", "tick"),
+    ("ticks", "tick"),
+    ("hour", "hour"),
+    ("hours", "hour"),
+    ("minute", "minute"),
+    ("minutes", "minute"),
+    ("second", "second"),
+    ("seconds", "second"),
+    ("sec", "second"),
+    ("secs", "second"),
+    ("millisecond", "millisecond"),
+    ("milliseconds", "millisecond"),
+    ("millisec", "millisecond"),
+    ("ms", "millisecond"),
+    ("microsecond", "microsecond"),
+    ("microseconds", "microsecond"),
+    ("microsec", "microsecond"),
+    ("microsecs", "microsecond"),
+]
+
+
+@pytest.mark.parametrize(("word", "unit"), UNITS)
+@pytest.mark.parametrize("kind", ["within", "for", "after"])
+def test_durations(word, unit, kind):
+    t = P(f"sw shall {kind} 2.5 {word} satisfy q").timing
+    assert t.kind == kind and t.duration == Duration(Fraction(5, 2), unit)
+
+
+def test_until_before_stop_conditions():
+    t = P("sw shall until stop_cmd | y < 0 satisfy q").timing
+    assert t.kind == "until" and t.stop == BinOp(
+        "|", Var("stop_cmd"), BinOp("<", Var("y"), Const(0))
+    )
+    t = P("sw shall before y < 0 satisfy q").timing
+    assert t.kind == "before" and t.stop == BinOp("<", Var("y"), Const(0))
+
+
+@pytest.mark.parametrize("kind", ["within", "for", "after"])
+def test_duration_without_unit_is_an_error(kind):
+    e = err(f"sw shall {kind} 3 satisfy resp")
+    assert "no time unit" in e.message and e.hint and "ticks" in e.hint
+
+
+def test_component_probability_period():
+    req = P("The left_wheel.controller shall with probability >= 0.9 always satisfy q.")
+    assert req.component == "left_wheel.controller" and req.probability == ">= 0.9"
+    assert req.response == Var("q")
+    e = err("sw shall with probability > 1.5 always satisfy q")
+    assert "probability" in e.message and e.col == 29
+    assert P("sw shall with probability < 0 eventually satisfy q").probability == "< 0"
+
+
+# ---------------------------------------------------------------- expressions
+
+
+def resp(expr: str):
+    return P(f"sw shall always satisfy {expr}").response
+
+
+@pytest.mark.parametrize(
+    ("fretish", "pt"),
+    [
+        ("p & q | r", "(p & q) | r"),
+        ("p | q & r", "p | (q & r)"),
+        ("!p & q", "(! p) & q"),
+        ("~p", "! p"),
+        ("! x > 3", "! (x > 3)"),
+        ("p -> q -> r", "(p -> q) -> r"),
+        ("p => q", "p -> q"),
+        ("p <=> q", "p <-> q"),
+        ("a xor b xor c", "(a xor b) xor c"),
+        ("if p then q", "p -> q"),
+        ("if p then q & r", "p -> (q & r)"),
+        ("x + y * 2 >= 10", "(x + (y * 2)) >= 10"),
+        ("x - y - 1 = 0", "((x - y) - 1) = 0"),
+        ("x-y>0", "(x - y) > 0"),
+        ("x mod 4 = 1", "(x mod 4) = 1"),
+        ("x / 2 != 3", "(x / 2) != 3"),
+        ("x ^ 2 <= 9", "(x ^ 2) <= 9"),
+        ("-x < 3", "(- x) < 3"),
+        ("x > -3", "x > -3"),
+        ("t <= 37.5", "t <= 37.5"),
+        ("a >= 1.5e2", "a >= 1.5e2"),
+        ("TRUE", "TRUE"),
+        ("false | p", "FALSE | p"),
+        ("((((p))))", "p"),
+        ("FTP -> init", "(Z FALSE) -> init"),
+    ],
+)
+def test_expressions(fretish, pt):
+    assert resp(fretish) == parse_formula(pt)
+
+
+def test_dotted_names_keep_the_dot():
+    assert resp("robot.speed > 3") == BinOp(">", Var("robot.speed"), Const(3))
+
+
+def test_temporal_functions():
+    assert resp("persisted(3, hot)") == BinOp(
+        "&", Past("H", Var("hot"), 0, 3), Past("H", Past("Y", Const(True)), 0, 2)
+    )
+    assert resp("occurred(1, 4, f)") == Since("S", Past("Y", Const(True)), Var("f"), 1, 4)
+    assert resp("occurred(4, f)") == Since("S", Past("Y", Const(True)), Var("f"), 0, 4)
+    assert "unknown function" in err("sw shall always satisfy foo(3, x)").message
+    assert "tick count" in err("sw shall always satisfy persisted(x, hot)").message
+    assert resp("-(x)") == Neg(Var("x"))
+    assert resp("FTP") == FTP
+
+
+@pytest.mark.parametrize("word", "O H S Y Z X F G U V T A E abs max min mode next".split())
+def test_reserved_words(word):
+    e = err(f"sw shall always satisfy {word} > 1")
+    assert "reserved" in e.message and word in e.message and e.col == 25
+
+
+# ---------------------------------------------------------------- errors
+
+
+def test_messages():
+    assert err("the sw shall always q").message == "expected 'satisfy' near 'q'"
+    assert err("the sw will always satisfy q").message == "expected 'shall' near 'will'"
+    assert "expected an expression" in err("the sw shall always satisfy").message
+    e = err('"The robot should be safe at all times"')
+    assert e.message == "free-form text is not FRETISH; FRET does not formalize it"
+    e = err("the sw shall satisfy q within 3 ticks")
+    assert "must come before 'satisfy'" in e.message and e.col == 24
+    assert "'@'" in err("sw shall always satisfy p @ q").message
+    assert err("").message == "empty requirement"
+
+
+def test_error_position_in_a_file():
+    # The sentence starts at line 7, column 11 of reqs.yaml; 'q' is its 21st character.
+    e = err("the sw shall always q", file="reqs.yaml", line=7, col=11)
+    assert str(e) == "reqs.yaml:7:31: expected 'satisfy' near 'q'"
+    e = err("sw shall always satisfy O > 3", file="reqs.yaml", line=7, col=11)
+    assert str(e).startswith("reqs.yaml:7:35: 'O' is reserved")
+    # A multi-line sentence: the column is the bad token's column on its own line.
+    e = err("the sw shall always\n  satisfy q r", file="reqs.yaml", line=7, col=11)
+    assert str(e).startswith("reqs.yaml:8:13: ")
+
+
+def test_trailing_period_and_commas():
+    assert P("the sw shall always satisfy q.").response == Var("q")
+    assert P("in mode m, upon p, sw shall, always, satisfy q").timing.kind == "always"
