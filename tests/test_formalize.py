@@ -1,0 +1,295 @@
+"""The formalizer against FRET 3.0's own past-time formulas, and its monotonicity flags.
+
+Equality is semantic: both formulas are evaluated with the reference
+interpreter on random traces and must agree at every tick.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+from fractions import Fraction
+from pathlib import Path
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from monitors.errors import UserError
+from monitors.formalize import describe, formalize, ticks
+from monitors.formula import (
+    ARITH_OPS,
+    REL_OPS,
+    BinOp,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    parse_formula,
+    subterms,
+)
+from monitors.interpret import verdicts
+from monitors.parse import Duration, parse_requirement
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "fret-examples.jsonl"
+ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
+# FRET's formula for 1.5 seconds has malformed bounds; negative durations we refuse.
+NOT_COMPARED = {"unit_after_1.5_seconds", "err_negative_duration"}
+OK = [d for d in ALL if d["ok"] and d["id"] not in NOT_COMPARED]
+UNIT_PERIOD = {  # one unit per tick, so our tick counts equal FRET's numbers
+    "tick": None,
+    "hour": 3_600_000.0,
+    "minute": 60_000.0,
+    "second": 1000.0,
+    "millisecond": 1.0,
+    "microsecond": 0.001,
+}
+
+
+# ---------------------------------------------------------------- traces
+
+
+def rename(f: Formula, fn) -> Formula:
+    match f:
+        case Var(n):
+            return Var(fn(n))
+        case Not(a):
+            return Not(rename(a, fn))
+        case Neg(a):
+            return Neg(rename(a, fn))
+        case BinOp(op, a, b):
+            return BinOp(op, rename(a, fn), rename(b, fn))
+        case Past(op, a, lo, hi):
+            return Past(op, rename(a, fn), lo, hi)
+        case Since(op, a, b, lo, hi):
+            return Since(op, rename(a, fn), rename(b, fn), lo, hi)
+    return f
+
+
+def fret_pt(pt: str) -> Formula:
+    """FRET's formula with its renamed identifiers mapped back (robot_DOT_speed)."""
+    return rename(parse_formula(pt), lambda n: n.replace("_DOT_", "."))
+
+
+def _numeric_vars(fs: list[Formula]) -> set[str]:
+    out: set[str] = set()
+    for f in fs:
+        for g in subterms(f):
+            if isinstance(g, BinOp) and g.op in REL_OPS + ARITH_OPS:
+                out |= {c.name for c in (g.left, g.right) if isinstance(c, Var)}
+            if isinstance(g, Neg) and isinstance(g.arg, Var):
+                out.add(g.arg.name)
+    return out
+
+
+def _domain(fs: list[Formula]) -> list[int | float]:
+    """Small ints plus values around every numeric literal, so relations flip."""
+    dom: set[int | float] = set(range(-2, 13))
+    for f in fs:
+        for g in subterms(f):
+            if isinstance(g, Const) and not isinstance(g.value, bool):
+                c = g.value
+                step = 1 if isinstance(c, int) else 0.5
+                dom |= {c - step, c, c + step}
+    return sorted(dom)
+
+
+def random_traces(*fs: Formula, n: int, rng: random.Random, max_len: int = 40) -> list[list[dict]]:
+    names = sorted({g.name for f in fs for g in subterms(f) if isinstance(g, Var)})
+    numeric = _numeric_vars(list(fs))
+    dom = _domain(list(fs))
+    out = []
+    for _ in range(n):
+        length = rng.randint(1, max_len)
+        cols = {}
+        for v in names:
+            # Per trace and variable: how often it is true and how sticky it is,
+            # so that modes and conditions open and close in runs.
+            stay = rng.choice((0.0, 0.5, 0.8, 0.95))
+            if v in numeric:
+                pool = rng.sample(dom, k=min(len(dom), rng.choice((2, 3, 6))))
+                draw = lambda pool=pool: rng.choice(pool)  # noqa: E731
+            else:
+                p = rng.choice((0.05, 0.2, 0.5, 0.8, 0.95))
+                draw = lambda p=p: rng.random() < p  # noqa: E731
+            col = [draw()]
+            for _ in range(length - 1):
+                col.append(col[-1] if rng.random() < stay else draw())
+            cols[v] = col
+        out.append([{v: cols[v][i] for v in names} for i in range(length)])
+    return out
+
+
+def period_for(req) -> float | None:
+    return UNIT_PERIOD[req.timing.duration.unit] if req.timing.duration else None
+
+
+# ---------------------------------------------------------------- FRET's examples
+
+
+@pytest.mark.parametrize("ex", OK, ids=[d["id"] for d in OK])
+def test_agrees_with_fret(ex):
+    req = parse_requirement(ex["fretish"])
+    ours = formalize(req, period_ms=period_for(req)).formula
+    theirs = fret_pt(ex["pt"])
+    # One evaluation of `ours <-> theirs` shares the common subformulas.
+    both = BinOp("<->", ours, theirs)
+    for trace in random_traces(ours, theirs, n=200, rng=random.Random(ex["id"]), max_len=25):
+        if not all(verdicts(both, trace)):
+            a, b = verdicts(ours, trace), verdicts(theirs, trace)
+            pytest.fail(f"{ex['id']}: ours {a} FRET {b} on {trace}\nours: {ours}")
+
+
+def test_fractional_seconds_need_a_matching_period():
+    req = parse_requirement("upon trigger sw shall after 1.5 seconds satisfy resp")
+    fret_like = "((H ((O[0,3] (trigger & (Z (! trigger)))) -> ((H (! trigger)) | (! resp)))) & (H ((O[4,4] ((trigger & (Z (! trigger))) & (! resp))) -> (O[0,3] ((Z FALSE) | resp)))))"
+    ours = formalize(req, period_ms=500).formula
+    both = BinOp("<->", ours, parse_formula(fret_like))
+    for trace in random_traces(ours, n=100, rng=random.Random(1)):
+        assert all(verdicts(both, trace))
+    with pytest.raises(UserError) as e:
+        formalize(req, period_ms=400, file="reqs.yaml", line=12)
+    assert str(e.value).startswith("reqs.yaml:12: ")
+    suggested = re.findall(r"(\d+(?:\.\d+)?) ms", e.value.hint or "")
+    assert suggested, e.value.hint
+    for p in suggested:  # every period named in the hint really works
+        assert ticks(req.timing.duration, float(p)) * float(p) == 1500
+
+
+def test_units_convert_with_the_period():
+    assert ticks(Duration(Fraction(2), "second"), 100) == 20
+    assert ticks(Duration(Fraction(250), "microsecond"), 0.05) == 5
+    assert ticks(Duration(Fraction(1), "minute"), 10) == 6000
+    assert ticks(Duration(Fraction(7), "tick"), None) == 7
+    req = parse_requirement("upon p sw shall within 2 seconds satisfy q")
+    f20 = formalize(req, period_ms=100).formula
+    assert "O[20,20]" in str(f20) and "O[0,19]" in str(f20)
+
+
+def test_units_without_a_period_are_an_error():
+    req = parse_requirement("sw shall within 2 seconds satisfy q")
+    with pytest.raises(UserError, match="needs the tick length") as e:
+        formalize(req, file="c.yaml", line=3)
+    assert e.value.hint and "period_ms" in e.value.hint
+    formalize(parse_requirement("sw shall within 2 ticks satisfy q"))  # ticks need no period
+
+
+def test_within_zero_ticks_is_fret_s_formula():
+    req = parse_requirement("upon trigger sw shall within 0 ticks satisfy resp")
+    ours = formalize(req).formula
+    both = BinOp(
+        "<->", ours, parse_formula(next(d for d in ALL if d["id"] == "unit_within_0_ticks")["pt"])
+    )
+    for trace in random_traces(ours, n=100, rng=random.Random(0)):
+        assert all(verdicts(both, trace))
+
+
+# ---------------------------------------------------------------- the whole grid
+
+SCOPES = {
+    "null": "",
+    "in": "in mode m ",
+    "notin": "when not in m ",
+    "onlyIn": "only in m mode ",
+    "after": "after m ",
+    "before": "before m ",
+    "onlyAfter": "only after m ",
+    "onlyBefore": "only before mode m ",
+}
+CONDS = {"none": "", "regular": "upon c ", "holding": "whenever c "}
+TIMINGS = {
+    "immediately": "immediately ",
+    "next": "at the next timepoint ",
+    "eventually": "eventually ",
+    "always": "always ",
+    "never": "never ",
+    "within": "within 2 ticks ",
+    "for": "for 2 ticks ",
+    "after": "after 1 tick ",
+    "until": "until s ",
+    "before": "before s ",
+    "finally": "finally ",
+    "null": "",
+}
+GRID = [(s, c, t) for s in SCOPES for c in CONDS for t in TIMINGS]
+
+
+def grid_req(s: str, c: str, t: str):
+    return parse_requirement(f"{SCOPES[s]}{CONDS[c]}sw shall {TIMINGS[t]}satisfy p")
+
+
+@pytest.mark.parametrize("combo", GRID, ids=["-".join(g) for g in GRID])
+def test_grid_parses_and_formalizes(combo):
+    s, c, t = combo
+    req = grid_req(s, c, t)
+    assert (req.scope.kind if req.scope else "null") == s
+    assert (req.condition.kind if req.condition else "none") == c
+    assert req.timing.kind == t
+    f = formalize(req)
+    assert f.monotone == (f.note is None)
+    assert describe(req)
+
+
+def _goes_false_then_true(v: list[bool]) -> bool:
+    return any(not v[i] and v[j] for i in range(len(v)) for j in range(i + 1, len(v)))
+
+
+bits = st.lists(st.booleans(), min_size=1, max_size=12)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.sampled_from([g for g in GRID if formalize(grid_req(*g)).monotone]),
+    st.lists(st.tuples(*[st.booleans()] * 4), min_size=1, max_size=14),
+)
+def test_monotone_once_false_stays_false(combo, rows):
+    f = formalize(grid_req(*combo)).formula
+    trace = [dict(zip("mcsp", r, strict=True)) for r in rows]
+    v = verdicts(f, trace)
+    assert not _goes_false_then_true(v), (combo, trace, v)
+
+
+NON_MONOTONE = [g for g in GRID if not formalize(grid_req(*g)).monotone]
+
+
+@pytest.mark.parametrize("combo", NON_MONOTONE, ids=["-".join(g) for g in NON_MONOTONE])
+def test_non_monotone_has_a_false_then_true_trace(combo):
+    fz = formalize(grid_req(*combo))
+    assert fz.note and fz.note.startswith("non-monotone")
+    rng = random.Random(str(combo))
+    for trace in random_traces(fz.formula, n=3000, rng=rng, max_len=10):
+        if _goes_false_then_true(verdicts(fz.formula, trace)):
+            return
+    pytest.fail(f"no trace shows {combo} going false then true")
+
+
+def test_non_monotone_kinds():
+    flags = {g: formalize(grid_req(*g)).monotone for g in GRID}
+    for s in SCOPES:
+        for c in CONDS:
+            # "only" scopes negate the timing: eventually/none become "always not"
+            # and always/never become "eventually"
+            only = s.startswith("only")
+            assert flags[(s, c, "eventually")] == only
+            assert flags[(s, c, "null")] == only
+            assert flags[(s, c, "always")] == flags[(s, c, "never")] == (not only)
+            assert not flags[(s, c, "finally")]
+            assert flags[(s, c, "within")] and flags[(s, c, "until")]
+    for s in ("onlyIn", "onlyAfter", "onlyBefore"):
+        assert not flags[(s, "regular", "always")] and not flags[(s, "holding", "never")]
+
+
+# ---------------------------------------------------------------- describe
+
+
+def test_describe_mentions_ticks_and_units():
+    req = parse_requirement("in mode cruise upon p the sw shall within 2 seconds satisfy q")
+    text = describe(req, period_ms=100)
+    assert "20 ticks" in text and "2 seconds" in text and "cruise" in text and "p" in text
+    assert "becomes true" in text
+    held = describe(parse_requirement("whenever p sw shall always satisfy q"))
+    assert "every tick at which p holds" in held
