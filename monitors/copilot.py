@@ -146,6 +146,23 @@ trigIn l w a b = not (sinceIn l w (not a) (not b))
 trigFrom :: P.Int -> Stream Bool -> Stream Bool -> Stream Bool
 trigFrom l a b = not (sinceFrom l (not a) (not b))
 
+-- Arithmetic as plain Copilot operator nodes.  Copilot's Num and Integral
+-- instances rewrite constants by rules that are neither C's nor IEEE's
+-- (x * 0 = 0 for doubles, Haskell's flooring `mod` of two constants, a
+-- reify-time error for `div` by a constant 0), so formulas bypass them.
+add2, sub2, mul2 :: (Core.Typed a, P.Num a) => Stream a -> Stream a -> Stream a
+add2 = Op2 (Core.Add Core.typeOf)
+sub2 = Op2 (Core.Sub Core.typeOf)
+mul2 = Op2 (Core.Mul Core.typeOf)
+
+fdiv2, pow2 :: Stream Double -> Stream Double -> Stream Double
+fdiv2 = Op2 (Core.Fdiv Core.typeOf)
+pow2 = Op2 (Core.Pow Core.typeOf)
+
+-- Real negation: -1 * x is exact in IEEE, while Num's default 0 - x loses -0.0.
+negD :: Stream Double -> Stream Double
+negD = mul2 (constant (-1.0))
+
 -- int64 arithmetic wraps like the reference interpreter: computed in Word64,
 -- since signed overflow is undefined behaviour in C.
 w64 :: Stream Int64 -> Stream Word64
@@ -155,26 +172,47 @@ i64 :: Stream Word64 -> Stream Int64
 i64 = unsafeCast
 
 addW, subW, mulW :: Stream Int64 -> Stream Int64 -> Stream Int64
-addW a b = i64 (w64 a + w64 b)
-subW a b = i64 (w64 a - w64 b)
-mulW a b = i64 (w64 a * w64 b)
+addW a b = i64 (add2 (w64 a) (w64 b))
+subW a b = i64 (sub2 (w64 a) (w64 b))
+mulW a b = i64 (mul2 (w64 a) (w64 b))
 
 negW :: Stream Int64 -> Stream Int64
-negW a = i64 (0 - w64 a)
+negW a = i64 (sub2 (constant 0) (w64 a))
 
--- Copilot's div/mod are C's / and % (truncating); guard the trapping cases:
--- x / 0 = x mod 0 = 0, INT64_MIN / -1 wraps, x mod -1 = 0.
+-- C's / and % truncate like the interpreter but trap on zero and on
+-- INT64_MIN / -1: x / 0 = x mod 0 = 0, x / -1 = -x (wrapping), x mod -1 = 0.
 divW, modW :: Stream Int64 -> Stream Int64 -> Stream Int64
-divW a b = mux (b == 0) 0 (mux (b == (-1)) (negW a) (a `div` b))
-modW a b = mux ((b == 0) || (b == (-1))) 0 (a `mod` b)
+divW a b = mux (b == 0) 0 (mux (b == (-1)) (negW a) (Op2 (Core.Div Core.typeOf) a b))
+modW a b = mux ((b == 0) || (b == (-1))) 0 (Op2 (Core.Mod Core.typeOf) a b)
 
 -- Integer power with a constant exponent: repeated wrapping multiplication.
 powW :: Stream Int64 -> P.Int -> Stream Int64
-powW _ 0 = 1
+powW _ 0 = constant 1
 powW a k = mulW a (powW a (k P.- 1))
 
 toD :: Stream Int64 -> Stream Double
 toD = unsafeCast
+
+b2i :: Stream Bool -> Stream Int64
+b2i = cast
+
+-- Real power: C's pow, except where Python's math.pow raises for finite
+-- operands (overflow, 0 to a negative power, ...): inf if a > 0, else NaN.
+powD :: Stream Double -> Stream Double -> Stream Double
+powD a b = mux (finite a && finite b && not (finite r)) (mux (a > 0.0) r (sub2 r r)) r
+  where
+    r = pow2 a b
+    finite x = sub2 x x == 0.0
+
+-- int64 `op` double, exact as Python compares (C would round the int64): when
+-- (double)a /= b the rounded comparison is right, rounding being monotonic;
+-- on a tie b is an integer within 2^10 of a, and with a = q*2^32 + r,
+-- a `op` b  <=>  r `op` (b - q*2^32), where both sides are exact doubles.
+cmpID :: (Stream Double -> Stream Double -> Stream Bool) -> Stream Int64 -> Stream Double -> Stream Bool
+cmpID op a b = mux (toD a == b) (toD r `op` sub2 b (mul2 (toD q) (constant 4294967296.0))) (toD a `op` b)
+  where
+    q = Op2 (Core.Div Core.typeOf) a (constant 4294967296)
+    r = Op2 (Core.Mod Core.typeOf) a (constant 4294967296)
 """
 
 _HS_TYPES = {"bool": "Bool", "int64": "Int64", "double": "Double"}
@@ -198,16 +236,21 @@ class _Gen:
     spec: MonitorSpec
     env: dict[str, str] = field(default_factory=dict)  # formula name -> type
     names: dict[str, str] = field(default_factory=dict)  # formula name -> Haskell binding
-    temporal: dict[Formula, str] = field(default_factory=dict)  # shared temporal streams
+    # Caches are keyed by the printed formula, not the node: dataclass equality
+    # makes Const(1) == Const(1.0) == Const(True), which must not share a type.
+    temporal: dict[str, str] = field(default_factory=dict)  # shared temporal streams
     bindings: list[str] = field(default_factory=list)
-    types: dict[Formula, str] = field(default_factory=dict)
+    types: dict[str, str] = field(default_factory=dict)
 
     # ------------------------------------------------------------- typing
+    # As in the interpreter and the native backend: a bool used as a number is
+    # 0/1 and a number used as a condition is "!= 0"; int64 meets double as double.
     def type_of(self, f: Formula) -> str:
-        t = self.types.get(f)
+        key = to_fret(f)
+        t = self.types.get(key)
         if t is None:
             t = self._type_of(f)
-            self.types[f] = t
+            self.types[key] = t
         return t
 
     def _type_of(self, f: Formula) -> str:
@@ -222,41 +265,32 @@ class _Gen:
                 return self.env[name]
             case Not() | Past() | Since():
                 for c in f.children():
-                    self._expect_bool(c, f)
+                    self.type_of(c)
                 return "bool"
             case Neg(a):
-                t = self.type_of(a)
-                if t == "bool":
-                    raise UserError(f"unary '-' needs a number in {to_fret(f)}", file=_ERR)
-                return t
-            case BinOp(op, a, b) if op in BOOL_OPS:
-                self._expect_bool(a, f)
-                self._expect_bool(b, f)
-                return "bool"
-            case BinOp(op, a, b) if op in REL_OPS:
-                ta, tb = self.type_of(a), self.type_of(b)
-                if (ta == "bool") != (tb == "bool") or (ta == "bool" and op not in ("=", "!=")):
-                    raise UserError(f"ill-typed relation {to_fret(f)}", file=_ERR)
+                return "double" if self.type_of(a) == "double" else "int64"
+            case BinOp(op, a, b) if op in BOOL_OPS or op in REL_OPS:
+                self.type_of(a), self.type_of(b)
                 return "bool"
             case BinOp(op, a, b) if op in ARITH_OPS:
-                ta, tb = self.type_of(a), self.type_of(b)
-                if "bool" in (ta, tb):
-                    raise UserError(f"'{op}' needs numbers in {to_fret(f)}", file=_ERR)
-                return "double" if "double" in (ta, tb) else "int64"
+                return self._num_type(a, b)
         raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
 
-    def _expect_bool(self, c: Formula, parent: Formula) -> None:
-        if self.type_of(c) != "bool":
-            raise UserError(f"{to_fret(c)} is not boolean in {to_fret(parent)}", file=_ERR)
+    def _num_type(self, a: Formula, b: Formula) -> str:
+        return "double" if "double" in (self.type_of(a), self.type_of(b)) else "int64"
 
     # ------------------------------------------------------------- expressions
     def expr(self, f: Formula, want: str | None = None) -> str:
-        """Haskell for f; ``want='double'`` converts an int64 term."""
+        """Haskell for f, converted to type ``want`` when given."""
         t = self.type_of(f)
         code = self._expr(f)
-        if want == "double" and t == "int64":
-            return f"(toD {code})"
-        return code
+        if want is None or want == t:
+            return code
+        if want == "bool":
+            return f"({code} /= {'0.0' if t == 'double' else '0'})"
+        if t == "bool":
+            code = f"(b2i {code})"
+        return f"(toD {code})" if want == "double" else code
 
     def _expr(self, f: Formula) -> str:
         match f:
@@ -267,30 +301,45 @@ class _Gen:
                     raise UserError(f"integer constant {v} does not fit in int64", file=_ERR)
                 return f"(constant ({v} :: Int64))"
             case Const(v):
-                if not math.isfinite(v):
-                    raise UserError(f"real constant {v} is not finite", file=_ERR)
-                return f"(constant ({float(v)!r} :: Double))"
+                v = float(v)
+                if math.isnan(v):
+                    return "(fdiv2 (constant 0.0) (constant 0.0))"
+                if math.isinf(v):  # Copilot would print 'Infinity' into the C
+                    return f"(fdiv2 (constant {'1.0' if v > 0 else '(-1.0)'}) (constant 0.0))"
+                return f"(constant ({v!r} :: Double))"
             case Var(name):
                 return self.names[name]
             case Not(a):
-                return f"(not {self.expr(a)})"
+                return f"(not {self.expr(a, 'bool')})"
             case Neg(a):
-                fn = "negW" if self.type_of(a) == "int64" else "negate"
-                return f"({fn} {self.expr(a)})"
+                if self.type_of(f) == "double":
+                    return f"(negD {self.expr(a)})"
+                return f"(negW {self.expr(a, 'int64')})"
             case BinOp(op, a, b) if op in BOOL_OPS:
-                x, y = self.expr(a), self.expr(b)
+                x, y = self.expr(a, "bool"), self.expr(b, "bool")
                 hs = {"&": "&&", "|": "||", "xor": "`xor`", "->": "==>", "<->": "=="}[op]
                 return f"({x} {hs} {y})"
             case BinOp(op, a, b) if op in REL_OPS:
-                want = "double" if "double" in (self.type_of(a), self.type_of(b)) else None
-                x, y = self.expr(a, want), self.expr(b, want)
-                hs = {"=": "==", "!=": "/="}.get(op, op)
-                return f"({x} {hs} {y})"
+                return self._rel(op, a, b)
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return self._arith(f, op, a, b)
             case Past() | Since():
                 return self._temporal(f)
         raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
+
+    def _rel(self, op: str, a: Formula, b: Formula) -> str:
+        ta, tb = self.type_of(a), self.type_of(b)
+        hs = {"=": "==", "!=": "/="}.get(op, op)
+        if ta == tb == "bool" and op in ("=", "!="):
+            return f"({self.expr(a)} {hs} {self.expr(b)})"
+        if "double" in (ta, tb) and ta != tb:
+            # int64 against double: exact, as Python compares (see cmpID)
+            if ta == "double":
+                hs = {"<": ">", "<=": ">=", ">": "<", ">=": "<="}.get(hs, hs)
+                a, b = b, a
+            return f"(cmpID ({hs}) {self.expr(a, 'int64')} {self.expr(b)})"
+        want = "double" if "double" in (ta, tb) else "int64"
+        return f"({self.expr(a, want)} {hs} {self.expr(b, want)})"
 
     def _arith(self, f: Formula, op: str, a: Formula, b: Formula) -> str:
         if self.type_of(f) == "double":
@@ -302,9 +351,9 @@ class _Gen:
                     hint="use the native backend (--backend c99) or integer operands",
                 )
             x, y = self.expr(a, "double"), self.expr(b, "double")
-            hs = {"+": "+", "-": "-", "*": "*", "/": "/", "^": "**"}[op]
-            return f"({x} {hs} {y})"
-        x = self.expr(a)
+            fn = {"+": "add2", "-": "sub2", "*": "mul2", "/": "fdiv2", "^": "powD"}[op]
+            return f"({fn} {x} {y})"
+        x = self.expr(a, "int64")
         if op == "^":
             if not (isinstance(b, Const) and isinstance(b.value, int) and 0 <= b.value <= 63):
                 raise UserError(
@@ -313,22 +362,24 @@ class _Gen:
                 )
             return f"(powW {x} {b.value})"
         fn = {"+": "addW", "-": "subW", "*": "mulW", "/": "divW", "mod": "modW"}[op]
-        return f"({fn} {x} {self.expr(b)})"
+        return f"({fn} {x} {self.expr(b, 'int64')})"
 
     def _temporal(self, f: Formula) -> str:
         """Temporal subterms become top-level bindings, shared by every requirement."""
-        name = self.temporal.get(f)
+        key = to_fret(f)
+        name = self.temporal.get(key)
         if name is not None:
             return name
         match f:
             case Past(op, a, lo, hi):
-                body = self._past(op, self.expr(a), lo or 0, hi)
+                body = self._past(op, self.expr(a, "bool"), lo or 0, hi)
             case Since(op, a, b, lo, hi):
-                body = self._since(op, self.expr(a), self.expr(b), lo or 0, hi)
+                x, y = self.expr(a, "bool"), self.expr(b, "bool")
+                body = self._since(op, x, y, lo or 0, hi)
             case _:
                 raise AssertionError(f)
         name = f"t{len(self.temporal)}"
-        self.temporal[f] = name
+        self.temporal[key] = name
         self.bindings.append(f"-- {to_fret(f)}\n{name} :: Stream Bool\n{name} = {body}\n")
         return name
 
@@ -389,7 +440,9 @@ def generate_haskell(spec: MonitorSpec, out_dir: Path | None = None) -> str:
         f"-- Copilot spec for component {spec.component!r}, generated by safety-supervisor.",
         "module Main (main) where",
         "",
+        "import qualified Copilot.Core as Core",
         "import Copilot.Compile.C99",
+        "import Copilot.Language.Stream (Stream (Op2))",
         "import Language.Copilot",
         "import qualified Prelude as P",
         "",
@@ -416,16 +469,13 @@ def generate_haskell(spec: MonitorSpec, out_dir: Path | None = None) -> str:
     triggers = []
     handlers: set[str] = set()
     for req in spec.requirements:
-        if g.type_of(req.formula) != "bool":
-            raise UserError(f"requirement {req.id} is not a boolean condition", file=_ERR)
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", req.handler) or req.handler in handlers:
-            raise UserError(
-                f"requirement id '{req.id}' does not give a unique C handler name", file=_ERR
-            )
-        handlers.add(req.handler)
+        handler = c_name(req.handler)  # the host shim's name for it (build.py)
+        if handler in handlers:
+            raise UserError(f"requirement id '{req.id}' repeats C handler {handler}", file=_ERR)
+        handlers.add(handler)
         triggers.append(
             f"  -- {req.id}: {to_fret(req.formula)}\n"
-            f"  trigger {_hs_string(req.handler)} (not {g.expr(req.formula)}) []"
+            f"  trigger {_hs_string(handler)} (not {g.expr(req.formula, 'bool')}) []"
         )
 
     if g.bindings:
@@ -566,19 +616,18 @@ def run_copilot(
     return CopilotRun(files, seconds)
 
 
-def build_copilot_monitor(spec: MonitorSpec, out_dir: Path) -> LoadedMonitor:
-    """Compile ``spec`` with Copilot, build the C like the native backend and load it."""
+def build_copilot_monitor(
+    spec: MonitorSpec, out_dir: Path, *, runner: str = DEFAULT_RUNNER
+) -> LoadedMonitor:
+    """Compile ``spec`` with Copilot (C in ``out_dir/copilot``), build it like the
+    native backend (build.py: hidden symbols, -Bsymbolic, so Copilot's ``step``
+    and ``s0_get`` never meet glibc's or another monitor's) and load it.  Copilot
+    has no reset function: LoadedMonitor.reset() loads a fresh copy."""
     from .build import build_library
     from .load import load_monitor
 
     out_dir = Path(out_dir)
-    c_files = compile_copilot(spec, out_dir / "copilot")
-    lib = build_library(
-        spec,
-        [f for f in c_files if f.suffix == ".c"],
-        c_files[0].parent,
-        out_dir,
-        reset=False,
-        reset_each=False,
-    )
+    c_files = compile_copilot(spec, out_dir / "copilot", runner=runner)
+    sources = [f for f in c_files if f.suffix == ".c"]
+    lib = build_library(spec, sources, c_files[0].parent, out_dir, reset=False, reset_each=False)
     return load_monitor(lib, spec)
