@@ -1,0 +1,137 @@
+"""The ``logs`` command's reading part: table, filters, --summary, on a generated log."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from supervisor.cli import main
+from supervisor.log import ViolationLog
+
+
+def _violation(log: ViolationLog, req: str, tick: int) -> None:
+    log.violation(req, text="t", formula="f", tick=tick, inputs={"x": tick})
+
+
+@pytest.fixture
+def generated(tmp_path: Path) -> tuple[Path, list[dict]]:
+    path = tmp_path / "v.log"
+    with ViolationLog(path, "sRobot", "ab" * 32, echo=False) as log:
+        log.supervisor("start")
+        _violation(log, "A", 1)
+        log.mitigation("A", action="stop", kind="topic", ok=True, latency_ms=1.0)
+        log.mitigation(
+            "A", action="halt", kind="service", ok=False, error="timeout", latency_ms=5.0
+        )
+        _violation(log, "B", 2)
+        log.mitigation("B", action="stop", kind="topic", ok=True, latency_ms=2.0)
+        _violation(log, "A", 3)
+        log.reset("A", reason="operator")
+        log.supervisor("stop")
+    recs = [json.loads(line) for line in path.read_bytes().splitlines()]
+    assert len({r["ts"] for r in recs}) == len(recs)  # microsecond stamps are distinct here
+    return path, recs
+
+
+def _table(capsys) -> list[list[str]]:
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split()[:4] == ["TIME", "EVENT", "REQUIREMENT", "DETAILS"]
+    return [row.split() for row in out[1:]]
+
+
+def test_table_lists_every_record(generated, capsys) -> None:
+    path, recs = generated
+    assert main(["logs", str(path)]) == 0
+    rows = _table(capsys)
+    assert [r[0] for r in rows] == [r["ts"] for r in recs]
+    assert [r[1] for r in rows] == [r["event"] for r in recs]
+    assert rows[1][2:] == ["A", "tick=1", "x=1"]
+    assert rows[3][2:] == [
+        "A",
+        "service:halt",
+        "FAILED",
+        "(timeout)",
+        "latency_ms=5.0",
+        "attempt=1",
+    ]
+
+
+def test_filter_by_requirement_and_event(generated, capsys) -> None:
+    path, recs = generated
+    assert main(["logs", str(path), "--requirement", "A"]) == 0
+    assert [r[1] for r in _table(capsys)] == [
+        "violation",
+        "mitigation",
+        "mitigation",
+        "violation",
+        "reset",
+    ]
+    assert main(["logs", str(path), "--event", "violation"]) == 0
+    assert [(r[2], r[3]) for r in _table(capsys)] == [
+        ("A", "tick=1"),
+        ("B", "tick=2"),
+        ("A", "tick=3"),
+    ]
+    assert main(["logs", str(path), "--event", "reset", "--event", "supervisor"]) == 0
+    assert [r[1] for r in _table(capsys)] == ["supervisor", "reset", "supervisor"]
+
+
+def test_filter_by_time(generated, capsys) -> None:
+    path, recs = generated
+    since, until = recs[2]["ts"], recs[5]["ts"]
+    assert main(["logs", str(path), "--since", since, "--until", until]) == 0
+    assert [r[0] for r in _table(capsys)] == [r["ts"] for r in recs[2:6]]
+    # a time without a zone is UTC; one with a zone is converted
+    naive = recs[4]["ts"].rstrip("Z")
+    assert main(["logs", str(path), "--since", naive]) == 0
+    assert len(_table(capsys)) == len(recs) - 4
+    assert main(["logs", str(path), "--until", "2000-01-01T01:00:00+01:00"]) == 0
+    assert _table(capsys) == []
+
+
+def test_summary(generated, capsys) -> None:
+    path, recs = generated
+    assert main(["logs", str(path), "--summary"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split() == ["REQUIREMENT", "VIOLATIONS", "FIRST", "LAST", "MIT_OK", "MIT_FAILED"]
+    viol = {r["requirement"]: [] for r in recs if r["event"] == "violation"}
+    for r in recs:
+        if r["event"] == "violation":
+            viol[r["requirement"]].append(r["ts"])
+    assert out[1].split() == ["A", "2", viol["A"][0], viol["A"][1], "1", "1"]
+    assert out[2].split() == ["B", "1", viol["B"][0], viol["B"][0], "1", "0"]
+    assert len(out) == 3
+    # filters apply before summarizing
+    assert main(["logs", str(path), "--summary", "--requirement", "B"]) == 0
+    assert [row.split()[0] for row in capsys.readouterr().out.splitlines()[1:]] == ["B"]
+
+
+def test_several_files_in_time_order_and_bad_lines_skipped(generated, tmp_path: Path, capsys):
+    path, recs = generated
+    older = tmp_path / "v.log.1"
+    older.write_text(
+        '{"ts":"2020-01-01T00:00:00.000000Z","event":"violation",'
+        '"requirement":"A","tick":0,"inputs":{}}\nnot json\n'
+    )
+    assert main(["logs", str(path), str(older), "--event", "violation"]) == 0
+    captured = capsys.readouterr()
+    rows = [row.split() for row in captured.out.splitlines()[1:]]
+    assert [r[0] for r in rows][0] == "2020-01-01T00:00:00.000000Z"
+    assert len(rows) == 4
+    assert f"{older}:2: warning: not a log record, skipped" in captured.err
+
+
+def test_errors(generated, tmp_path: Path, capsys) -> None:
+    path, _ = generated
+    missing = tmp_path / "missing.log"
+    assert main(["logs", str(missing)]) == 1
+    assert capsys.readouterr().err.startswith(f"{missing}: cannot read log")
+    with pytest.raises(SystemExit) as e:
+        main(["logs", str(path), "--since", "yesterday"])
+    assert e.value.code == 2
+    assert "not an ISO 8601 time" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        main(["logs", str(path), "--event", "bogus"])
+    assert e.value.code == 2
