@@ -555,6 +555,39 @@ def _ghc_error(stderr: str) -> str:
     return " ".join(lines)[:300] if lines else "no error message"
 
 
+def run_haskell(
+    source: str, work_dir: Path, *, runner: str = DEFAULT_RUNNER, timeout: float = 600
+) -> float:
+    """Run a Haskell program (a generated Copilot spec) with GHC in a scratch
+    directory; returns the seconds taken.  Failures become a one-line UserError."""
+    with tempfile.TemporaryDirectory(prefix="copilot-", dir=work_dir) as tmp:
+        hs = Path(tmp) / "Spec.hs"
+        hs.write_text(source)
+        if runner == "runghc":
+            cmds = [["runghc", str(hs)]]
+        elif runner == "ghc":
+            exe = Path(tmp) / "spec"
+            cmds = [["ghc", "-O0", "-v0", "-outputdir", tmp, "-o", str(exe), str(hs)], [str(exe)]]
+        else:
+            raise ValueError(f"unknown runner {runner!r}")
+        start = time.perf_counter()
+        for cmd in cmds:
+            try:
+                r = subprocess.run(
+                    cmd, cwd=tmp, capture_output=True, text=True, timeout=timeout, check=False
+                )
+            except subprocess.TimeoutExpired:
+                raise UserError(
+                    f"GHC did not finish the Copilot spec within {timeout:.0f} s", file=_ERR
+                ) from None
+            except FileNotFoundError:
+                require_copilot()
+                raise
+            if r.returncode != 0:
+                raise UserError(f"Copilot failed: {_ghc_error(r.stderr)}", file=_ERR)
+        return time.perf_counter() - start
+
+
 @dataclass
 class CopilotRun:
     c_files: list[Path]
@@ -580,35 +613,7 @@ def run_copilot(
     name = output_name(spec)
     source = generate_haskell(spec, out_dir)
     (out_dir / f"{name}.hs").write_text(source)
-    with tempfile.TemporaryDirectory(prefix="copilot-") as tmp:
-        hs = Path(tmp) / "Spec.hs"
-        hs.write_text(source)
-        if runner == "runghc":
-            cmds = [["runghc", str(hs)]]
-        elif runner == "ghc":
-            exe = Path(tmp) / "spec"
-            cmds = [
-                ["ghc", "-O0", "-v0", "-outputdir", tmp, "-o", str(exe), str(hs)],
-                [str(exe)],
-            ]
-        else:
-            raise ValueError(f"unknown runner {runner!r}")
-        start = time.perf_counter()
-        for cmd in cmds:
-            try:
-                r = subprocess.run(
-                    cmd, cwd=tmp, capture_output=True, text=True, timeout=timeout, check=False
-                )
-            except subprocess.TimeoutExpired:
-                raise UserError(
-                    f"GHC did not finish the Copilot spec within {timeout:.0f} s", file=_ERR
-                ) from None
-            except FileNotFoundError:
-                require_copilot()
-                raise
-            if r.returncode != 0:
-                raise UserError(f"Copilot failed: {_ghc_error(r.stderr)}", file=_ERR)
-        seconds = time.perf_counter() - start
+    seconds = run_haskell(source, out_dir, runner=runner, timeout=timeout)
     files = [out_dir / f"{name}.c", out_dir / f"{name}.h", out_dir / f"{name}_types.h"]
     for f in files:
         if not f.exists():
