@@ -204,7 +204,7 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
             elif i == 1:
                 msg = "the file's first line(s) were removed (or this line was inserted)"
             else:
-                msg = "line was inserted or a line before it was removed"
+                msg = "line was inserted, or a line before it was removed or rewritten"
             res.errors.append(f"{where}: hash chain broken: {msg}")
             break
         res.records += 1
