@@ -14,13 +14,21 @@ Value semantics follow the reference interpreter (monitors/interpret.py):
   ``mux`` to give the interpreter's 0 / wrapped results;
 - real ``/`` is IEEE, real ``^`` is C's pow(), as in the native backend.
 
-Where Copilot cannot match the interpreter (UserError or documented here):
-- real ``mod`` (C fmod): Copilot 3.13 has no fmod and no double-to-int cast,
-  so it is rejected with a UserError;
-- relations between an int64 and a double convert the int to double (as C
-  does); the interpreter compares exactly, which differs for |x| > 2^53;
-- real ``^`` edge cases where Python's math.pow raises (e.g. 0.0 ^ -1.0) follow
-  C's pow(), like the native backend.
+Also as in the interpreter: int64 against double compares exactly (not via
+C's rounding conversion), real ``^`` gives Python's inf/NaN where math.pow
+raises, a bool used as a number is 0/1 and a number used as a condition is
+``!= 0``.  Copilot's own Num/Integral instances are bypassed for arithmetic:
+they fold constants unsoundly (``x * 0 = 0`` on doubles, Haskell's flooring
+``mod`` on two constants, a reify-time error for ``div`` by constant 0).
+
+Where Copilot cannot match (UserError, not silently different):
+- real ``mod`` (C fmod): Copilot 3.13 has neither fmod nor a double-to-int cast;
+- an input named like a C library function (``log``, ``abs`` ...): Copilot's C
+  includes <math.h>, <stdlib.h> and <string.h>; inputs named like Copilot's
+  own symbols (``s0``, ``x_cpy`` ...) are rejected up front.
+Size: Copilot inlines every non-stream subexpression where it is used, so
+integer ``^ 63`` or deeply nested ``/`` produce large C (the native backend
+uses temporaries).
 
 Temporal operators are our own streams, not Copilot.Library.PTLTL: Copilot
 3.13's library ``since`` holds at tick 0 when its second argument never held,
@@ -65,8 +73,8 @@ INSTALL_HINT = (
 )
 COPILOT_PACKAGE = "copilot-c99"
 # How GHC runs the generated program.  runghc (GHC's bytecode interpreter) is
-# faster than `ghc -O0` + link for these one-shot programs (measured: ~0.5 s vs
-# ~3 s for the sRobot spec), so it is the default.
+# faster than `ghc -O0` + link + run for these one-shot programs (measured for
+# the sRobot spec: ~0.5 s vs ~1-1.7 s), so it is the default.
 DEFAULT_RUNNER = "runghc"
 
 _ERR = "copilot"  # UserError 'file' for problems of the backend itself
@@ -634,5 +642,15 @@ def build_copilot_monitor(
     out_dir = Path(out_dir)
     c_files = compile_copilot(spec, out_dir / "copilot", runner=runner)
     sources = [f for f in c_files if f.suffix == ".c"]
-    lib = build_library(spec, sources, c_files[0].parent, out_dir, reset=False, reset_each=False)
+    try:
+        lib = build_library(
+            spec, sources, c_files[0].parent, out_dir, reset=False, reset_each=False
+        )
+    except UserError as e:
+        if e.hint is None and re.search(r"redeclared|conflicting types", e.message):
+            e.hint = (
+                "Copilot's C includes <math.h>, <stdlib.h> and <string.h>, so an input "
+                "cannot be named like a C library function; rename it or use the native backend"
+            )
+        raise
     return load_monitor(lib, spec)

@@ -414,6 +414,18 @@ def test_haskell_errors_become_one_readable_line(copilot: None, tmp_path: Path) 
     assert "\n" not in text and "line 3:" in text and "generated Copilot spec" in text
 
 
+def test_input_named_like_a_libc_function_gets_a_hint(copilot: None, tmp_path: Path) -> None:
+    spec = MonitorSpec(
+        "x", (VarDecl("log", "double"),), (RequirementSpec("A", parse_formula("log > 1.5")),)
+    )
+    with pytest.raises(UserError, match="redeclared") as err:
+        build_copilot_monitor(spec, tmp_path)
+    assert "C library function" in (err.value.hint or "")
+    clash = MonitorSpec("x", (VarDecl("s0", "bool"),), (RequirementSpec("A", Var("s0")),))
+    with pytest.raises(UserError, match="clashes with a name Copilot uses"):
+        generate_haskell(clash)
+
+
 def test_missing_ghc_says_how_to_install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("PATH", str(tmp_path))  # no ghc on PATH
     assert not copilot_available()
