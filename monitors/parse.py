@@ -121,6 +121,10 @@ _TERMINAL_TEXT = {
     "$END": "end of sentence",
 }
 _EXPR_START = {"NAME", "NUMBER", "LPAR", "NOT_OP", "MINUS", "TRUE_KW", "FALSE_KW"}
+_TIMING_WORDS = {
+    "IMMEDIATELY", "INITIALLY", "AT", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR",
+    "AFTER", "UNTIL", "BEFORE", "FINALLY",
+}  # fmt: skip
 _TIMING_START = {"IMMEDIATELY", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR", "UNTIL"}
 
 
@@ -129,6 +133,10 @@ def _expected_text(expected: set[str]) -> str:
         return _TERMINAL_TEXT["UNIT"]
     if "$END" in expected:
         return "an operator or the end of the requirement"
+    if "UPON" in expected and "WHENEVER" in expected:
+        return "a qualifier (upon, when, whenever, if, where, unless)"
+    if expected and expected <= _TIMING_WORDS:
+        return "a timing (always, within N ticks, ...)"
     if "SATISFY" in expected and expected & _TIMING_START:
         return "a timing (always, within N ticks, ...) or 'satisfy'"
     if "SATISFY" in expected:
@@ -164,6 +172,8 @@ def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
             hint = "FRET needs a unit: ticks, hours, minutes, seconds, milliseconds, microseconds"
         elif tok.type == "STRING":
             msg = "free-form text is not FRETISH; FRET does not formalize it"
+        elif "UPON" in e.expected and "WHENEVER" in e.expected:
+            hint = "each 'and'/'or' between conditions needs its own qualifier; or use & and |"
         elif tok.type in ("MODE", "NEXT") and "NAME" in e.expected:
             msg = f"'{tok}' is reserved in FRETISH and cannot be used as a name"
             hint = _RESERVED_HINT

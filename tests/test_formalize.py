@@ -29,6 +29,7 @@ from monitors.formula import (
     Past,
     Since,
     Var,
+    max_bound,
     parse_formula,
     subterms,
 )
@@ -86,32 +87,40 @@ def _numeric_vars(fs: list[Formula]) -> set[str]:
     return out
 
 
-def _domain(fs: list[Formula]) -> list[int | float]:
-    """Small ints plus values around every numeric literal, so relations flip."""
-    dom: set[int | float] = set(range(-2, 13))
+def _domain(fs: list[Formula]) -> tuple[list[int | float], list[int | float]]:
+    """Small ints, and values around every numeric literal (so relations flip)."""
+    near: set[int | float] = set()
     for f in fs:
         for g in subterms(f):
             if isinstance(g, Const) and not isinstance(g.value, bool):
                 c = g.value
                 step = 1 if isinstance(c, int) else 0.5
-                dom |= {c - step, c, c + step}
-    return sorted(dom)
+                near |= {c - step, c, c + step}
+    return sorted(set(range(-2, 13)) | near), sorted(near) or list(range(-2, 13))
 
 
-def random_traces(*fs: Formula, n: int, rng: random.Random, max_len: int = 40) -> list[list[dict]]:
+def random_traces(
+    *fs: Formula,
+    n: int,
+    rng: random.Random,
+    max_len: int = 40,
+    min_len: int = 1,
+    stays: tuple[float, ...] = (0.0, 0.5, 0.8, 0.95, 1.0),
+) -> list[list[dict]]:
     names = sorted({g.name for f in fs for g in subterms(f) if isinstance(g, Var)})
     numeric = _numeric_vars(list(fs))
-    dom = _domain(list(fs))
+    dom, near = _domain(list(fs))
     out = []
     for _ in range(n):
-        length = rng.randint(1, max_len)
+        length = rng.randint(min_len, max_len)
         cols = {}
         for v in names:
             # Per trace and variable: how often it is true and how sticky it is,
             # so that modes and conditions open and close in runs.
-            stay = rng.choice((0.0, 0.5, 0.8, 0.95))
+            stay = rng.choice(stays)
             if v in numeric:
-                pool = rng.sample(dom, k=min(len(dom), rng.choice((2, 3, 6))))
+                src = near if rng.random() < 0.7 else dom
+                pool = rng.sample(src, k=min(len(src), rng.choice((2, 3, 6))))
                 draw = lambda pool=pool: rng.choice(pool)  # noqa: E731
             else:
                 p = rng.choice((0.05, 0.2, 0.5, 0.8, 0.95))
@@ -131,17 +140,40 @@ def period_for(req) -> float | None:
 # ---------------------------------------------------------------- FRET's examples
 
 
+def example_traces(ex: dict, *fs: Formula) -> list[list[dict]]:
+    """200 traces, mostly short (fast); when a time bound is longer than that,
+    some traces are long enough for the bound to matter."""
+    rng = random.Random(ex["id"])
+    bound = max(max_bound(f) for f in fs)
+    if bound <= 20:
+        return random_traces(*fs, n=200, rng=rng, max_len=25)
+    short = random_traces(*fs, n=180, rng=rng, max_len=25)
+    # Long and nearly constant, so an obligation can stay unmet for the whole bound.
+    long = random_traces(
+        *fs, n=20, rng=rng, min_len=bound, max_len=bound + 12, stays=(0.99, 1.0, 1.0)
+    )
+    return short + long
+
+
+# Examples FRET's formula cannot be violated on: `upon false` never triggers.
+VALID = {"expr_cond_18"}
+
+
 @pytest.mark.parametrize("ex", OK, ids=[d["id"] for d in OK])
 def test_agrees_with_fret(ex):
     req = parse_requirement(ex["fretish"])
     ours = formalize(req, period_ms=period_for(req)).formula
     theirs = fret_pt(ex["pt"])
+    traces = example_traces(ex, ours, theirs)
     # One evaluation of `ours <-> theirs` shares the common subformulas.
     both = BinOp("<->", ours, theirs)
-    for trace in random_traces(ours, theirs, n=200, rng=random.Random(ex["id"]), max_len=25):
+    for trace in traces:
         if not all(verdicts(both, trace)):
             a, b = verdicts(ours, trace), verdicts(theirs, trace)
             pytest.fail(f"{ex['id']}: ours {a} FRET {b} on {trace}\nours: {ours}")
+    # The traces must be able to tell formulas apart: FRET's is violated on some.
+    violated = sum(not all(verdicts(theirs, t)) for t in traces[:60] + traces[180:])
+    assert violated > 0 or ex["id"] in VALID, "traces never violate FRET's formula"
 
 
 def test_fractional_seconds_need_a_matching_period():
@@ -293,3 +325,16 @@ def test_describe_mentions_ticks_and_units():
     assert "becomes true" in text
     held = describe(parse_requirement("whenever p sw shall always satisfy q"))
     assert "every tick at which p holds" in held
+
+
+MONOTONE = [g for g in GRID if formalize(grid_req(*g)).monotone]
+
+
+@pytest.mark.parametrize("combo", MONOTONE, ids=["-".join(g) for g in MONOTONE])
+def test_monotone_sweep(combo):
+    """Every combination flagged monotone, on sticky random traces that open
+    and close the scope and trigger the condition (hypothesis above samples)."""
+    f = formalize(grid_req(*combo)).formula
+    for trace in random_traces(f, n=60, rng=random.Random(str(combo)), max_len=14):
+        v = verdicts(f, trace)
+        assert not _goes_false_then_true(v), (combo, trace, v)

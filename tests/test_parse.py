@@ -8,8 +8,11 @@ from fractions import Fraction
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from monitors.errors import UserError
+from monitors.formalize import formalize
 from monitors.formula import FTP, BinOp, Const, Neg, Not, Past, Since, Var, parse_formula
 from monitors.parse import Duration, parse_requirement
 
@@ -325,3 +328,28 @@ def test_error_position_in_a_file():
 def test_trailing_period_and_commas():
     assert P("the sw shall always satisfy q.").response == Var("q")
     assert P("in mode m, upon p, sw shall, always, satisfy q").timing.kind == "always"
+
+
+WORDS = sorted({w for d in ALL for w in d["fretish"].split()})
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.sampled_from(WORDS), min_size=0, max_size=14), st.sampled_from(ALL))
+def test_any_word_salad_is_a_requirement_or_a_located_error(words, ex):
+    # Real sentences with words inserted or replaced: never a traceback.
+    parts = ex["fretish"].split()
+    for i, w in enumerate(words):
+        if i % 2 or not parts:
+            parts.insert((i * 7) % (len(parts) + 1), w)
+        else:
+            parts[(i * 5) % len(parts)] = w
+    text = " ".join(parts)
+    try:
+        req = parse_requirement(text, file="f", line=2, col=3)
+    except UserError as e:
+        assert re.match(r"^f:\d+:\d+: ", str(e)) and "\n" not in str(e), str(e)
+        return
+    try:
+        formalize(req, period_ms=1.0)
+    except UserError as e:
+        assert str(e).startswith("<input>")
