@@ -16,9 +16,12 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
   variable may be called ``hereafter``, ``beforehand`` or ``auto``.  FRET's
   reserved names (``O H S Y Z X F G U V T A E abs max min mode next``) are
   refused everywhere a name is expected.
-- Functions: ``persisted(n, p)`` (p held for the last n ticks, and n ticks
-  exist), ``occurred(n, p)`` and ``occurred(m, n, p)`` (p happened between m
-  and n ticks ago), with FRET's past-time meaning.  Other calls are errors.
+- Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
+  n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
+  ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
+  read as ``occurred(0, n, p)`` (no FRET example to check it against).
+  Other calls are errors.
+- ``FTP`` in an expression is FRET's first-time-point constant (``Z FALSE``).
 """
 
 from __future__ import annotations
