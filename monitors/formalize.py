@@ -34,6 +34,7 @@ from .formula import (
     or_,
 )
 from .parse import Duration, Requirement
+from .simplify import simplify
 
 # Milliseconds per unit.
 UNIT_MS = {
@@ -353,7 +354,7 @@ def formalize(
     if req.scope is not None and cond is None:
         special = _special(kind, timing, req.scope.mode, p)
         if special is not None:
-            return Formalization(special, True, None)
+            return Formalization(simplify(special), True, None)
 
     if req.scope is None:
         left, right, negate = FTP, LAST, False
@@ -373,7 +374,7 @@ def formalize(
         formula = and_(closed, open_now)
 
     monotone = (timing, negate) not in _PENDING
-    return Formalization(formula, monotone, None if monotone else _note(timing, negate))
+    return Formalization(simplify(formula), monotone, None if monotone else _note(timing, negate))
 
 
 def _note(timing: str, negate: bool) -> str:

@@ -39,9 +39,24 @@ class Formula:
         return to_fret(self)
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, eq=False)
 class Const(Formula):
     value: bool | int | float
+
+    # 1, 1.0 and True are equal in Python but are different constants here
+    # (integer vs real division, bool vs number): compare by type too.
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, Const)
+            and type(other.value) is type(self.value)
+            and (
+                other.value == self.value
+                or (self.value != self.value and other.value != other.value)
+            )
+        )
+
+    def __hash__(self) -> int:
+        return hash((Const, type(self.value), self.value))
 
 
 @dataclass(frozen=True, slots=True)

@@ -247,7 +247,8 @@ def compile_project(project: Project, out_dir: Path, *, backend: str = "native")
         from monitors.copilot import compile_copilot
 
         c_files = compile_copilot(spec, out_dir)
-        lib = build_library(spec, c_files, out_dir, out_dir, reset=False, reset_each=False)
+        sources = [f for f in c_files if f.suffix == ".c"]
+        lib = build_library(spec, sources, out_dir, out_dir, reset=False, reset_each=False)
     elif backend == "native":
         c_path, h_path = write_c(spec, out_dir)
         lib = build_library(spec, [c_path], out_dir, out_dir, reset=True, reset_each=True)

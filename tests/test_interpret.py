@@ -75,3 +75,9 @@ def test_textbook_identities(data):
     ]
     for lhs, rhs in same:
         assert run(lhs, **cols) == run(rhs, **cols), (lhs, rhs, cols)
+
+
+def test_int_real_and_bool_constants_stay_distinct():
+    # 1, 1.0 and TRUE must not be merged as one subterm (integer vs real division)
+    trace = [{"x": 1}]
+    assert evaluate(parse_formula("(x / 2.0 = 0.5) & (x / 2 = 0)"), trace) == [True]
