@@ -144,7 +144,8 @@ def _compiler() -> str:
 def _first_error(stderr: str) -> tuple[str, str | None, int | None, int | None]:
     """The compiler's first error line, split into (message, file, line, col)."""
     lines = stderr.splitlines()
-    line = next((x for x in lines if "error" in x), lines[0] if lines else "unknown error")
+    errors = [x for x in lines if re.search(r":\s*(fatal )?error:", x)]
+    line = (errors or [x for x in lines if "error" in x.lower()] or lines or ["unknown error"])[0]
     m = re.match(r"^(.*?):(\d+):(?:(\d+):)?\s*(?:fatal )?error:\s*(.*)$", line)
     if m:
         return m.group(4), m.group(1), int(m.group(2)), int(m.group(3)) if m.group(3) else None

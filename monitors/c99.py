@@ -173,6 +173,10 @@ def _ulit(n: int, ctype: str) -> str:
     return f"{n}u" if ctype == "uint32_t" else f"UINT64_C({n})"
 
 
+def _const_type(v: bool | int | float) -> str:
+    return "bool" if isinstance(v, bool) else "int64" if isinstance(v, int) else "double"
+
+
 def _counter_type(limit: int) -> str:
     return "uint32_t" if limit < (1 << 32) - 1 else "uint64_t"
 
@@ -239,21 +243,15 @@ class _Gen:
             self.helpers.add(dep)
 
     # ------------------------------------------------------------ types
-    def type_of(self, f: Formula) -> str:
-        """Static type matching the interpreter's run-time classification."""
-        match f:
-            case Const(v):
-                return (
-                    "bool" if isinstance(v, bool) else "int64" if isinstance(v, int) else "double"
-                )
-            case Var(name):
-                if name not in self.env:
-                    raise UserError(f"unknown variable '{name}'")
-                return self.env[name]
+    def node_type(self, g: Formula, vals: dict[Formula, tuple[str, str]]) -> str:
+        """Type from the children's entries in ``vals``: equal constants of different
+        types (Const(0) == Const(0.0) == Const(False)) share one entry, exactly as
+        in the interpreter's table, so types must follow the shared entry."""
+        match g:
             case Neg(a):
-                return "double" if self.type_of(a) == "double" else "int64"
+                return "double" if vals[a][1] == "double" else "int64"
             case BinOp(op, a, b) if op in ARITH_OPS:
-                return "double" if "double" in (self.type_of(a), self.type_of(b)) else "int64"
+                return "double" if "double" in (vals[a][1], vals[b][1]) else "int64"
         return "bool"
 
     # ------------------------------------------------------------ values
@@ -336,6 +334,8 @@ class _Gen:
             return f"ss__{'div' if op == '/' else 'mod'}({x}, {y})"
         # int ^: constant exponent, unrolled square-and-multiply in uint64_t
         e = g.right.value if isinstance(g.right, Const) else None
+        if isinstance(e, float) and e.is_integer():
+            e = int(e)  # Const(2.0) == Const(2): the interpreter may be using the int twin
         if not isinstance(e, int) or not 0 <= e <= 63:
             raise UserError(
                 f"integer '^' needs a constant exponent from 0 to 63: {to_fret(g)}",
@@ -457,7 +457,7 @@ class _Gen:
     ) -> tuple[str, str]:
         match g:
             case Const(v):
-                return self.const(v), self.type_of(g)
+                return self.const(v), _const_type(v)
             case Var(name):
                 if name not in self.names:
                     raise UserError(f"unknown variable '{name}'")
@@ -465,7 +465,7 @@ class _Gen:
             case Past() | Since():
                 assert req is not None
                 return self.temporal(req, g, vals), "bool"
-        t = self.type_of(g)
+        t = self.node_type(g, vals)
         e = self.expr(g, vals, body)
         v = self.fresh()
         body.append(f"const {C_TYPES[t]} {v} = {e};")
