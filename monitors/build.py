@@ -233,7 +233,7 @@ def build_library(
             raise UserError(
                 f"C compiler failed on {what}: {msg}", file=file or what, line=line, col=col
             )
-    tmp = target.with_name(target.name + ".tmp")
+    tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
     _run([cc, *_LDFLAGS, *map(str, objects), "-lm", "-o", str(tmp)], "link")
     tmp.replace(target)  # atomic: a concurrent loader never sees half a library
     return target
