@@ -196,7 +196,7 @@ def build_library(
     if target.exists():
         return target
 
-    work = out_dir / f"{module}.build"
+    work = out_dir / f"{module}.{os.getpid()}.build"  # concurrent builders never share files
     work.mkdir(exist_ok=True)
     (work / "ss_host.c").write_text(host)
     ffi = FFI()

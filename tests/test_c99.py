@@ -486,3 +486,18 @@ def test_unsupported_integer_power_is_a_user_error() -> None:
         generate(make_spec([parse_formula("i0 ^ i1 > 2")]))
     with pytest.raises(UserError, match="int64"):
         generate(make_spec([parse_formula("i0 > 99999999999999999999")]))
+
+
+def test_inputs_are_checked_and_libraries_match_their_spec(tmp_path) -> None:
+    spec = make_spec([parse_formula("i0 < 3")])
+    mon = compile_spec(spec, tmp_path)
+    exact = [False, False, False, I64_MAX, 0, 0.0, 0.0]
+    assert mon.tick(exact) == b"\x01"  # int64 passed exactly, not through a double
+    assert mon.tick([False, False, False, 2, 0, 0.0, 0.0]) == b"\x00"
+    with pytest.raises(TypeError):
+        mon.tick([False, False, False, 2.5, 0, 0.0, 0.0])  # a float for an int64
+    with pytest.raises(TypeError):
+        mon.tick([False, False])  # too few values
+    other = make_spec([parse_formula("i0 < 3"), parse_formula("b0")])
+    with pytest.raises(UserError, match="does not match"):
+        load_monitor(mon.path, other)
