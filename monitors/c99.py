@@ -244,9 +244,7 @@ class _Gen:
 
     # ------------------------------------------------------------ types
     def node_type(self, g: Formula, vals: dict[Formula, tuple[str, str]]) -> str:
-        """Type from the children's entries in ``vals``: equal constants of different
-        types (Const(0) == Const(0.0) == Const(False)) share one entry, exactly as
-        in the interpreter's table, so types must follow the shared entry."""
+        """Type from the children's entries in ``vals`` (as the interpreter does)."""
         match g:
             case Neg(a):
                 return "double" if vals[a][1] == "double" else "int64"
@@ -334,8 +332,6 @@ class _Gen:
             return f"ss__{'div' if op == '/' else 'mod'}({x}, {y})"
         # int ^: constant exponent, unrolled square-and-multiply in uint64_t
         e = g.right.value if isinstance(g.right, Const) else None
-        if isinstance(e, float) and e.is_integer():
-            e = int(e)  # Const(2.0) == Const(2): the interpreter may be using the int twin
         if not isinstance(e, int) or not 0 <= e <= 63:
             raise UserError(
                 f"integer '^' needs a constant exponent from 0 to 63: {to_fret(g)}",

@@ -67,7 +67,8 @@ def _arith(op: str, a: Value, b: Value) -> Value:
             case "/":
                 return _real_div(a, b)
             case "mod":
-                return math.fmod(a, b) if b != 0 else math.nan
+                # C's fmod: NaN for an infinite dividend or a zero divisor
+                return math.fmod(a, b) if b != 0 and math.isfinite(a) else math.nan
             case "^":
                 try:
                     return math.pow(a, b)

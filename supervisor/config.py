@@ -697,7 +697,9 @@ def _load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
             entry.fret_ptltl = None if existing is None else entry.fret_ptltl
         entry.id_line = item.key_line("id")
         entry.rationale = str(item.get("rationale") or "")
-        entry.on_violation_line = item.key_line("on_violation") if "on_violation" in item else entry.id_line
+        entry.on_violation_line = (
+            item.key_line("on_violation") if "on_violation" in item else entry.id_line
+        )
         if "on_violation" in item or existing is None:
             entry.on_violation = _names(
                 item.get("on_violation", defaults.get("on_violation")), item, "on_violation"

@@ -44,7 +44,13 @@ def test_srobot_config_has_the_thesis_requirements():
     assert cfg.component == "sRobot"
     assert len(cfg.requirements) == 13
     assert [v.name for v in cfg.inputs] == [
-        "classifier", "distance_to_target", "OpState", "alert", "halt", "slowdown", "turnoffUVC"
+        "classifier",
+        "distance_to_target",
+        "OpState",
+        "alert",
+        "halt",
+        "slowdown",
+        "turnoffUVC",
     ]
     assert {v.name for v in cfg.defines} == {"dgt_3", "dgt_7"}
     assert cfg.requirement("state_req103").on_violation == ["stop_robot", "uv_off"]
@@ -66,23 +72,38 @@ def test_ogma_old_line_format():
     vs = load_ogma_variables(DATA / "sRobot-ogma-variable-db.txt")
     by = {v["name"]: v for v in vs}
     assert by["distance_to_target"] == {
-        "name": "distance_to_target", "type": "int64", "topic": "/scan", "msg": "std_msgs/msg/Int64",
-        "field": "data", "line": 1,
+        "name": "distance_to_target",
+        "type": "int64",
+        "topic": "/scan",
+        "msg": "std_msgs/msg/Int64",
+        "field": "data",
+        "line": 1,
     }
     assert by["halt"]["msg"] == "std_msgs/msg/Bool"
 
 
 def test_ogma_json_format(tmp_path):
     db = {
-        "inputs": [{"name": "speed", "type": "float64",
-                    "connections": [{"scope": "ros/message", "topic": "/odom", "field": "twist.twist.linear.x"}]}],
+        "inputs": [
+            {
+                "name": "speed",
+                "type": "float64",
+                "connections": [
+                    {"scope": "ros/message", "topic": "/odom", "field": "twist.twist.linear.x"}
+                ],
+            }
+        ],
         "topics": [{"scope": "ros/message", "topic": "/odom", "type": "nav_msgs::msg::Odometry"}],
         "types": [],
     }
     p = tmp_path / "db.json"
     p.write_text(json.dumps(db))
     [v] = load_ogma_variables(p)
-    assert v["msg"] == "nav_msgs/msg/Odometry" and v["field"] == "twist.twist.linear.x" and v["type"] == "double"
+    assert (
+        v["msg"] == "nav_msgs/msg/Odometry"
+        and v["field"] == "twist.twist.linear.x"
+        and v["type"] == "double"
+    )
 
 
 def test_ogma_bad_line_is_located(tmp_path):
@@ -108,10 +129,18 @@ def test_config_from_fret_and_ogma_files():
         (("  x: {type: int64", "  x: {typ: int64"), 5, "unknown key 'typ'"),
         (("    on_violation: [halt]", "    on_violation: [hlt]"), 9, "undefined mitigation 'hlt'"),
         (("  p: {type: bool", "  S: {type: bool"), 4, "reserved word"),
-        (("  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}", "  x: {type: int64}"), 5, "has no topic"),
+        (
+            ("  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}", "  x: {type: int64}"),
+            5,
+            "has no topic",
+        ),
         (("  x: {type: int64", "  x: {type: int32x"), 5, "unknown type 'int32x'"),
         (("step: {policy: periodic", "step: {policy: sometimes"), 2, "unknown step policy"),
-        (("  halt: {publish: {topic: /halt,", "  halt: {publish: {tpic: /halt,"), 11, "needs 'topic'"),
+        (
+            ("  halt: {publish: {topic: /halt,", "  halt: {publish: {tpic: /halt,"),
+            11,
+            "needs 'topic'",
+        ),
     ],
 )
 def test_config_errors_name_file_and_line(tmp_path, edit, line, needle):
