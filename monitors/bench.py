@@ -1,9 +1,11 @@
-"""Monitor overhead benchmark: ``python -m monitors.bench [EXPORT.json]``.
+"""Monitor overhead benchmark: ``python -m monitors.bench [CONFIG.yaml | EXPORT.json]``.
 
-Builds the sRobot monitor (13 requirements from a FRET project export's
-``ptLTL`` strings, internal variables as defines) with every registered
-backend and prints the C build time and the cost of one tick through cffi,
-Python call and input packing included.  Prints numbers; asserts nothing.
+Builds the sRobot monitor (by default from the shipped config/srobot.yaml;
+a FRET project export's ``ptLTL`` strings also work) with every available
+backend (native, and Copilot where GHC + Copilot are installed) and prints
+the whole compile time of the config (parse, formalize, generate C, build),
+and the cost of one tick through cffi, Python call and input packing
+included.  Prints numbers; asserts nothing.
 """
 
 from __future__ import annotations
@@ -21,11 +23,28 @@ from .formula import parse_formula
 from .load import LoadedMonitor, compile_spec
 from .spec import TYPE_ALIASES, Define, MonitorSpec, RequirementSpec, VarDecl
 
-DEFAULT_EXPORT = Path("/work/shared/data/sRobot-fret-export.json")
+DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "config" / "srobot.yaml"
 
-# Backend name -> build(spec, out_dir) -> LoadedMonitor.  The Copilot backend
-# registers here (monitors.copilot.build_copilot_monitor) where Copilot is installed.
-BACKENDS: dict[str, Callable[[MonitorSpec, Path], LoadedMonitor]] = {"native": compile_spec}
+
+def _backends() -> dict[str, Callable[[MonitorSpec, Path], LoadedMonitor]]:
+    """Backend name -> build(spec, out_dir) -> LoadedMonitor."""
+    from .copilot import build_copilot_monitor, copilot_available
+
+    found: dict[str, Callable[[MonitorSpec, Path], LoadedMonitor]] = {"native": compile_spec}
+    if copilot_available():
+        found["copilot"] = build_copilot_monitor
+    return found
+
+
+def spec_from_config(path: Path) -> MonitorSpec:
+    """The monitor of a safety-supervisor config, through the whole pipeline."""
+    from supervisor.pipeline import project_for
+
+    project = project_for(path, ros=False)
+    err = project.first_error()
+    if err is not None:
+        raise SystemExit(str(err))
+    return project.spec()
 
 
 def spec_from_fret_export(path: Path) -> MonitorSpec:
@@ -74,11 +93,19 @@ def bench(mon: LoadedMonitor, rows: list, repeats: int = 5) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(prog="python -m monitors.bench", description=__doc__)
-    ap.add_argument("export", nargs="?", type=Path, default=DEFAULT_EXPORT)
+    ap.add_argument(
+        "source", nargs="?", type=Path, default=DEFAULT_CONFIG, help="config or FRET export"
+    )
     ap.add_argument("--ticks", type=int, default=200_000)
-    ap.add_argument("--backend", action="append", choices=sorted(BACKENDS))
+    ap.add_argument("--backend", action="append", choices=["native", "copilot"])
     args = ap.parse_args(argv)
-    spec = spec_from_fret_export(args.export)
+    backends = _backends()
+    start = time.perf_counter()
+    if args.source.suffix == ".json":
+        spec = spec_from_fret_export(args.source)
+    else:
+        spec = spec_from_config(args.source)
+    front_s = time.perf_counter() - start
     rows = _rows(spec, args.ticks)
     zero = {"bool": False, "int64": 0, "double": 0.0}
     quiet = [[zero[v.type] for v in spec.inputs]] * args.ticks
@@ -86,12 +113,16 @@ def main(argv: list[str] | None = None) -> None:
         f"{spec.component}: {len(spec.requirements)} requirements, {len(spec.inputs)} inputs, "
         f"{args.ticks} ticks per pass"
     )
-    for name in args.backend or list(BACKENDS):
+    print(f"  load config, parse and formalize: {front_s * 1000:.0f} ms")
+    for name in args.backend or list(backends):
+        if name not in backends:
+            print(f"  {name}: not available (install ghc and libghc-copilot-dev)")
+            continue
         with tempfile.TemporaryDirectory(prefix="ss-bench-") as tmp:
             start = time.perf_counter()
-            mon = BACKENDS[name](spec, Path(tmp))
+            mon = backends[name](spec, Path(tmp))
             build_s = time.perf_counter() - start
-            print(f"  {name}: C build {build_s * 1000:.0f} ms")
+            print(f"  {name}: generate + compile + load {build_s * 1000:.0f} ms")
             for label, trace in (("random inputs", rows), ("quiet robot", quiet)):
                 r = bench(mon, trace)
                 print(
