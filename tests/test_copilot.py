@@ -51,7 +51,7 @@ from monitors.load import compile_spec
 from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl
 
 REQUIRE = os.environ.get("SAFETY_SUPERVISOR_REQUIRE_COPILOT") == "1"
-SROBOT_EXPORT = Path("/work/shared/data/sRobot-fret-export.json")
+SROBOT_EXPORT = Path(__file__).resolve().parent / "data" / "sRobot-fret-export.json"
 I64_MIN, I64_MAX = -(1 << 63), (1 << 63) - 1
 BOOLS, INTS, REALS = ("b0", "b1", "b2"), ("i0", "i1"), ("d0", "d1")
 INPUTS = (

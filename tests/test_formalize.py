@@ -36,7 +36,7 @@ from monitors.formula import (
 from monitors.interpret import verdicts
 from monitors.parse import Duration, parse_requirement
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "data" / "fret-examples.jsonl"
+EXAMPLES = Path(__file__).resolve().parent / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
 # FRET's formula for 1.5 seconds has malformed bounds; negative durations we refuse.
 NOT_COMPARED = {"unit_after_1.5_seconds", "err_negative_duration"}
