@@ -15,6 +15,7 @@ Syntax (FRET's past-time output, fully parenthesized when printed):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -207,6 +208,22 @@ def subterms(f: Formula) -> list[Formula]:
 
     visit(f)
     return list(seen)
+
+
+def map_children(f: Formula, fn: Callable[[Formula], Formula]) -> Formula:
+    """``f`` with ``fn`` applied to each direct child (leaves are returned as is)."""
+    match f:
+        case Not(a):
+            return Not(fn(a))
+        case Neg(a):
+            return Neg(fn(a))
+        case BinOp(op, a, b):
+            return BinOp(op, fn(a), fn(b))
+        case Past(op, a, lo, hi):
+            return Past(op, fn(a), lo, hi)
+        case Since(op, a, b, lo, hi):
+            return Since(op, fn(a), fn(b), lo, hi)
+    return f
 
 
 def variables(f: Formula) -> list[str]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from .formula import BinOp, Formula, Neg, Not, Past, Since, Var
+from .formula import Formula, Var, map_children
 
 # Formula-level types.  Message fields of other widths are converted to these
 # by the daemon when it copies a field into a monitor input.
@@ -81,20 +81,9 @@ def expand_defines(f: Formula, defines: tuple[Define, ...] | list[Define]) -> Fo
     table = {d.name: d.expr for d in defines}
 
     def go(g: Formula) -> Formula:
-        match g:
-            case Var(name) if name in table:
-                return go(table[name])
-            case Not(a):
-                return Not(go(a))
-            case Neg(a):
-                return Neg(go(a))
-            case BinOp(op, a, b):
-                return BinOp(op, go(a), go(b))
-            case Past(op, a, lo, hi):
-                return Past(op, go(a), lo, hi)
-            case Since(op, a, b, lo, hi):
-                return Since(op, go(a), go(b), lo, hi)
-        return g
+        if isinstance(g, Var) and g.name in table:
+            return go(table[g.name])
+        return map_children(g, go)
 
     return go(f)
 

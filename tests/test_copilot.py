@@ -46,19 +46,13 @@ from monitors.formula import (
     parse_formula,
     subterms,
 )
-from monitors.interpret import verdicts
 from monitors.load import compile_spec
 from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl
 
 REQUIRE = os.environ.get("SAFETY_SUPERVISOR_REQUIRE_COPILOT") == "1"
 SROBOT_EXPORT = Path(__file__).resolve().parent / "data" / "sRobot-fret-export.json"
-I64_MIN, I64_MAX = -(1 << 63), (1 << 63) - 1
-BOOLS, INTS, REALS = ("b0", "b1", "b2"), ("i0", "i1"), ("d0", "d1")
-INPUTS = (
-    *(VarDecl(n, "bool") for n in BOOLS),
-    *(VarDecl(n, "int64") for n in INTS),
-    *(VarDecl(n, "double") for n in REALS),
-)
+from harness import BOOLS, I64_MAX, I64_MIN, INPUTS, INTS, REALS, make_trace, oracle, run  # noqa: E402
+
 DEFINES = (
     Define("big", "bool", parse_formula("i0 > 3")),
     Define("rose", "bool", parse_formula("b0 & (Y (! b0))")),  # temporal define
@@ -205,50 +199,6 @@ def covered(formulas: list[Formula]) -> set[str]:
                     shape = "" if hi is None and not lo else "[l,inf]" if hi is None else "[l,h]"
                     out.add(op + shape)
     return out
-
-
-# ------------------------------------------------------------------ traces
-
-INT_EDGES = [I64_MIN, I64_MIN + 1, I64_MAX, 0, 1, -1, 2, 2**53 + 1, -(2**53) - 1, 2**32]
-REAL_EDGES = [math.nan, math.inf, -math.inf, 0.0, -0.0, 1.0, -1.0, 2.0**53, 2.0**63]
-REAL_EDGES += [-(2.0**63), 9.2e18, 1e308, 5e-324, float(2**53 + 2), 4294967296.0]
-
-
-def make_trace(seed: int, n: int) -> list[dict[str, bool | int | float]]:
-    rnd = random.Random(seed)
-    p_true = {b: rnd.choice([0.1, 0.5, 0.9]) for b in BOOLS}
-
-    def int_value() -> int:
-        r = rnd.random()
-        if r < 0.6:
-            return rnd.randint(-8, 8)
-        return rnd.choice(INT_EDGES) if r < 0.85 else rnd.randint(I64_MIN, I64_MAX)
-
-    def real_value() -> float:
-        r = rnd.random()
-        if r < 0.5:
-            return rnd.randint(-16, 16) / 2
-        if r < 0.75:
-            return rnd.choice(REAL_EDGES)
-        return rnd.uniform(-1e19, 1e19) if r < 0.9 else float(int_value())
-
-    rows = []
-    for _ in range(n):
-        row: dict[str, bool | int | float] = {b: rnd.random() < p_true[b] for b in BOOLS}
-        row.update({i: int_value() for i in INTS})
-        row.update({d: real_value() for d in REALS})
-        rows.append(row)
-    return rows
-
-
-def oracle(spec: MonitorSpec, trace: list[dict]) -> list[list[bool]]:
-    return [[not v for v in verdicts(spec.expanded(r), trace)] for r in spec.requirements]
-
-
-def run(mon: object, spec: MonitorSpec, trace: list[dict]) -> list[list[bool]]:
-    names = [v.name for v in spec.inputs]
-    ticks = [mon.tick([row[x] for x in names]) for row in trace]
-    return [[bool(t[i]) for t in ticks] for i in range(len(spec.requirements))]
 
 
 def assert_same(got: list, want: list, spec: MonitorSpec, trace: list, what: str) -> None:
