@@ -395,3 +395,32 @@ def test_missing_copilot_library_says_how_to_install(
     assert not copilot_available()
     with pytest.raises(UserError, match="copilot-c99.*apt-get install ghc libghc-copilot-dev"):
         compile_copilot(make_spec([parse_formula("b0")]), tmp_path / "out")
+
+
+def test_cli_compile_with_copilot_backend(copilot: None, tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "supervisor",
+            "compile",
+            str(root / "config" / "srobot.yaml"),
+            "-o",
+            str(tmp_path / "out"),
+            "--backend",
+            "copilot",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=root,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["backend"] == "copilot" and manifest["reset_function"] is None
+    assert (tmp_path / "out" / "monitor.c").exists() and (tmp_path / "out" / "monitor.hs").exists()
+    assert (tmp_path / "out" / manifest["library"]).exists()
