@@ -253,7 +253,7 @@ def test_fsync_comes_after_the_write_and_before_violation_returns(tmp_path: Path
     if r.returncode != 0 and "ptrace" in r.stderr:
         pytest.skip(f"strace cannot trace here: {r.stderr.strip()}")
     assert r.returncode == 0, r.stderr
-    calls = [ln.split(" ", 1)[1] for ln in trace.read_text().splitlines() if " " in ln]
+    calls = [ln.split(None, 1)[1].lstrip() for ln in trace.read_text().splitlines() if " " in ln]
     calls = [c for c in calls if c.startswith(("write(", "fsync(", "fdatasync("))]
 
     def index(pred) -> int:
