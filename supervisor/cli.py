@@ -182,6 +182,12 @@ def cmd_compile(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_run(args: argparse.Namespace) -> int:
+    from .node import run_daemon
+
+    return run_daemon(args.config, log_path=args.log, build_dir=args.build_dir)
+
+
 # ------------------------------------------------------------------ main
 
 COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
@@ -190,6 +196,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "check": cmd_check,
     "compile": cmd_compile,
     "logs": cmd_logs,
+    "run": cmd_run,
 }
 
 
@@ -222,6 +229,17 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("config")
     k.add_argument("-o", "--output", required=True, metavar="DIR")
     k.add_argument("--backend", choices=("native", "copilot"), default="native")
+    r = sub.add_parser(
+        "run", help="the daemon: monitor the configured topics (systemd Type=notify)"
+    )
+    r.add_argument("config")
+    r.add_argument("--log", default=None, metavar="PATH", help="violation log (default: config)")
+    r.add_argument(
+        "--build-dir",
+        default=None,
+        metavar="DIR",
+        help="where to build the monitor (default: temp)",
+    )
     add_logs_parser(sub)
     return p
 
