@@ -7,7 +7,7 @@ expect ``H p``.  Every rule here is valid in the past-time semantics of
 
 from __future__ import annotations
 
-from .formula import FALSE, FTP, TRUE, BinOp, Const, Formula, Neg, Not, Past, Since
+from .formula import FALSE, FTP, TRUE, BinOp, Const, Formula, Not, Past, Since, map_children
 
 
 def simplify(f: Formula) -> Formula:
@@ -20,18 +20,18 @@ def simplify(f: Formula) -> Formula:
 
 
 def _rewrite(f: Formula) -> Formula:
-    match f:
+    """Simplify the children, then apply the local rule for this node."""
+    g = map_children(f, _rewrite)
+    match g:
         case Not(a):
-            return _not(_rewrite(a))
-        case Neg(a):
-            return Neg(_rewrite(a))
+            return _not(a)
         case BinOp(op, a, b):
-            return _bin(op, _rewrite(a), _rewrite(b))
+            return _bin(op, a, b)
         case Past(op, a, lo, hi):
-            return _past(op, _rewrite(a), lo, hi)
+            return _past(op, a, lo, hi)
         case Since(op, a, b, lo, hi):
-            return _since(op, _rewrite(a), _rewrite(b), lo, hi)
-    return f
+            return _since(op, a, b, lo, hi)
+    return g
 
 
 def _is_bool_const(f: Formula) -> bool:
