@@ -27,6 +27,7 @@ STEP_POLICIES = ("periodic", "on_message", "on_trigger", "synchronized")
 ROLES = ("input", "output", "internal")
 QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
 MITIGATION_KINDS = ("publish", "ssh", "command", "log")
+PUBLISH_QOS = ("latched", "reliable", "best_effort")  # latched: reliable + transient_local
 # FRET's reserved words plus our formula keywords: a variable may not be called so.
 RESERVED = frozenset(
     "O H S Y Z X F G U V T A E abs max min mode next FTP TRUE FALSE xor mod inf".split()
@@ -73,6 +74,7 @@ POLICY_KEYS = {
     "repeat_ms",
 }
 LOG_KEYS = {"violations", "recent", "stderr"}
+ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms"}
 
 
 @dataclass
@@ -84,6 +86,15 @@ class StepConfig:
     max_skew_ms: float | None = None
     prefix: str = ""
     line: int | None = None
+
+
+@dataclass
+class RosConfig:
+    """The supervisor's own ROS interfaces (``ros:``)."""
+
+    node_name: str = "safety_supervisor"
+    heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
+    diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
 
 
 @dataclass
@@ -104,6 +115,39 @@ class Variable:
     range: tuple[float, float] | None = None
 
 
+@dataclass(frozen=True)
+class Escalation:
+    after_ms: float
+    actions: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Confirm:
+    """The action took effect: ``variable`` equals ``equals`` within ``within_ms``."""
+
+    variable: str
+    equals: Any
+    within_ms: float
+
+
+RESET_MODES = ("never", "after_mitigation", "after_ms")
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    """A requirement's ``policy:`` (validated; see mitigations.policy for meaning)."""
+
+    debounce_steps: int = 1
+    debounce_ms: float = 0.0
+    cooldown_ms: float = 0.0
+    latch: bool = False
+    reset: str = "never"
+    reset_after_ms: float | None = None
+    escalate: Escalation | None = None
+    confirm: Confirm | None = None
+    repeat_ms: float = 1000.0  # latch: re-publish period
+
+
 @dataclass
 class RequirementEntry:
     id: str
@@ -118,6 +162,8 @@ class RequirementEntry:
     fret_ptltl: str | None = None  # from a FRET export: FRET's own formula, cross-checked
     id_line: int | None = None
     on_violation_line: int | None = None
+    policy_config: PolicyConfig = field(default_factory=PolicyConfig)
+    policy_line: int | None = None
 
 
 @dataclass
@@ -141,6 +187,7 @@ class Config:
     recent: int
     on_stale: list[str]
     analysis: dict[str, Any]
+    ros: RosConfig = field(default_factory=RosConfig)
 
     @property
     def inputs(self) -> list[Variable]:
@@ -232,7 +279,7 @@ def _check_name(name: str, where: Any, key: str | None = None) -> None:
             f"'{name}' is a reserved word in FRETISH and cannot name a variable",
             where,
             key,
-            "rename it, e.g. '{name}_'",
+            f"rename it, e.g. '{name}_'",
         )
 
 
@@ -445,6 +492,8 @@ def load_config(path: str | Path) -> Config:
                     line=r.on_violation_line or r.id_line or r.line,
                     hint=_suggest(name, mitigations),
                 )
+    for r in requirements:
+        r.policy_config = _policy_config(r, mitigations, variables, file)
     if step.policy == "on_trigger":
         if not step.trigger:
             raise _err(
@@ -460,6 +509,7 @@ def load_config(path: str | Path) -> Config:
                 _suggest(step.trigger, variables),
             )
     analysis = doc.get("analysis") or {}
+    ros = _load_ros(doc)
     return Config(
         path=file,
         sha256=hashlib.sha256(raw_bytes).hexdigest(),
@@ -472,7 +522,135 @@ def load_config(path: str | Path) -> Config:
         recent=recent,
         on_stale=on_stale,
         analysis=dict(analysis),
+        ros=ros,
     )
+
+
+def _policy_config(
+    r: RequirementEntry,
+    mitigations: dict[str, Mitigation],
+    variables: dict[str, Variable],
+    file: str,
+) -> PolicyConfig:
+    raw = r.policy
+    if not raw:
+        return PolicyConfig()
+    pol = raw if isinstance(raw, LineDict) else _as_linedict(raw, None, r.policy_line or r.id_line)
+    pol.file = pol.file or r.file
+    what = f"policy of '{r.id}'"
+    out: dict[str, Any] = {}
+    if "debounce_steps" in pol:
+        v = pol["debounce_steps"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise _err(f"{what}: debounce_steps must be a whole number >= 1", pol, "debounce_steps")
+        out["debounce_steps"] = v
+    for key in ("debounce_ms", "cooldown_ms"):
+        if key in pol:
+            out[key] = _number(pol, key, what, positive=False)
+            if out[key] < 0:
+                raise _err(f"{what}: {key} must not be negative", pol, key)
+    if "repeat_ms" in pol:
+        out["repeat_ms"] = _number(pol, "repeat_ms", what)
+    if "latch" in pol:
+        if not isinstance(pol["latch"], bool):
+            raise _err(f"{what}: latch must be true or false", pol, "latch")
+        out["latch"] = pol["latch"]
+    if "reset" in pol:
+        v = pol["reset"]
+        if isinstance(v, dict) and set(v) == {"after_ms"}:
+            out["reset"] = "after_ms"
+            out["reset_after_ms"] = _number(_as_linedict(v, pol), "after_ms", f"{what}.reset")
+        elif v in ("never", "after_mitigation"):
+            out["reset"] = v
+        else:
+            raise _err(
+                f"{what}: reset must be never, after_mitigation or {{after_ms: N}}, got '{v}'",
+                pol,
+                "reset",
+            )
+    if out.get("latch"):
+        if out.get("reset") == "never":
+            raise _err(
+                f"{what}: latch with reset: never cannot be released",
+                pol,
+                "reset",
+                "a latched requirement is judged afresh after its mitigation so an operator "
+                "reset can see that it holds again; drop 'reset' or use after_mitigation",
+            )
+        out.setdefault("reset", "after_mitigation")
+    if "escalate" in pol:
+        esc = _as_linedict(pol["escalate"], pol)
+        if not isinstance(pol["escalate"], dict) or set(esc) != {"after_ms", "actions"}:
+            raise _err(
+                f"{what}: escalate needs exactly after_ms and actions",
+                pol,
+                "escalate",
+                "e.g. escalate: {after_ms: 500, actions: [power_off]}",
+            )
+        actions = _names(esc["actions"], esc, "actions")
+        for name in actions:
+            if name not in mitigations:
+                raise _err(
+                    f"{what}: escalate names undefined mitigation '{name}'",
+                    pol,
+                    "escalate",
+                    _suggest(name, mitigations),
+                )
+        out["escalate"] = Escalation(
+            float(_number(esc, "after_ms", f"{what}.escalate", positive=False) or 0.0),
+            tuple(actions),
+        )
+    if "confirm" in pol:
+        c = _as_linedict(pol["confirm"], pol)
+        if not isinstance(pol["confirm"], dict) or set(c) != {"variable", "equals", "within_ms"}:
+            raise _err(
+                f"{what}: confirm needs exactly variable, equals and within_ms",
+                pol,
+                "confirm",
+                "e.g. confirm: {variable: halt, equals: true, within_ms: 200}",
+            )
+        name = str(c["variable"])
+        var = variables.get(name)
+        if var is None or var.define is not None:
+            raise _err(
+                f"{what}: confirm variable '{name}' is not a topic variable",
+                pol,
+                "confirm",
+                _suggest(name, variables),
+            )
+        equals = _typed_value(c["equals"], var.type, c, "equals", name)
+        out["confirm"] = Confirm(name, equals, float(_number(c, "within_ms", f"{what}.confirm")))
+    return PolicyConfig(**out)
+
+
+def _as_linedict(value: Any, parent: LineDict | None, line: int | None = None) -> LineDict:
+    """A nested mapping with line numbers (falls back to the parent's line)."""
+    if isinstance(value, LineDict):
+        return value
+    d = LineDict(value if isinstance(value, dict) else {})
+    d.line = parent.line if parent is not None else (line or 0)
+    d.file = parent.file if parent is not None else ""
+    d._key_lines = {}
+    return d
+
+
+def _load_ros(doc: LineDict) -> RosConfig:
+    raw = doc.get("ros")
+    if raw is None:
+        return RosConfig()
+    r = _mapping(raw, doc, "ros", "ros")
+    _check_keys(r, ROS_KEYS, "ros")
+    out = RosConfig()
+    name = r.get("node_name")
+    if name is not None:
+        if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(name)):
+            raise _err(f"ros.node_name '{name}' is not a valid ROS node name", r, "node_name")
+        out.node_name = str(name)
+    for key in ("heartbeat_ms", "diagnostics_ms"):
+        v = _number(r, key, "ros")
+        if v is not None:
+            setattr(out, key, v)
+    return out
 
 
 def _suggest(name: str, known: dict) -> str | None:
@@ -708,7 +886,8 @@ def _load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
         if pol is not None:
             pol = _mapping(pol, item, "policy", "policy")
             _check_keys(pol, POLICY_KEYS, f"policy of '{rid}'")
-            entry.policy = dict(pol)
+            entry.policy = pol
+            entry.policy_line = pol.line if isinstance(pol, LineDict) else item.key_line("policy")
         if "assumption" in item:
             entry.assumption = str(item["assumption"]).lower() == "true"
         else:
@@ -799,3 +978,10 @@ def _check_mitigation(name: str, kind: str, params: dict, where: LineDict) -> No
             )
     if kind == "publish" and not str(params["topic"]).startswith("/"):
         raise _err(f"mitigation '{name}': topic must start with '/'", where, kind)
+    if kind == "publish" and params.get("qos", "latched") not in PUBLISH_QOS:
+        raise _err(
+            f"mitigation '{name}': unknown qos '{params['qos']}'",
+            where,
+            kind,
+            "one of: " + ", ".join(PUBLISH_QOS),
+        )

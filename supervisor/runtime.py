@@ -66,7 +66,7 @@ class StepResult:
 class InputEvent:
     """Something the operator should know about an input (logged as `supervisor`)."""
 
-    what: str  # input_stale | input_recovered | input_rejected
+    what: str  # input_stale | input_recovered | input_rejected | input_nan
     name: str
     t_ns: int
     detail: str = ""
@@ -82,6 +82,7 @@ class _Input:
     fresh: bool = False  # updated since the last step (synchronized policy)
     messages: int = 0
     rejected: int = 0
+    nan: int = 0  # NaN doubles accepted (the formula decides; reported all the same)
 
 
 def coerce(value: Any, vtype: str) -> tuple[Any, str | None]:
@@ -160,11 +161,32 @@ class Runtime:
             i.spec.name: {
                 "messages": i.messages,
                 "rejected": i.rejected,
+                "nan": i.nan,
                 "stale": i.stale,
                 "last_ns": i.last_ns,
             }
             for i in self._in
         }
+
+    def adopt(self, old: Runtime) -> None:
+        """After a config reload: keep the latest values (same name and type),
+        message counts and the tick count, so the new monitor steps at once
+        instead of waiting for every input again."""
+        self.tick = old.tick
+        previous = {i.spec.name: i for i in old._in}
+        for inp in self._in:
+            o = previous.get(inp.spec.name)
+            if o is None or o.spec.type != inp.spec.type:
+                continue
+            if o.has_value:
+                inp.value, inp.has_value = o.value, True
+            inp.last_ns, inp.stale, inp.messages, inp.rejected = (
+                o.last_ns,
+                o.stale,
+                o.messages,
+                o.rejected,
+            )
+        self.recent.extend(old.recent)
 
     # ------------------------------------------------------------ feeding
 
@@ -182,6 +204,11 @@ class Runtime:
             return None, events
         inp.value, inp.has_value, inp.last_ns, inp.fresh = value, True, t_ns, True
         inp.messages += 1
+        if value != value:  # NaN: a valid double, but almost always a sensor fault
+            inp.nan += 1
+            events.append(
+                InputEvent("input_nan", name, t_ns, "NaN (every comparison with it is false)")
+            )
         if inp.stale:
             inp.stale = False
             events.append(InputEvent("input_recovered", name, t_ns))

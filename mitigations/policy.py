@@ -1,0 +1,243 @@
+"""Per-requirement mitigation policy: when a flagged tick becomes an action.
+
+Pure and tick-precise: no threads, no clocks, no rclpy.  The monitoring loop
+calls :meth:`RequirementPolicy.on_step` after each monitor step (and
+:meth:`on_time` when :meth:`next_deadline` passes without a step) and carries
+out the returned effects in order: a :class:`Report` is written (fsynced)
+before the :class:`Act` that follows it is submitted, and a
+:class:`ResetMonitor` is applied before the next step, so a reset never costs
+a tick (the thesis relaunched the node and was blind for 1.5 s).
+
+Vocabulary:
+- a *run* is a sequence of consecutive flagged steps;
+- an *episode* starts when a run passes the debounce (``debounce_steps`` steps
+  and ``debounce_ms``); it is reported once and ends at the next step that
+  holds, or when the requirement's monitor is reset (so a violation right
+  after a reset is a new report: zero blind window);
+- an *incident* starts with the first action and lasts while the requirement
+  keeps being violated (every step flagged, across monitor resets); escalation
+  and confirmation are timed from its start.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from supervisor.config import PolicyConfig
+
+MS = 1_000_000
+
+
+@dataclass(frozen=True)
+class Report:
+    """Write a ``violation`` record now (before any action of this step)."""
+
+    tick: int
+    policy_state: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Act:
+    """Run these mitigations (on the engine's workers)."""
+
+    actions: tuple[str, ...]
+    stage: str  # violation | escalation | confirm_failed | repeat
+
+
+@dataclass(frozen=True)
+class ResetMonitor:
+    """Reset this requirement's monitor state before the next step."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class Note:
+    """Something for the log that is neither a violation nor an action."""
+
+    what: str  # confirmed | confirm_failed
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+Effect = Report | Act | ResetMonitor | Note
+
+
+@dataclass
+class RequirementPolicy:
+    config: PolicyConfig
+    on_violation: tuple[str, ...]
+    repeatable: tuple[str, ...] = ()  # actions re-run while latched (publish kinds)
+    # run / episode
+    run_steps: int = 0
+    run_since_ns: int | None = None
+    in_episode: bool = False
+    holds: bool = True  # the last step did not flag
+    # incident (first action while the requirement keeps being violated)
+    incident_ns: int | None = None
+    escalated: bool = False
+    confirm_deadline_ns: int | None = None
+    last_act_ns: int | None = None
+    latched: bool = False
+    next_repeat_ns: int | None = None
+    reset_due_ns: int | None = None
+    # counters (diagnostics)
+    violations: int = 0
+    last_violation_tick: int | None = None
+
+    @property
+    def active(self) -> bool:
+        """Has state that a non-flagged step or the clock can change."""
+        return (
+            self.run_steps > 0
+            or self.in_episode
+            or self.incident_ns is not None
+            or self.latched
+            or self.reset_due_ns is not None
+        )
+
+    def state(self) -> dict[str, Any]:
+        """The ``policy_state`` of violation records and diagnostics."""
+        c = self.config
+        return {
+            "flagged_steps": self.run_steps,
+            "debounce_steps": c.debounce_steps,
+            "debounce_ms": c.debounce_ms,
+            "reset": c.reset if c.reset != "after_ms" else f"after_ms:{c.reset_after_ms:g}",
+            "latched": self.latched,
+            "escalated": self.escalated,
+            "violations": self.violations,
+        }
+
+    # ------------------------------------------------------------ steps
+
+    def on_step(
+        self, flagged: bool, tick: int, t_ns: int, values: Mapping[str, Any]
+    ) -> list[Effect]:
+        c = self.config
+        effects: list[Effect] = []
+        self.holds = not flagged
+        if not flagged:
+            self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
+            self.incident_ns, self.escalated = None, False  # the robot recovered
+        else:
+            if self.run_steps == 0:
+                self.run_since_ns = t_ns
+            self.run_steps += 1
+            assert self.run_since_ns is not None
+            debounced = (
+                self.run_steps >= c.debounce_steps
+                and t_ns - self.run_since_ns >= c.debounce_ms * MS
+            )
+            if debounced and not self.in_episode:
+                effects += self._episode(tick, t_ns)
+        effects += self.on_time(t_ns, values)
+        return effects
+
+    def _episode(self, tick: int, t_ns: int) -> list[Effect]:
+        c = self.config
+        self.in_episode = True
+        self.violations += 1
+        self.last_violation_tick = tick
+        cooling = self.last_act_ns is not None and t_ns - self.last_act_ns < c.cooldown_ms * MS
+        state = self.state()
+        state["cooldown"] = "suppressed" if cooling else "ok"
+        if self.latched:
+            state["cooldown"] = "latched"  # the mitigation is in force, repeated at repeat_ms
+        effects: list[Effect] = [Report(tick, state)]
+        if not cooling and not self.latched:  # else policy_state says why not
+            effects.append(Act(self.on_violation, "violation"))
+            self.last_act_ns = t_ns
+        if self.incident_ns is None:
+            self.incident_ns = t_ns
+            if c.confirm is not None:
+                self.confirm_deadline_ns = t_ns + int(c.confirm.within_ms * MS)
+        if c.latch and not self.latched:
+            self.latched = True
+            self.next_repeat_ns = t_ns + int(c.repeat_ms * MS)
+        if c.reset == "after_mitigation":
+            effects.append(self._reset("after_mitigation"))
+        elif c.reset == "after_ms" and self.reset_due_ns is None:
+            assert c.reset_after_ms is not None
+            self.reset_due_ns = t_ns + int(c.reset_after_ms * MS)
+        return effects
+
+    def _reset(self, reason: str) -> ResetMonitor:
+        # The monitor forgets its history: the next step is judged afresh and a
+        # flag there is a new episode (reported), but the incident goes on.
+        self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
+        self.reset_due_ns = None
+        return ResetMonitor(reason)
+
+    # ------------------------------------------------------------ clock
+
+    def next_deadline(self) -> int | None:
+        """When :meth:`on_time` has something to do even without a step."""
+        times = [self.reset_due_ns, self.confirm_deadline_ns, self.next_repeat_ns]
+        c = self.config
+        if self.incident_ns is not None and c.escalate is not None and not self.escalated:
+            times.append(self.incident_ns + int(c.escalate.after_ms * MS))
+        if self.run_since_ns is not None and not self.in_episode and c.debounce_ms:
+            times.append(self.run_since_ns + int(c.debounce_ms * MS))
+        live = [t for t in times if t is not None]
+        return min(live) if live else None
+
+    def on_time(self, t_ns: int, values: Mapping[str, Any]) -> list[Effect]:
+        c = self.config
+        effects: list[Effect] = []
+        if self.confirm_deadline_ns is not None and c.confirm is not None:
+            if values.get(c.confirm.variable) == c.confirm.equals:
+                self.confirm_deadline_ns = None
+                effects.append(Note("confirmed", {"variable": c.confirm.variable}))
+            elif t_ns >= self.confirm_deadline_ns:
+                self.confirm_deadline_ns = None
+                effects.append(
+                    Note(
+                        "confirm_failed",
+                        {
+                            "variable": c.confirm.variable,
+                            "expected": c.confirm.equals,
+                            "actual": values.get(c.confirm.variable),
+                            "within_ms": c.confirm.within_ms,
+                        },
+                    )
+                )
+                if c.escalate is not None and not self.escalated:
+                    self.escalated = True
+                    effects.append(Act(c.escalate.actions, "confirm_failed"))
+        if (
+            self.incident_ns is not None
+            and c.escalate is not None
+            and not self.escalated
+            and t_ns >= self.incident_ns + int(c.escalate.after_ms * MS)
+        ):
+            self.escalated = True
+            effects.append(Act(c.escalate.actions, "escalation"))
+        if self.reset_due_ns is not None and t_ns >= self.reset_due_ns:
+            effects.append(self._reset(f"after_ms:{c.reset_after_ms:g}"))
+        if self.latched and self.next_repeat_ns is not None and t_ns >= self.next_repeat_ns:
+            self.next_repeat_ns = t_ns + int(c.repeat_ms * MS)
+            if self.repeatable:
+                effects.append(Act(self.repeatable, "repeat"))
+        return effects
+
+    # ------------------------------------------------------------ operator
+
+    def operator_reset(self) -> tuple[bool, str]:
+        """An operator asks to lift the mitigation: only if the requirement holds."""
+        if self.latched and not self.holds:
+            return False, "still violated at the last tick"
+        was = self.latched
+        self.latched, self.next_repeat_ns = False, None
+        self.incident_ns, self.escalated, self.confirm_deadline_ns = None, False, None
+        self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
+        self.reset_due_ns = None
+        return True, "latch released" if was else "reset"
+
+
+def policies_for(
+    configs: Sequence[tuple[PolicyConfig, Sequence[str], Sequence[str]]],
+) -> list[RequirementPolicy]:
+    """One policy per requirement: (config, on_violation, repeatable actions)."""
+    return [RequirementPolicy(c, tuple(on), tuple(rep)) for c, on, rep in configs]

@@ -1,0 +1,98 @@
+"""Monitor verdicts -> policies -> effects, for one runtime (no rclpy, no threads).
+
+The daemon's loop and offline tests drive the same object: after each step
+:meth:`Supervision.after_step`, when :meth:`next_deadline` passes
+:meth:`on_time`.  Effects go to a :class:`Sink` in the order the policy
+returns them (report before act), and monitor resets are applied here,
+between two steps, so no tick goes unjudged.
+
+Only requirements that were flagged or still have live policy state are
+visited: at 20k steps/s the common case (nothing violated) costs one check.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+from supervisor.runtime import Runtime, StepResult
+
+from .policy import Act, Effect, Note, Report, RequirementPolicy, ResetMonitor
+
+
+class Sink(Protocol):
+    """Where effects go (the daemon: log, engine, ROS; tests: a list)."""
+
+    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None: ...
+    def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None: ...
+    def reset(self, index: int, reason: str) -> None: ...
+    def note(self, index: int, note: Note, t_ns: int) -> None: ...
+
+
+class Supervision:
+    def __init__(self, runtime: Runtime, policies: Sequence[RequirementPolicy], sink: Sink) -> None:
+        self.runtime = runtime
+        self.policies = list(policies)
+        self.sink = sink
+        self.active: set[int] = set()  # requirements whose policy has live state
+        self.reports = 0
+
+    def after_step(self, result: StepResult | None) -> None:
+        if result is None or not (result.violated or self.active):
+            return
+        violated = set(result.violated)
+        for i in violated | self.active:
+            effects = self.policies[i].on_step(
+                i in violated, result.tick, result.t_ns, result.inputs
+            )
+            self._apply(i, effects, result, result.t_ns)
+
+    def next_deadline(self) -> int | None:
+        times = [d for i in self.active if (d := self.policies[i].next_deadline()) is not None]
+        return min(times) if times else None
+
+    def on_time(self, now: int) -> None:
+        if not self.active:
+            return
+        values = self.runtime.snapshot()
+        for i in list(self.active):
+            pol = self.policies[i]
+            d = pol.next_deadline()
+            if d is not None and d <= now:
+                self._apply(i, pol.on_time(now, values), None, now)
+
+    def operator_reset(self) -> list[tuple[int, str]]:
+        """Reset every requirement's monitor and lift the latches of those that
+        hold; returns the refused ones (index, why)."""
+        refused = []
+        for i, pol in enumerate(self.policies):
+            ok, why = pol.operator_reset()
+            if not ok:
+                refused.append((i, why))
+            elif why == "latch released":
+                self.sink.reset(i, "operator reset: latch released")
+            if ok:
+                self.active.discard(i)
+        self.runtime.monitor.reset()
+        return refused
+
+    def latched(self) -> list[int]:
+        return sorted(i for i in self.active if self.policies[i].latched)
+
+    def _apply(self, i: int, effects: list[Effect], result: StepResult | None, t_ns: int) -> None:
+        for eff in effects:
+            if isinstance(eff, Report):
+                assert result is not None
+                self.reports += 1
+                self.sink.report(i, result, eff.policy_state)
+            elif isinstance(eff, Act):
+                self.sink.act(i, eff.actions, eff.stage, t_ns)
+            elif isinstance(eff, ResetMonitor):
+                self.runtime.reset_requirement(i)
+                self.sink.reset(i, eff.reason)
+            elif isinstance(eff, Note):
+                self.sink.note(i, eff, t_ns)
+        if self.policies[i].active:
+            self.active.add(i)
+        else:
+            self.active.discard(i)
