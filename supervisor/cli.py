@@ -183,7 +183,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .node import run_daemon
+    from .daemon import run_daemon
 
     return run_daemon(args.config, log_path=args.log, build_dir=args.build_dir)
 

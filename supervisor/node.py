@@ -1,8 +1,8 @@
-"""The rclpy side of the daemon: subscriptions -> Runtime -> violation log.
+"""The rclpy side of the daemon: subscriptions -> Runtime -> policies -> actions.
 
 Everything ROS-independent (latest values, step policies, stale inputs) lives
-in :mod:`supervisor.runtime`; this module only moves messages in and
-violations out.
+in :mod:`supervisor.runtime`, the per-requirement mitigation policy in
+:mod:`mitigations.policy`; this module moves messages in and effects out.
 
 Receiving: rclpy's default executor receives only about 4k msg/s on the
 7 srobot topics on the reference machine, a loop over rclpy's wait set with
@@ -11,62 +11,72 @@ therefore creates its subscriptions with rclpy (so they exist in the graph and
 are destroyed with the node) but never spins an executor: :meth:`run` waits on
 one ``_rclpy.WaitSet`` holding every subscription, the reset service and a
 guard condition, and drains each ready subscription with ``take_message``.
-This is the same private API ``rclpy.executors`` uses (rclpy 7.1.6); the timer
-work (periodic steps, synchronized skew, stale checks) is done in the same loop
-by computing the wait timeout from the runtime's next deadline.
+This is the same private API ``rclpy.executors`` uses (rclpy 7.1.6).  All
+timed work (periodic steps, synchronized skew, policy deadlines, stale checks,
+heartbeat, diagnostics, watchdog) is done in the same loop by computing the
+wait timeout from the earliest deadline, so the monitor, its policies and the
+runtime are only ever touched by this one thread.
 
-Violations: the ``violation`` record is written (fsynced) in the loop thread
-before anything else happens with it, then the requirement goes to a worker
-thread through a queue, which publishes it as JSON on
-``/safety_supervisor/violations`` and runs its mitigations (for now only kind
-``log``; the mitigation engine comes with its own issue).
+Violations: the policy decides (debounce, cooldown, latch, reset, escalation,
+confirmation); a ``violation`` record is written and fsynced in the loop
+thread before its actions are handed to the engine's workers, so a slow action
+never delays the next step.  A monitor reset happens between two steps: no
+tick is lost.
 
-Until per-requirement policies exist, a requirement is reported when its
-handler starts firing (rising edge): a past-time ``always`` latches, and a
-latched requirement would otherwise write and fsync a record on every tick.
-``/safety_supervisor/reset`` (std_srvs/Trigger) resets the whole monitor.
+Reload (SIGHUP): the new config is checked and compiled on a helper thread
+while the old monitor keeps running; the swap happens between two loop
+iterations.  Inputs keep their latest values, unchanged subscriptions and
+mitigation publishers are kept (a latched halt stays latched).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
-import queue
 import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
-import rclpy
 from rclpy.context import Context
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
+    QoSCompatibility,
     QoSProfile,
     ReliabilityPolicy,
+    qos_check_compatible,
     qos_profile_sensor_data,
 )
 
+from mitigations.action import Action, Outcome
+from mitigations.engine import Engine, Request
+from mitigations.policy import Note, RequirementPolicy
+from mitigations.supervision import Supervision
 from monitors.formula import to_fret
 
-from .config import Config, Variable
+from .config import Config, Mitigation, Variable
+from .diagnostics import diagnostic_array, input_status, requirement_status
 from .log import ViolationLog, json_safe
-from .pipeline import Project
+from .notify import Notifier
+from .pipeline import CompiledRequirement, Project
 from .rosmsg import get_field, message_class
-from .runtime import InputEvent, Runtime, StepResult
+from .runtime import InputEvent, InputSpec, Runtime, StepResult
 
 VIOLATIONS_TOPIC = "/safety_supervisor/violations"
+HEARTBEAT_TOPIC = "/safety_supervisor/heartbeat"
 RESET_SERVICE = "/safety_supervisor/reset"
-MAX_WAIT_NS = 100_000_000  # the loop checks the stop flag at least this often
+MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STALE_CHECK_MAX_NS = 50_000_000
+STATUS_EVERY_NS = 1_000_000_000
 REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
 REJECT_REPORT_EVERY = 1000
 
 
-def _warn(text: str) -> None:
+def warn(text: str) -> None:
     try:
         print(f"safety-supervisor: WARNING: {text}", file=sys.stderr, flush=True)
     except (OSError, ValueError):
@@ -96,290 +106,55 @@ def qos_for(node: Node, var: Variable) -> tuple[QoSProfile, str | None]:
             f"input '{var.name}': no publisher on {var.topic} yet; subscribing reliable "
             "(set qos: in the config to choose)"
         )
+    return _matching_qos(depth, [p.qos_profile for p in pubs]), None
+
+
+def _matching_qos(depth: int, offered: list[QoSProfile]) -> QoSProfile:
     # A reliable reader does not match a best-effort writer; a transient-local
     # reader does not match a volatile writer: take the weakest offered.
-    best_effort = any(p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in pubs)
-    transient = all(p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in pubs)
-    return (
-        QoSProfile(
-            depth=depth,
-            reliability=ReliabilityPolicy.BEST_EFFORT
-            if best_effort
-            else ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
-        ),
-        None,
+    best_effort = any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
+    transient = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
     )
+
+
+def _type_name(msg: str) -> str:
+    """``std_msgs/msg/Int64`` as the graph reports it."""
+    parts = msg.split("/")
+    return msg if len(parts) == 3 else f"{parts[0]}/msg/{parts[-1]}"
 
 
 @dataclass
 class _Sub:
     name: str
-    field: str
+    var: Variable
     msg_type: type
     sub: Any  # rclpy Subscription
+    auto_qos: bool
+    problem: str | None = None  # last graph problem reported (wrong type, QoS)
+    publishers: int | None = None
 
 
 @dataclass
-class _Job:
-    index: int  # requirement index in the monitor
-    result: StepResult
-    detected_ns: int
-    record: dict[str, Any]
+class Session:
+    """What a config reload replaces, built off the loop and swapped in at once."""
 
+    project: Project
+    runtime: Runtime
+    requirements: list[CompiledRequirement] = field(default_factory=list)
+    formulas: list[str] = field(default_factory=list)
+    policies: list[RequirementPolicy] = field(default_factory=list)
+    cleanup: Callable[[], None] | None = None  # e.g. remove the build directory
 
-class SupervisorNode:
-    """One rclpy node feeding a Runtime; :meth:`run` is the receive loop."""
-
-    def __init__(
-        self,
-        project: Project,
-        runtime: Runtime,
-        log: ViolationLog,
-        *,
-        context: Context | None = None,
-        node_name: str = "safety_supervisor",
-    ) -> None:
-        self.project = project
-        self.cfg: Config = project.config
-        self.runtime = runtime
-        self.log = log
-        self.requirements = [r for r in project.requirements if r.ok]  # monitor order
-        self._formulas = [to_fret(r.formula) for r in self.requirements]
-        self._stop = threading.Event()
-        self._flagged = [False] * len(self.requirements)  # rising-edge reporting
-        self.violations = 0
-        self._queue: queue.Queue[_Job | None] = queue.Queue()
-        step = self.cfg.step
-        self._stale_ns = int(step.stale_after_ms * 1e6) if step.stale_after_ms else None
-        period = int(step.period_ms * 1e6) if step.period_ms else STALE_CHECK_MAX_NS
-        self._stale_every_ns = min(period, STALE_CHECK_MAX_NS)
-
-        self.node = Node(node_name, context=context)
-        self._subs: list[_Sub] = []
-        self.no_publisher: list[str] = []
-        for var in self.cfg.inputs:
-            assert var.topic is not None and var.msg is not None
-            klass = message_class(var.msg)
-            qos, warning = qos_for(self.node, var)
-            if warning:
-                self.no_publisher.append(var.name)
-                _warn(warning)
-                self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
-            sub = self.node.create_subscription(klass, var.topic, _never, qos)
-            self._subs.append(_Sub(var.name, var.field, klass, sub))
-        self.publisher = self.node.create_publisher(_string_class(), VIOLATIONS_TOPIC, 10)
-        from std_srvs.srv import Trigger
-
-        self._trigger = Trigger
-        self.reset_service = self.node.create_service(Trigger, RESET_SERVICE, _never)
-        self._wake = self.node.create_guard_condition(_never)
-        self._worker = threading.Thread(target=self._work, name="mitigations", daemon=True)
-        self._worker.start()
-
-    # ------------------------------------------------------------ control
-
-    def stop(self) -> None:
-        """Ask :meth:`run` to return (safe from a signal handler)."""
-        self._stop.set()
-
-    def close(self) -> None:
-        """After :meth:`run`: finish queued violations, destroy the node."""
-        self._queue.put(None)
-        self._worker.join(timeout=1.0)
-        self.node.destroy_node()
-
-    # ------------------------------------------------------------ receive loop
-
-    def run(self, on_idle: Callable[[], None] | None = None) -> None:
-        """Receive until :meth:`stop`.  ``on_idle`` runs once per wait (status)."""
-        ctx = self.node.context
-        by_ptr: dict[int, _Sub] = {}
-        with contextlib.ExitStack() as stack:
-            for s in self._subs:
-                stack.enter_context(s.sub.handle)
-                by_ptr[s.sub.handle.pointer] = s
-            srv = self.reset_service.handle
-            stack.enter_context(srv)
-            stack.enter_context(self._wake.handle)
-            stack.enter_context(ctx.handle)
-            wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 1, 0, ctx.handle)
-            next_stale = time.monotonic_ns()
-            rt = self.runtime
-            while not self._stop.is_set() and ctx.ok():
-                now = time.monotonic_ns()
-                deadline = now + MAX_WAIT_NS
-                due = rt.due(now)
-                if due is not None:
-                    deadline = min(deadline, due)
-                if self._stale_ns:
-                    deadline = min(deadline, next_stale)
-                wait_set.clear_entities()
-                for s in self._subs:
-                    wait_set.add_subscription(s.sub.handle)
-                wait_set.add_service(srv)
-                wait_set.add_guard_condition(self._wake.handle)
-                wait_set.wait(max(0, deadline - now))
-                ready = wait_set.get_ready_entities("subscription")
-                for ptr in ready:
-                    s = by_ptr[ptr]
-                    take = s.sub.handle.take_message
-                    while True:
-                        info = take(s.msg_type, False)
-                        if info is None:
-                            break
-                        try:
-                            value = get_field(info[0], s.field)
-                        except AttributeError as e:  # cannot happen after check; report
-                            self._input_events(
-                                [InputEvent("input_rejected", s.name, time.monotonic_ns(), str(e))]
-                            )
-                            continue
-                        result, events = rt.on_message(s.name, value, time.monotonic_ns())
-                        if events:
-                            self._input_events(events)
-                        if result is not None and (result.violated or any(self._flagged)):
-                            self._handle_step(result)
-                if wait_set.get_ready_entities("service"):
-                    self._serve_reset(srv)
-                now = time.monotonic_ns()
-                due = rt.due(now)
-                if due is not None and due <= now:
-                    result = rt.on_timer(now)
-                    if result is not None and (result.violated or any(self._flagged)):
-                        self._handle_step(result)
-                if self._stale_ns and now >= next_stale:
-                    events = rt.check_stale(now, self._stale_ns)
-                    if events:
-                        self._input_events(events)
-                    next_stale = now + self._stale_every_ns
-                if on_idle is not None:
-                    on_idle()
-
-    # ------------------------------------------------------------ events
-
-    def _input_events(self, events: list[InputEvent]) -> None:
-        for ev in events:
-            if ev.what == "input_rejected":
-                n = self.runtime.input_stats()[ev.name]["rejected"]
-                if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
-                    continue
-                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail, rejected=n)
-            else:
-                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail)
-
-    def _handle_step(self, result: StepResult) -> None:
-        violated = set(result.violated)
-        for i in range(len(self._flagged)):
-            was, now = self._flagged[i], i in violated
-            self._flagged[i] = now
-            if now and not was:
-                self._violation(i, result)
-
-    def _violation(self, i: int, result: StepResult) -> None:
-        detected = time.monotonic_ns()
-        req = self.requirements[i]
-        rt = self.runtime
-        record = {
-            "requirement": req.id,
-            "text": req.entry.text,
-            "formula": self._formulas[i],
-            "tick": result.tick,
-            "inputs": dict(result.inputs),
-            "recent": list(rt.recent),
-            "stale": rt.stale_inputs(),
-            "policy_state": {"report": "rising_edge"},
-        }
-        # On disk (fsynced) before anything else is done with it (CONTRACT.md).
-        self.log.violation(
-            req.id,
-            text=record["text"],
-            formula=record["formula"],
-            tick=record["tick"],
-            inputs=record["inputs"],
-            recent=record["recent"],
-            stale=record["stale"],
-            policy_state=record["policy_state"],
-        )
-        self.violations += 1
-        self._queue.put(_Job(i, result, detected, record))
-
-    def _serve_reset(self, srv: Any) -> None:
-        taken = srv.service_take_request(self._trigger.Request)
-        if taken is None:
-            return
-        request, header = taken
-        if header is None:
-            return
-        self.runtime.monitor.reset()
-        self._flagged = [False] * len(self._flagged)
-        self.log.reset("*", reason="operator reset (/safety_supervisor/reset)")
-        response = self._trigger.Response(success=True, message="all requirements reset")
-        srv.service_send_response(response, header)
-
-    # ------------------------------------------------------------ worker
-
-    def _work(self) -> None:
-        string = _string_class()
-        while True:
-            job = self._queue.get()
-            if job is None:
-                return
-            try:
-                self._mitigate(job, string)
-            except Exception as e:  # noqa: BLE001 - the worker must survive anything
-                _warn(f"mitigation worker: {type(e).__name__}: {e}")
-
-    def _mitigate(self, job: _Job, string: type) -> None:
-        req = self.requirements[job.index]
-        msg = string()
-        msg.data = json.dumps(json_safe({"event": "violation", **job.record}))
-        try:
-            self.publisher.publish(msg)
-        except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
-            _warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
-        for name in req.entry.on_violation:
-            m = self.cfg.mitigations.get(name)
-            kind = m.kind if m is not None else "undefined"
-            latency_ms = (time.monotonic_ns() - job.detected_ns) / 1e6
-            if kind == "log":
-                self.log.mitigation(req.id, action=name, kind=kind, ok=True, latency_ms=latency_ms)
-            else:
-                # TODO(mitigation engine issue): publish / ssh / service actions.
-                self.log.supervisor(
-                    "mitigation_not_run",
-                    requirement=req.id,
-                    action=name,
-                    kind=kind,
-                    why="the mitigation engine is not implemented yet",
-                )
-
-
-def _never(*_args: Any) -> None:
-    """Callback of entities the wait-set loop serves itself (never called)."""
-
-
-def _string_class() -> type:
-    from std_msgs.msg import String
-
-    return String
-
-
-def init_ros(domain_id: int | None = None) -> Context:
-    """A fresh rclpy context without rclpy's signal handlers (the daemon has its own)."""
-    from rclpy.signals import SignalHandlerOptions
-
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-    return ctx
-
-
-# ------------------------------------------------------------------ the daemon
+    @property
+    def config(self) -> Config:
+        return self.project.config
 
 
 def build_runtime(project: Project, monitor: Any) -> Runtime:
-    from .runtime import InputSpec
-
     cfg = project.config
     step = cfg.step
     specs = [
@@ -402,87 +177,556 @@ def build_runtime(project: Project, monitor: Any) -> Runtime:
     )
 
 
-def run_daemon(config: str, log_path: str | None = None, build_dir: str | None = None) -> int:
-    """``safety-supervisor run``: build the monitor, subscribe, READY=1, receive until
-    SIGTERM/SIGINT, STOPPING=1, clean shutdown.  Raises UserError for a bad config."""
-    import os
-    import signal
-    import tempfile
-    from pathlib import Path
-
-    from monitors.errors import UserError
-    from monitors.load import compile_spec
-
-    from .notify import Notifier
-    from .pipeline import project_for
-
-    notifier = Notifier(unset_environment=True)
-    stop_requested = threading.Event()
-    node: SupervisorNode | None = None
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        stop_requested.set()
-        if node is not None:
-            node.stop()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-
-    project = project_for(config)
-    if not project.ok:
-        err = project.first_error()
-        assert err is not None
-        raise err
+def build_session(
+    project: Project, monitor: Any, cleanup: Callable[[], None] | None = None
+) -> Session:
     cfg = project.config
-    path = log_path or cfg.log_path
-    if not path:
-        raise UserError(
-            "no violation log configured", file=config, hint="set logging.violations or --log"
+    reqs = [r for r in project.requirements if r.ok]  # monitor order
+    publish = {n for n, m in cfg.mitigations.items() if m.kind == "publish"}
+    policies = [
+        RequirementPolicy(
+            r.entry.policy_config,
+            tuple(r.entry.on_violation),
+            tuple(a for a in r.entry.on_violation if a in publish),
         )
-    # rclpy writes its own log files; under ProtectSystem=strict only a few places
-    # are writable.
-    if not os.environ.get("ROS_LOG_DIR"):
-        os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or tempfile.mkdtemp(
-            prefix="safety-supervisor-ros-log-"
-        )
-    with contextlib.ExitStack() as stack:
-        log = stack.enter_context(ViolationLog(path, cfg.component, cfg.sha256))
-        log.supervisor("start", config=str(config), pid=os.getpid())
-        if build_dir is None:
-            build_dir = stack.enter_context(
-                tempfile.TemporaryDirectory(prefix="safety-supervisor-run-")
-            )
-        monitor = compile_spec(project.spec(), Path(build_dir))
-        runtime = build_runtime(project, monitor)
-        ctx = init_ros()
-        stack.callback(_shutdown_ros, ctx)
-        node = SupervisorNode(project, runtime, log, context=ctx)
-        stack.callback(node.close)
-        if stop_requested.is_set():
-            node.stop()
-        n_req = len(node.requirements)
-        log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
-        notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")
-        last_status = time.monotonic()
+        for r in reqs
+    ]
+    return Session(
+        project,
+        build_runtime(project, monitor),
+        reqs,
+        [to_fret(r.formula) for r in reqs],
+        policies,
+        cleanup,
+    )
 
-        def status() -> None:
-            nonlocal last_status
-            now = time.monotonic()
-            if now - last_status >= 1.0:
-                last_status = now
-                stale = runtime.stale_inputs()
-                notifier.status(
-                    f"ticks={runtime.tick} violations={node.violations} "
-                    f"stale={','.join(stale) if stale else 'none'}"
+
+class SupervisorNode:
+    """One rclpy node feeding a Session; :meth:`run` is the receive loop."""
+
+    def __init__(
+        self,
+        session: Session,
+        log: ViolationLog,
+        *,
+        context: Context | None = None,
+        notifier: Notifier | None = None,
+        watchdog_s: float | None = None,
+    ) -> None:
+        self.session = session
+        self.log = log
+        self.notifier = notifier or Notifier()
+        self.watchdog_ns = int(watchdog_s * 1e9) if watchdog_s else None
+        self._stop = threading.Event()
+        self._rebuild = False  # leave the inner loop: subscriptions changed
+        self.violations = 0
+        self.reloads = 0
+        self._done: list[tuple[Request, str, Outcome]] = []  # engine -> loop
+        self._done_lock = threading.Lock()
+        self._reload_request: Callable[[], Session] | None = None
+        self._reload_thread: threading.Thread | None = None
+        self._reload_result: Session | Exception | None = None
+        self._retired: list[Any] = []  # subscriptions replaced by a QoS change
+
+        cfg = session.config
+        self.node = Node(cfg.ros.node_name, context=context)
+        self._subs: list[_Sub] = []
+        self._make_subscriptions(cfg)
+        self.publisher = self.node.create_publisher(
+            _msg("std_msgs/msg/String"), VIOLATIONS_TOPIC, 10
+        )
+        self.heartbeat = self.node.create_publisher(_msg("std_msgs/msg/UInt64"), HEARTBEAT_TOPIC, 1)
+        self.diagnostics = self.node.create_publisher(
+            _msg("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", 10
+        )
+        from std_srvs.srv import Trigger
+
+        self._trigger = Trigger
+        self.reset_service = self.node.create_service(Trigger, RESET_SERVICE, _never)
+        self._wake = self.node.create_guard_condition(_never)
+        self._publish_actions: dict[tuple[str, str, str], Action] = {}
+        self.engine = self._make_engine(cfg)
+        self.supervision = Supervision(session.runtime, session.policies, self)
+
+    # ------------------------------------------------------------ building
+
+    def _make_subscriptions(self, cfg: Config) -> None:
+        """Subscriptions for ``cfg``'s inputs, keeping those that did not change."""
+        old = {(s.var.topic, s.var.msg, s.var.qos, s.var.depth): s for s in self._subs}
+        subs: list[_Sub] = []
+        for var in cfg.inputs:
+            assert var.topic is not None and var.msg is not None
+            key = (var.topic, var.msg, var.qos, var.depth)
+            kept = old.pop(key, None)
+            if kept is not None:
+                kept.name, kept.var = var.name, var
+                subs.append(kept)
+                continue
+            klass = message_class(var.msg)
+            qos, warning = qos_for(self.node, var)
+            if warning:
+                warn(warning)
+                self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
+            sub = self.node.create_subscription(klass, var.topic, _never, qos)
+            subs.append(_Sub(var.name, var, klass, sub, auto_qos=var.qos == "auto"))
+        for s in old.values():
+            self.node.destroy_subscription(s.sub)
+        self._subs = subs
+
+    def _make_engine(self, cfg: Config) -> Engine:
+        actions: dict[str, Action] = {}
+        for name, m in cfg.mitigations.items():
+            actions[name] = self._action(m)
+        return Engine(actions, self.log, on_done=self._on_done)
+
+    def _action(self, m: Mitigation) -> Action:
+        if m.kind == "publish":
+            from mitigations.publish import PublishAction
+
+            key = (str(m.params["topic"]), str(m.params["msg"]), str(m.params.get("qos")))
+            existing = self._publish_actions.get(key)
+            # Keep the publisher (and the halt it latched) across reloads.
+            action = PublishAction(self.node, m, existing)  # type: ignore[arg-type]
+            self._publish_actions[key] = action
+            return action
+        if m.kind == "ssh":
+            from mitigations.ssh import SshAction
+
+            return SshAction(m.name, m.params)
+        if m.kind == "command":
+            from mitigations.command import CommandAction
+
+            return CommandAction(m.name, m.params)
+        from mitigations.record import RecordAction
+
+        return RecordAction(m)
+
+    def _on_done(self, request: Request, action: str, outcome: Outcome) -> None:
+        # Engine worker thread: hand the outcome to the loop (policies are the loop's).
+        with self._done_lock:
+            self._done.append((request, action, outcome))
+
+    # ------------------------------------------------------------ control
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (safe from a signal handler)."""
+        self._stop.set()
+
+    def request_reload(self, prepare: Callable[[], Session]) -> None:
+        """Reload with ``prepare()`` (run on a helper thread); safe from a signal handler."""
+        self._reload_request = prepare
+
+    def close(self) -> None:
+        """After :meth:`run`: stop the action workers, destroy the node."""
+        busy = self.engine.close(timeout=1.0)
+        if busy:
+            warn(f"mitigations still running at exit: {', '.join(busy)}")
+        self.node.destroy_node()
+        if self.session.cleanup is not None:
+            self.session.cleanup()
+
+    # ------------------------------------------------------------ receive loop
+
+    def run(self) -> None:
+        """Receive until :meth:`stop`."""
+        now = time.monotonic_ns()
+        self._next = {
+            "stale": now,
+            "heartbeat": now,
+            "diagnostics": now,
+            "status": now,
+            "watchdog": now,
+        }
+        self._heartbeats = 0
+        while not self._stop.is_set() and self.node.context.ok():
+            self._rebuild = False
+            self._serve()
+
+    def _serve(self) -> None:
+        ctx = self.node.context
+        by_ptr: dict[int, _Sub] = {}
+        with contextlib.ExitStack() as stack:
+            for s in self._subs:
+                stack.enter_context(s.sub.handle)
+                by_ptr[s.sub.handle.pointer] = s
+            srv = self.reset_service.handle
+            stack.enter_context(srv)
+            stack.enter_context(self._wake.handle)
+            stack.enter_context(ctx.handle)
+            wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 1, 0, ctx.handle)
+            while not self._stop.is_set() and not self._rebuild and ctx.ok():
+                rt = self.session.runtime
+                now = time.monotonic_ns()
+                wait_set.clear_entities()
+                for s in self._subs:
+                    wait_set.add_subscription(s.sub.handle)
+                wait_set.add_service(srv)
+                wait_set.add_guard_condition(self._wake.handle)
+                wait_set.wait(max(0, self._deadline(now) - now))
+                for ptr in wait_set.get_ready_entities("subscription"):
+                    self._drain(by_ptr[ptr], rt)
+                if wait_set.get_ready_entities("service"):
+                    self._serve_reset(srv)
+                self._timed_work(time.monotonic_ns())
+
+    def _deadline(self, now: int) -> int:
+        rt = self.session.runtime
+        times = [now + MAX_WAIT_NS, *self._next.values()]
+        due = rt.due(now)
+        if due is not None:
+            times.append(due)
+        d = self.supervision.next_deadline()
+        if d is not None:
+            times.append(d)
+        return min(times)
+
+    def _drain(self, s: _Sub, rt: Runtime) -> None:
+        take = s.sub.handle.take_message
+        field_path = s.var.field
+        while True:
+            info = take(s.msg_type, False)
+            if info is None:
+                return
+            t = time.monotonic_ns()
+            try:
+                value = get_field(info[0], field_path)
+            except AttributeError as e:  # cannot happen after check; report
+                self._input_events([InputEvent("input_rejected", s.name, t, str(e))])
+                continue
+            result, events = rt.on_message(s.name, value, t)
+            if events:
+                self._input_events(events)
+            if result is not None:
+                self.supervision.after_step(result)
+
+    def _timed_work(self, now: int) -> None:
+        rt = self.session.runtime
+        due = rt.due(now)
+        if due is not None and due <= now:
+            self.supervision.after_step(rt.on_timer(now))
+        self.supervision.on_time(now)
+        if self._done:
+            self._outcomes()
+        nxt = self._next
+        if now >= nxt["stale"]:
+            events = rt.check_stale(now, self._stale_after_ns())
+            if events:
+                self._input_events(events)
+            nxt["stale"] = now + self._stale_every_ns()
+        if now >= nxt["heartbeat"]:
+            self._heartbeats += 1
+            self.heartbeat.publish(_msg("std_msgs/msg/UInt64")(data=self._heartbeats))
+            nxt["heartbeat"] = now + int(self.session.config.ros.heartbeat_ms * 1e6)
+        if now >= nxt["diagnostics"]:
+            self._check_graph()
+            self._publish_diagnostics(now)
+            nxt["diagnostics"] = now + int(self.session.config.ros.diagnostics_ms * 1e6)
+        if self.watchdog_ns and now >= nxt["watchdog"]:
+            if self._ticking(now):
+                self.notifier.watchdog()
+                nxt["watchdog"] = now + self.watchdog_ns
+        if now >= nxt["status"]:
+            nxt["status"] = now + STATUS_EVERY_NS
+            if self.notifier.enabled:
+                self.notifier.status(self.status_line())
+        self._reload_step()
+
+    def _ticking(self, now: int) -> bool:
+        """Ticks flow as configured: a periodic monitor is not behind its timer
+        by more than a watchdog interval (event-driven policies step inside
+        this loop, so the loop running is the evidence)."""
+        due = self.session.runtime.due(now)
+        if self.session.config.step.policy != "periodic" or due is None:
+            return True
+        assert self.watchdog_ns is not None
+        return now - due < self.watchdog_ns
+
+    def _stale_after_ns(self) -> int | None:
+        ms = self.session.config.step.stale_after_ms
+        return int(ms * 1e6) if ms else None
+
+    def _stale_every_ns(self) -> int:
+        ms = self.session.config.step.period_ms
+        return min(int(ms * 1e6), STALE_CHECK_MAX_NS) if ms else STALE_CHECK_MAX_NS
+
+    def status_line(self) -> str:
+        rt = self.session.runtime
+        stale = rt.stale_inputs()
+        missing = rt.missing_inputs()
+        latched = [self.session.requirements[i].id for i in self.supervision.latched()]
+        parts = [
+            f"ticks={rt.tick}",
+            f"violations={self.violations}",
+            f"stale={','.join(stale) if stale else 'none'}",
+        ]
+        if missing:
+            parts.append(f"waiting_for={','.join(missing)}")
+        if latched:
+            parts.append(f"latched={','.join(sorted(latched))}")
+        return " ".join(parts)
+
+    # ------------------------------------------------------------ violations
+
+    # Sink of mitigations.supervision: effects, in the policy's order.
+
+    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None:
+        s = self.session
+        req = s.requirements[index]
+        rt = s.runtime
+        record = {
+            "requirement": req.id,
+            "text": req.entry.text,
+            "formula": s.formulas[index],
+            "tick": result.tick,
+            "inputs": dict(result.inputs),
+            "recent": list(rt.recent),
+            "stale": rt.stale_inputs(),
+            "policy_state": policy_state,
+        }
+        # On disk (fsynced) before any action of this step is submitted (CONTRACT.md).
+        self.log.violation(**record)
+        self.violations += 1
+        msg = _msg("std_msgs/msg/String")()
+        msg.data = json.dumps(json_safe({"event": "violation", **record}))
+        try:
+            self.publisher.publish(msg)
+        except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
+            warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
+
+    def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        self.engine.submit(Request(req.id, actions, t_ns, stage))
+
+    def reset(self, index: int, reason: str) -> None:
+        req = self.session.requirements[index]
+        self.log.reset(req.id, reason=reason, tick=self.session.runtime.tick)
+
+    def note(self, index: int, note: Note, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        pol = self.session.policies[index]
+        ok = note.what == "confirmed"
+        since = pol.incident_ns
+        self.log.mitigation(
+            req.id,
+            action=f"confirm:{note.detail.get('variable')}",
+            kind="confirm",
+            ok=ok,
+            error=None
+            if ok
+            else (
+                f"{note.detail.get('variable')} = {note.detail.get('actual')!r}, "
+                f"expected {note.detail.get('expected')!r} within {note.detail.get('within_ms')} ms"
+            ),
+            latency_ms=0.0 if since is None else round((t_ns - since) / 1e6, 3),
+        )
+        if not ok:
+            warn(f"mitigation of {req.id} did not take effect: {note.detail}")
+
+    def _outcomes(self) -> None:
+        with self._done_lock:
+            done, self._done = self._done, []
+        for request, action, outcome in done:
+            if not outcome.ok:
+                warn(f"mitigation {action} for {request.requirement} failed: {outcome.error}")
+
+    def _input_events(self, events: list[InputEvent]) -> None:
+        rt = self.session.runtime
+        for ev in events:
+            if ev.what in ("input_rejected", "input_nan"):
+                key = "rejected" if ev.what == "input_rejected" else "nan"
+                n = rt.input_stats()[ev.name][key]
+                if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
+                    continue  # a flood is counted, and reported every 1000th
+                verb = "rejected" if key == "rejected" else "accepted"
+                warn(f"input '{ev.name}': {verb} {ev.detail} ({n} so far)")
+                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail, count=n)
+                continue
+            self.log.supervisor(ev.what, input=ev.name, detail=ev.detail)
+            if ev.what == "input_stale":
+                warn(f"input '{ev.name}' is stale: {ev.detail}")
+                on_stale = self.session.config.on_stale
+                if on_stale:
+                    self.engine.submit(
+                        Request(f"on_stale:{ev.name}", tuple(on_stale), ev.t_ns, "stale")
+                    )
+
+    # ------------------------------------------------------------ operator reset
+
+    def _serve_reset(self, srv: Any) -> None:
+        taken = srv.service_take_request(self._trigger.Request)
+        if taken is None:
+            return
+        request, header = taken
+        if header is None:
+            return
+        ok, message = self.operator_reset()
+        srv.service_send_response(self._trigger.Response(success=ok, message=message), header)
+
+    def operator_reset(self) -> tuple[bool, str]:
+        """Reset every requirement's monitor; lift latches of requirements that hold."""
+        ids = [r.id for r in self.session.requirements]
+        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
+        self.log.reset("*", reason="operator reset (/safety_supervisor/reset)", refused=refused)
+        if refused:
+            return False, "not reset: " + ", ".join(refused)
+        return True, "all requirements reset"
+
+    # ------------------------------------------------------------ graph and diagnostics
+
+    def _check_graph(self) -> None:
+        """Publishers that cannot reach us (wrong type, incompatible QoS), topics
+        without publishers; auto-QoS subscriptions follow the publishers found."""
+        for s in self._subs:
+            topic = s.var.topic
+            assert topic is not None
+            try:
+                pubs = self.node.get_publishers_info_by_topic(topic)
+            except Exception as e:  # noqa: BLE001 - graph queries fail during shutdown
+                warn(f"cannot query publishers of {topic}: {e}")
+                return
+            mine = s.sub.qos_profile if hasattr(s.sub, "qos_profile") else None
+            problem = None
+            expected = _type_name(s.var.msg or "")
+            wrong = [p for p in pubs if p.topic_type != expected]
+            right = [p for p in pubs if p.topic_type == expected]
+            if not pubs:
+                problem = f"no publisher on {topic}"
+            elif wrong:
+                problem = (
+                    f"publisher of {wrong[0].topic_type} on {topic} ({wrong[0].node_name}); "
+                    f"expected {expected}: its messages cannot reach the supervisor"
                 )
+            elif mine is not None:
+                for p in right:
+                    compat, reason = qos_check_compatible(p.qos_profile, mine)
+                    if compat == QoSCompatibility.ERROR:
+                        if s.auto_qos:
+                            self._resubscribe(s, [q.qos_profile for q in right])
+                            problem = None
+                        else:
+                            problem = f"incompatible QoS with {p.node_name} on {topic}: {reason}"
+                        break
+            if s.publishers is not None and not pubs and s.publishers:
+                self.log.supervisor("input_publisher_gone", input=s.name, topic=topic)
+            if s.publishers is not None and pubs and not s.publishers:
+                self.log.supervisor("input_publisher_found", input=s.name, topic=topic)
+            s.publishers = len(right)
+            if problem != s.problem:
+                if problem is not None and (pubs or s.problem is not None):
+                    warn(f"input '{s.name}': {problem}")
+                    self.log.supervisor("input_problem", input=s.name, detail=problem)
+                elif problem is None and s.problem is not None:
+                    self.log.supervisor("input_problem_cleared", input=s.name, topic=topic)
+                s.problem = problem
 
-        node.run(on_idle=status if notifier.enabled else None)
-        notifier.stopping(status="stopping")
-        log.supervisor("stop", ticks=runtime.tick, violations=node.violations)
-    notifier.close()
-    return 0
+    def _resubscribe(self, s: _Sub, offered: list[QoSProfile]) -> None:
+        qos = _matching_qos(s.var.depth, offered)
+        self.log.supervisor(
+            "input_qos_changed",
+            input=s.name,
+            topic=s.var.topic,
+            reliability=qos.reliability.name.lower(),
+            durability=qos.durability.name.lower(),
+        )
+        old = s.sub
+        s.sub = self.node.create_subscription(s.msg_type, s.var.topic, _never, qos)
+        self._rebuild = True  # the wait set must be rebuilt with the new handle
+        self._retired.append(old)  # destroyed once the loop no longer holds its handle
+
+    def _publish_diagnostics(self, now: int) -> None:
+        for old in self._retired:
+            with contextlib.suppress(Exception):
+                self.node.destroy_subscription(old)
+        self._retired = []
+        s = self.session
+        cfg = s.config
+        name = cfg.ros.node_name
+        stats = s.runtime.input_stats()
+        statuses = []
+        for i, req in enumerate(s.requirements):
+            pol = s.policies[i]
+            statuses.append(
+                requirement_status(name, cfg.component, req.id, pol.state(), not pol.holds)
+            )
+        for sub in self._subs:
+            st = dict(stats[sub.name])
+            st["problem"], st["publishers"] = sub.problem, sub.publishers
+            statuses.append(
+                input_status(name, cfg.component, sub.name, sub.var.topic or "", st, now)
+            )
+        stamp = self.node.get_clock().now().to_msg()
+        try:
+            self.diagnostics.publish(diagnostic_array(stamp, statuses))
+        except Exception as e:  # noqa: BLE001 - shutdown race
+            warn(f"cannot publish /diagnostics: {e}")
+
+    # ------------------------------------------------------------ reload
+
+    def _reload_step(self) -> None:
+        prepare, self._reload_request = self._reload_request, None
+        if prepare is not None:
+            if self._reload_thread is not None:
+                warn("reload already in progress; ignoring SIGHUP")
+            else:
+                self.log.reopen()  # logrotate's create mode: a fresh file after rename
+                self.notifier.reloading(status="reloading configuration")
+
+                def work() -> None:
+                    try:
+                        self._reload_result = prepare()
+                    except Exception as e:  # noqa: BLE001 - reported by the loop
+                        self._reload_result = e
+                    self._wake.trigger()
+
+                self._reload_thread = threading.Thread(target=work, name="reload", daemon=True)
+                self._reload_thread.start()
+        if self._reload_thread is not None and not self._reload_thread.is_alive():
+            self._reload_thread = None
+            result, self._reload_result = self._reload_result, None
+            if isinstance(result, Session):
+                self._swap(result)
+            else:
+                why = str(result)
+                warn(f"reload rejected, still running the previous config: {why}")
+                self.log.supervisor("reload", ok=False, why=why)
+                self.notifier.ready(status=f"reload rejected: {why} | {self.status_line()}")
+
+    def _swap(self, new: Session) -> None:
+        old = self.session
+        rt_old, rt_new = old.runtime, new.runtime
+        rt_new.adopt(rt_old)
+        self._make_subscriptions(new.config)
+        old_engine = self.engine
+        self.session = new
+        self.engine = self._make_engine(new.config)
+        self.supervision = Supervision(new.runtime, new.policies, self)
+        self.log.config_sha256 = new.config.sha256
+        self.reloads += 1
+        self._rebuild = True
+        threading.Thread(target=old_engine.close, name="old-engine", daemon=True).start()
+        if old.cleanup is not None:
+            old.cleanup()
+        n = len(new.requirements)
+        self.log.supervisor(
+            "reload",
+            ok=True,
+            config=new.config.path,
+            requirements=n,
+            inputs=len(new.config.inputs),
+            policy=new.config.step.policy,
+        )
+        self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
 
 
-def _shutdown_ros(ctx: Context) -> None:
-    with contextlib.suppress(Exception):
-        rclpy.shutdown(context=ctx)
+def _never(*_args: Any) -> None:
+    """Callback of entities the wait-set loop serves itself (never called)."""
+
+
+_MSG_CACHE: dict[str, type] = {}
+
+
+def _msg(name: str) -> type:
+    klass = _MSG_CACHE.get(name)
+    if klass is None:
+        klass = _MSG_CACHE[name] = message_class(name)
+    return klass

@@ -1,0 +1,220 @@
+"""Real-DDS test helpers: the daemon as a subprocess with its own notify
+socket, and an rclpy node in the test process, both isolated by one random
+ROS_DOMAIN_ID per test run and localhost-only discovery."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+DOMAIN_ID = random.randint(1, 200)
+ROS_ENV = {"ROS_DOMAIN_ID": str(DOMAIN_ID), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+SROBOT = ROOT / "config" / "srobot.yaml"
+
+
+def wait_until(
+    what: str, predicate: Callable[[], Any], timeout: float, explain: Callable[[], str] = lambda: ""
+) -> Any:
+    """Poll ``predicate`` until it returns something truthy (no fixed sleeps)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}\n{explain()}")
+        time.sleep(0.02)  # polling interval, not synchronisation
+
+
+class Daemon:
+    """``safety-supervisor run CONFIG`` with NOTIFY_SOCKET bound here."""
+
+    def __init__(
+        self,
+        tmp: Path,
+        config: Path = SROBOT,
+        *,
+        env: dict[str, str] | None = None,
+        args: list[str] | None = None,
+    ) -> None:
+        self.log = tmp / "v.jsonl"
+        self.stderr = tmp / "daemon.stderr"
+        sock_path = tmp / "notify.sock"
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(str(sock_path))
+        full_env = {**os.environ, **ROS_ENV, "NOTIFY_SOCKET": str(sock_path), **(env or {})}
+        if "WATCHDOG_USEC" not in (env or {}):
+            full_env.pop("WATCHDOG_USEC", None)
+        with self.stderr.open("w") as err:
+            self.proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "supervisor",
+                    "run",
+                    str(config),
+                    "--log",
+                    str(self.log),
+                    "--build-dir",
+                    str(tmp / "build"),
+                    *(args or []),
+                ],
+                cwd=ROOT,
+                env=full_env,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+            )
+        # (monotonic time received, datagram)
+        self.notifications: list[tuple[float, str]] = []
+
+    def explain(self) -> str:
+        return (
+            f"notifications: {[n for _, n in self.notifications][-20:]}\n"
+            f"log: {self.records()[-20:]}\nstderr:\n{self.stderr.read_text()}"
+        )
+
+    def wait_notify(self, key: str, timeout: float) -> float:
+        """Seconds until a datagram with the line ``key`` (e.g. READY=1) arrives."""
+        t0 = time.monotonic()
+        deadline = t0 + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"no {key} within {timeout} s\n{self.explain()}")
+            if self.proc.poll() is not None and key != "STOPPING=1":
+                raise AssertionError(
+                    f"daemon exited ({self.proc.returncode}) before {key}\n{self.explain()}"
+                )
+            data = self.recv(min(left, 0.5))
+            if data is not None and key in data.splitlines():
+                return time.monotonic() - t0
+
+    def recv(self, timeout: float) -> str | None:
+        self.sock.settimeout(timeout)
+        try:
+            data = self.sock.recv(4096).decode()
+        except TimeoutError:
+            return None
+        self.notifications.append((time.monotonic(), data))
+        return data
+
+    def collect(self, seconds: float) -> list[tuple[float, str]]:
+        """All datagrams received during the next ``seconds``."""
+        start = len(self.notifications)
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            self.recv(left)
+        return self.notifications[start:]
+
+    def records(self) -> list[dict[str, Any]]:
+        if not self.log.exists():
+            return []
+        lines = self.log.read_text().splitlines()
+        return [json.loads(line) for line in lines if line.endswith("}")]
+
+    def wait_record(
+        self, predicate: Callable[[dict[str, Any]], bool], what: str, timeout: float = 10
+    ) -> dict[str, Any]:
+        return wait_until(
+            what,
+            lambda: next((r for r in self.records() if predicate(r)), None),
+            timeout,
+            self.explain,
+        )
+
+    def terminate(self, budget: float = 2.0) -> None:
+        """SIGTERM: STOPPING=1, exit 0, within ``budget`` seconds."""
+        t0 = time.monotonic()
+        self.proc.send_signal(signal.SIGTERM)
+        self.wait_notify("STOPPING=1", timeout=budget)
+        self.proc.wait(timeout=max(0.1, budget - (time.monotonic() - t0)))
+        assert time.monotonic() - t0 < budget
+        assert self.proc.returncode == 0, self.explain()
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+        self.sock.close()
+
+
+@contextmanager
+def ros_node(name: str = "test_robot") -> Iterator[Any]:
+    """An rclpy node in this process on the test run's domain."""
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+
+    for k, v in ROS_ENV.items():
+        os.environ[k] = v
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=DOMAIN_ID, signal_handler_options=SignalHandlerOptions.NO)
+    node = Node(name, context=ctx)
+    try:
+        yield node
+    finally:
+        ex = _EXECUTORS.pop(id(node), None)
+        if ex is not None:
+            ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def wait_matched(pubs: list[Any], timeout: float = 15) -> None:
+    """Until every publisher has a subscription (DDS discovery, ~3 s here)."""
+    wait_until(
+        "the daemon's subscriptions to be discovered",
+        lambda: all(p.get_subscription_count() > 0 for p in pubs),
+        timeout,
+    )
+
+
+_EXECUTORS: dict[int, Any] = {}
+
+
+def spin_once(node: Any, timeout: float = 0.05) -> None:
+    """Run ``node``'s ready callbacks (an executor on the node's own context)."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    ex = _EXECUTORS.get(id(node))
+    if ex is None or ex.context is not node.context:
+        ex = _EXECUTORS[id(node)] = SingleThreadedExecutor(context=node.context)
+        ex.add_node(node)
+    ex.spin_once(timeout_sec=timeout)
+
+
+def spin_until(node: Any, what: str, predicate: Callable[[], Any], timeout: float) -> Any:
+    """Spin ``node`` (its subscriptions' callbacks) until ``predicate()``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        spin_once(node)
+
+
+def srobot_variant(tmp: Path, **replace: str) -> Path:
+    """config/srobot.yaml with text replacements (old=new given as pairs in
+    ``replace`` values 'old|||new'), written into ``tmp``."""
+    text = SROBOT.read_text()
+    for pair in replace.values():
+        old, new = pair.split("|||")
+        assert old in text, old
+        text = text.replace(old, new)
+    out = tmp / "srobot.yaml"
+    out.write_text(text)
+    return out

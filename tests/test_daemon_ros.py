@@ -1,0 +1,353 @@
+"""The daemon over real DDS, as a subprocess: step policies on asynchronous
+topics, stale inputs and on_stale mitigations, diagnostics and heartbeat,
+the systemd notify protocol with watchdog and reload, garbage on the topics."""
+
+from __future__ import annotations
+
+import re
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from rosutil import SROBOT, Daemon, ros_node, spin_once, spin_until, wait_matched  # noqa: E402
+from std_msgs.msg import Bool, Int64, String  # noqa: E402
+
+TOPICS: list[tuple[str, str, type]] = [  # trigger (turnoffUVC) last, as the controller does
+    ("classifier", "/sRobotClassifier", Int64),
+    ("distance_to_target", "/scan", Int64),
+    ("OpState", "/sRobotState", Int64),
+    ("alert", "/sRobotAlert", Bool),
+    ("slowdown", "/sRobotSlowdown", Bool),
+    ("halt", "/sRobotHalt", Bool),
+    ("turnoffUVC", "/sRobotTurnoffUVC", Bool),
+]
+# Consistent states of the thesis's controller (Tables 7, 8): none violates anything.
+S0 = dict(classifier=0, distance_to_target=50, OpState=0, alert=False, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
+S1 = dict(classifier=1, distance_to_target=10, OpState=1, alert=True, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
+S3 = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, slowdown=False, halt=True, turnoffUVC=True)  # fmt: skip
+S2 = dict(classifier=2, distance_to_target=10, OpState=2, alert=True, slowdown=True, halt=False, turnoffUVC=False)  # fmt: skip
+# A trained worker in the red zone while the controller is in state 2.
+VIOLATING = dict(S2, classifier=1, distance_to_target=2)
+
+
+def variant(tmp: Path, *edits: tuple[str, str], record_only: bool = True) -> Path:
+    """config/srobot.yaml edited; ``record_only``: every mitigation just logs,
+    so the supervisor's own halts do not change the inputs it watches."""
+    text = SROBOT.read_text()
+    if record_only:
+        text = re.sub(r"on_violation: \[[^\]]*\]", "on_violation: [record]", text)
+        text = text.replace("on_stale: [stop_robot]", "on_stale: [record]")
+    for old, new in edits:
+        assert old in text, old
+        text = text.replace(old, new)
+    path = tmp / "srobot.yaml"
+    path.write_text(text)
+    return path
+
+
+class Robot:
+    """The 7 srobot topics, published from this process."""
+
+    def __init__(self, node: Any) -> None:
+        self.node = node
+        self.pubs = {name: node.create_publisher(t, topic, 10) for name, topic, t in TOPICS}
+        self.types = {name: t for name, _, t in TOPICS}
+
+    def matched(self) -> None:
+        wait_matched(list(self.pubs.values()))
+
+    def publish(self, state: dict[str, Any], gap_before_trigger: float = 0.0) -> None:
+        for name, pub in self.pubs.items():
+            if name == "turnoffUVC" and gap_before_trigger:
+                time.sleep(gap_before_trigger)  # the controller's outputs, then its trigger
+            pub.publish(self.types[name](data=state[name]))
+
+
+@pytest.fixture
+def robot_node() -> Iterator[Any]:
+    with ros_node() as node:
+        yield node
+
+
+def _daemon(tmp_path: Path, config: Path, **kw: Any) -> Daemon:
+    d = Daemon(tmp_path, config, **kw)
+    d.wait_notify("READY=1", timeout=30)
+    return d
+
+
+def violations(d: Daemon) -> list[dict[str, Any]]:
+    return [r for r in d.records() if r["event"] == "violation"]
+
+
+# ------------------------------------------------------------------ step policies
+
+
+@pytest.mark.parametrize("policy", ["on_message", "on_trigger"])
+def test_asynchronous_topics(tmp_path: Path, robot_node: Any, policy: str) -> None:
+    """The thesis's sec. 5.1.2: stepping on every message judges half-updated
+    states and reports violations that never happened; stepping on the
+    controller's trigger reports none, on the same stream of consistent states."""
+    config = variant(tmp_path, ("policy: on_trigger", f"policy: {policy}"))
+    d = _daemon(tmp_path, config)
+    try:
+        robot = Robot(robot_node)
+        robot.matched()
+        robot.publish(S0)
+        cycle = [S1, S3, S2, S0] * 6
+        for state in cycle:
+            robot.publish(state, gap_before_trigger=0.02)
+            time.sleep(0.05)  # the controller's cycle time, not synchronisation
+        # Mark the end of the stream with a real violation, so the test knows
+        # every earlier message was processed before counting.
+        robot.publish(VIOLATING, gap_before_trigger=0.02)
+        d.wait_record(
+            lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
+            "the marker violation",
+        )
+        before_marker = []
+        for r in violations(d):
+            if r["requirement"] == "state_req103" and r["inputs"] == VIOLATING:
+                break
+            before_marker.append(r)
+        if policy == "on_message":
+            assert before_marker, "OGMA's on_message stepping should report transient violations"
+            # Each was judged on a state the controller never was in.
+            consistent = [S0, S1, S2, S3]
+            assert all(r["inputs"] not in consistent for r in before_marker)
+        else:
+            assert before_marker == [], before_marker
+        d.terminate()
+    finally:
+        d.close()
+
+
+# ------------------------------------------------------------------ stale inputs
+
+
+def test_stale_input_stops_robot(tmp_path: Path, robot_node: Any) -> None:
+    """A silent classifier is logged, shown in /diagnostics, and its on_stale
+    mitigation (stop_robot) publishes the halt another process receives."""
+    config = variant(tmp_path, ("on_stale: [record]", "on_stale: [stop_robot]"))
+    d = _daemon(tmp_path, config)
+    try:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from std_msgs.msg import UInt64
+
+        halts: list[bool] = []
+        diags: list[Any] = []
+        beats: list[int] = []
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        robot_node.create_subscription(Bool, "/sRobotHalt", lambda m: halts.append(m.data), latched)
+        robot_node.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        robot_node.create_subscription(
+            UInt64, "/safety_supervisor/heartbeat", lambda m: beats.append(m.data), 10
+        )
+        robot = Robot(robot_node)
+        robot.matched()
+        robot.publish(S0)
+        # Everything but the classifier keeps publishing.
+        t_end = time.monotonic() + 10
+        while time.monotonic() < t_end:
+            for name, pub in robot.pubs.items():
+                if name != "classifier":
+                    pub.publish(robot.types[name](data=S0[name]))
+            if any(
+                r["event"] == "mitigation" and r["requirement"] == "on_stale:classifier"
+                for r in d.records()
+            ):
+                break
+            spin_once(robot_node)
+        stale = d.wait_record(
+            lambda r: r.get("what") == "input_stale" and r["input"] == "classifier", "stale"
+        )
+        assert "silent for" in stale["detail"]
+        act = d.wait_record(
+            lambda r: r["event"] == "mitigation" and r["requirement"] == "on_stale:classifier",
+            "on_stale mitigation",
+        )
+        assert act["action"] == "stop_robot" and act["ok"] is True, act
+        assert not any(
+            r.get("input") == "OpState" and r.get("what") == "input_stale" for r in d.records()
+        )
+        spin_until(robot_node, "the halt", lambda: True in halts, 10)
+
+        def stale_status() -> Any:
+            for arr in diags:
+                for st in arr.status:
+                    if st.name.endswith("input classifier") and st.message == "stale":
+                        return st
+            return None
+
+        st = spin_until(robot_node, "classifier stale in /diagnostics", stale_status, 5)
+        assert st.level == b"\x02"
+        names = {s.name for s in diags[-1].status}
+        assert any(n.endswith("requirement state_req103") for n in names)
+        assert any(n.endswith("input OpState") for n in names)
+        spin_until(robot_node, "heartbeats", lambda: len(beats) >= 5, 5)
+        assert beats == sorted(beats)
+        d.terminate()
+    finally:
+        d.close()
+
+
+# ------------------------------------------------------------------ notify, watchdog, reload
+
+
+def _watchdog_times(notes: list[tuple[float, str]]) -> list[float]:
+    return [t for t, n in notes if "WATCHDOG=1" in n.splitlines()]
+
+
+def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
+    config = variant(tmp_path)
+    original = config.read_text()
+    d = _daemon(tmp_path, config, env={"WATCHDOG_USEC": "400000"})
+    try:
+        # WATCHDOG=1 at half of WATCHDOG_USEC (0.2 s).
+        notes = d.collect(2.0)
+        pings = _watchdog_times(notes)
+        assert 7 <= len(pings) <= 12, notes
+        gaps = [b - a for a, b in zip(pings, pings[1:], strict=False)]
+        assert max(gaps) < 0.35, gaps
+        statuses = [n for _, n in notes if "STATUS=" in n]
+        assert statuses and "ticks=" in statuses[-1]
+
+        # A loop that does not run sends no pings (SIGSTOP stops every thread;
+        # the in-process test below stalls only the loop).
+        d.proc.send_signal(signal.SIGSTOP)
+        stopped = d.collect(0.8)
+        d.proc.send_signal(signal.SIGCONT)
+        assert _watchdog_times(stopped) == []
+        assert len(_watchdog_times(d.collect(1.0))) >= 3
+
+        # A broken config: rejected with FILE:LINE, the old monitor keeps running.
+        config.write_text(original.replace("OpState=3)\n", "OpState=)\n", 1))
+        d.proc.send_signal(signal.SIGHUP)
+        d.wait_notify("RELOADING=1", timeout=5)
+        assert any("MONOTONIC_USEC=" in n for _, n in d.notifications[-3:])
+        d.wait_notify("READY=1", timeout=30)
+        rejected = d.wait_record(
+            lambda r: r.get("what") == "reload" and r.get("ok") is False, "reload rejected"
+        )
+        assert re.search(r"srobot\.yaml:\d+", rejected["why"]), rejected
+        robot = Robot(robot_node)
+        robot.matched()
+        robot.publish(S0)
+        robot.publish(VIOLATING)
+        v = d.wait_record(
+            lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
+            "violation after a rejected reload",
+        )
+        assert v["config_sha256"] == rejected["config_sha256"]
+
+        # A good config adds a requirement: after the reload it is monitored,
+        # without a gap (inputs keep their values) and with the new hash.
+        config.write_text(
+            original.replace(
+                "\n# A silent classifier",
+                "\n  - id: no_state2_for_trained\n"
+                "    text: While classifier = 1 sRobot shall always satisfy OpState != 2\n"
+                "    on_violation: [record]\n"
+                "\n# A silent classifier",
+            )
+        )
+        d.proc.send_signal(signal.SIGHUP)
+        d.wait_notify("RELOADING=1", timeout=5)
+        d.wait_notify("READY=1", timeout=30)
+        ok = d.wait_record(lambda r: r.get("what") == "reload" and r.get("ok") is True, "reload")
+        assert ok["requirements"] == 14
+        assert ok["config_sha256"] != rejected["config_sha256"]
+        robot.publish(VIOLATING)
+        new = d.wait_record(
+            lambda r: r["event"] == "violation" and r["requirement"] == "no_state2_for_trained",
+            "the new requirement's violation",
+        )
+        assert new["config_sha256"] == ok["config_sha256"]
+        assert len(_watchdog_times(d.collect(0.5))) >= 1  # still pinging after reloads
+        d.terminate()
+    finally:
+        d.close()
+
+
+# ------------------------------------------------------------------ garbage
+
+
+def test_garbage_on_topics(tmp_path: Path, robot_node: Any) -> None:
+    """Wrong message type on a topic, huge integers, NaN, a publisher that
+    goes away and comes back: reported, and the daemon keeps monitoring."""
+    config = tmp_path / "garbage.yaml"
+    config.write_text(
+        "component: R\n"
+        "step: {policy: on_message, stale_after_ms: 400}\n"
+        "variables:\n"
+        "  count: {type: int64, topic: /count, msg: std_msgs/msg/UInt64}\n"
+        "  level: {type: double, topic: /level, msg: std_msgs/msg/Float64}\n"
+        "  gear:  {type: int64, topic: /mode, msg: std_msgs/msg/Int64}\n"
+        "requirements:\n"
+        "  - id: level_ok\n"
+        "    text: R shall always satisfy level >= 0.0 & count >= 0 & gear >= 0\n"
+        "    on_violation: [record]\n"
+        "    policy: {reset: after_mitigation}\n"
+        "mitigations:\n"
+        "  record: {log: {message: violated}}\n"
+    )
+    d = _daemon(tmp_path, config)
+    try:
+        from std_msgs.msg import Float64, UInt64
+
+        count = robot_node.create_publisher(UInt64, "/count", 10)
+        level = robot_node.create_publisher(Float64, "/level", 10)
+        mode = robot_node.create_publisher(Int64, "/mode", 10)
+        wait_matched([count, level, mode])
+        # Another participant publishes the wrong type on /mode (DDS does not
+        # allow two types on one topic in the same participant).
+        with ros_node("wrong_type") as other:
+            wrong = other.create_publisher(String, "/mode", 10)
+            wrong.publish(String(data="three"))
+            problem = d.wait_record(
+                lambda r: r.get("what") == "input_problem" and r["input"] == "gear", "wrong type"
+            )
+        assert "std_msgs/msg/String" in problem["detail"]
+
+        count.publish(UInt64(data=2**64 - 1))
+        rej = d.wait_record(lambda r: r.get("what") == "input_rejected", "huge int rejected")
+        assert rej["input"] == "count" and "int64" in rej["detail"]
+        count.publish(UInt64(data=5))
+        mode.publish(Int64(data=1))
+        level.publish(Float64(data=float("nan")))
+        nan = d.wait_record(lambda r: r.get("what") == "input_nan", "NaN reported")
+        assert nan["input"] == "level"
+        # NaN >= 0.0 is false: the requirement is judged on it, not crashed on.
+        v = d.wait_record(lambda r: r["event"] == "violation", "violation on NaN")
+        assert v["inputs"]["count"] == 5
+
+        # The /level publisher disappears: its input goes stale and the graph
+        # check says the publisher is gone; it comes back and recovers.
+        robot_node.destroy_publisher(level)
+        d.wait_record(
+            lambda r: r.get("what") == "input_publisher_gone" and r["input"] == "level", "gone"
+        )
+        d.wait_record(lambda r: r.get("what") == "input_stale" and r["input"] == "level", "stale")
+        level = robot_node.create_publisher(Float64, "/level", 10)
+        wait_matched([level])
+        level.publish(Float64(data=1.0))
+        d.wait_record(
+            lambda r: r.get("what") == "input_recovered" and r["input"] == "level", "recovered"
+        )
+        d.wait_record(
+            lambda r: r.get("what") == "input_publisher_found" and r["input"] == "level", "found"
+        )
+        assert d.proc.poll() is None
+        d.terminate()
+    finally:
+        d.close()
