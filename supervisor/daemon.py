@@ -124,6 +124,10 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             ticks=node.session.runtime.tick,
             violations=node.violations,
             reloads=node.reloads,
+            inputs={
+                name: {k: st[k] for k in ("messages", "rejected", "nan")}
+                for name, st in node.session.runtime.input_stats().items()
+            },
         )
     notifier.close()
     return 0
