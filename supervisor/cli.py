@@ -19,8 +19,12 @@ from pathlib import Path
 
 from monitors.errors import UserError
 
+from .install import add_parser as add_install_parser
+from .install import cmd_install_service
 from .logs import add_parser as add_logs_parser
 from .logs import cmd_logs
+from .operator import add_parser as add_reset_parser
+from .operator import cmd_reset
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 
@@ -79,6 +83,9 @@ def cmd_explain(args: argparse.Namespace) -> int:
     unknown = wanted - {r.id for r in project.requirements}
     if unknown:
         project.config.requirement(sorted(unknown)[0])  # raises with the list of ids
+    from .analysis_report import analyse_project, explain_lines
+
+    analysis = analyse_project(project, args.k)
     status = EXIT_OK
     for r in project.requirements:
         if wanted and r.id not in wanted:
@@ -110,6 +117,8 @@ def cmd_explain(args: argparse.Namespace) -> int:
         _out(f"  role:      {kind}")
         if r.formalization.note:
             _out(f"  note:      {r.formalization.note}")
+        for line in explain_lines(analysis, r.id) if analysis else []:
+            _out(line)
         if r.entry.on_violation:
             _out(f"  on violation: {', '.join(r.entry.on_violation)}")
         _out()
@@ -156,9 +165,20 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"{failures} error(s); monitor not compiled"
         )
         return EXIT_FAIL
+    from .analysis_report import analyse_project, format_analysis
+
+    analysis = analyse_project(project, args.k)
+    if analysis is not None:
+        _out(format_analysis(analysis))
     with tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp:
         compile_project(project, Path(tmp), backend="native")
     dt = time.perf_counter() - t0
+    if analysis is not None and analysis.errors:
+        _out(
+            f"{args.config}: {n} requirements formalized, analysis found "
+            f"{len(analysis.errors)} error(s); monitor compiled and loaded ({dt:.2f} s)"
+        )
+        return EXIT_FAIL
     _out(f"{args.config}: {n} requirements ok, monitor compiled and loaded ({dt:.2f} s)")
     return EXIT_OK
 
@@ -197,10 +217,14 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "compile": cmd_compile,
     "logs": cmd_logs,
     "run": cmd_run,
+    "reset": cmd_reset,
+    "install-service": cmd_install_service,
 }
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .analysis_report import k_arg
+
     p = argparse.ArgumentParser(
         prog="safety-supervisor",
         description="Runtime-verification safety supervisor for ROS 2 robots.",
@@ -221,9 +245,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     e.add_argument("config")
     e.add_argument("requirements", nargs="*", metavar="REQ")
+    e.add_argument("--k", type=k_arg, default=None, help="analysed trace length in ticks")
 
     c = sub.add_parser("check", help="validate config and requirements, compile the monitor")
     c.add_argument("config")
+    c.add_argument("--k", type=k_arg, default=None, help="analysed trace length in ticks")
 
     k = sub.add_parser("compile", help="write monitor.c/.h, the shared library and manifest.json")
     k.add_argument("config")
@@ -241,6 +267,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="where to build the monitor (default: temp)",
     )
     add_logs_parser(sub)
+    add_reset_parser(sub)
+    add_install_parser(sub)
     return p
 
 

@@ -560,7 +560,14 @@ class SupervisorNode:
         if header is None:
             return
         ok, message = self.operator_reset()
-        srv.service_send_response(self._trigger.Response(success=ok, message=message), header)
+        # take_request gives rmw_service_info_t; the reply wants its request id.
+        request_id = getattr(header, "request_id", header)
+        try:
+            srv.service_send_response(
+                self._trigger.Response(success=ok, message=message), request_id
+            )
+        except Exception as e:  # noqa: BLE001 - the caller went away; the reset stands
+            warn(f"cannot answer {RESET_SERVICE}: {e}")
 
     def operator_reset(self) -> tuple[bool, str]:
         """Reset every requirement's monitor; lift latches of requirements that hold."""
