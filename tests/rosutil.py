@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import re
 import signal
 import socket
 import subprocess
@@ -16,6 +17,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+from std_msgs.msg import Bool, Int64
 
 ROOT = Path(__file__).resolve().parent.parent
 DOMAIN_ID = random.randint(1, 200)
@@ -207,14 +210,75 @@ def spin_until(node: Any, what: str, predicate: Callable[[], Any], timeout: floa
         spin_once(node)
 
 
-def srobot_variant(tmp: Path, **replace: str) -> Path:
-    """config/srobot.yaml with text replacements (old=new given as pairs in
-    ``replace`` values 'old|||new'), written into ``tmp``."""
+TOPICS: list[tuple[str, str, type]] = [  # trigger (turnoffUVC) last, as the controller does
+    ("classifier", "/sRobotClassifier", Int64),
+    ("distance_to_target", "/scan", Int64),
+    ("OpState", "/sRobotState", Int64),
+    ("alert", "/sRobotAlert", Bool),
+    ("slowdown", "/sRobotSlowdown", Bool),
+    ("halt", "/sRobotHalt", Bool),
+    ("turnoffUVC", "/sRobotTurnoffUVC", Bool),
+]
+# Consistent states of the thesis's controller (Tables 7, 8): none violates anything.
+S0 = dict(classifier=0, distance_to_target=50, OpState=0, alert=False, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
+S1 = dict(classifier=1, distance_to_target=10, OpState=1, alert=True, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
+S3 = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, slowdown=False, halt=True, turnoffUVC=True)  # fmt: skip
+S2 = dict(classifier=2, distance_to_target=10, OpState=2, alert=True, slowdown=True, halt=False, turnoffUVC=False)  # fmt: skip
+# A trained worker in the red zone while the controller is in state 2.
+VIOLATING = dict(S2, classifier=1, distance_to_target=2)
+
+
+def variant(tmp: Path, *edits: tuple[str, str], record_only: bool = True) -> Path:
+    """config/srobot.yaml edited; ``record_only``: every mitigation just logs,
+    so the supervisor's own halts do not change the inputs it watches."""
     text = SROBOT.read_text()
-    for pair in replace.values():
-        old, new = pair.split("|||")
+    if record_only:
+        text = re.sub(r"on_violation: \[[^\]]*\]", "on_violation: [record]", text)
+        text = text.replace("on_stale: [stop_robot]", "on_stale: [record]")
+    for old, new in edits:
         assert old in text, old
         text = text.replace(old, new)
-    out = tmp / "srobot.yaml"
-    out.write_text(text)
-    return out
+    path = tmp / "srobot.yaml"
+    path.write_text(text)
+    return path
+
+
+class Robot:
+    """The 7 srobot topics, published from this process."""
+
+    def __init__(self, node: Any) -> None:
+        self.node = node
+        self.pubs = {name: node.create_publisher(t, topic, 10) for name, topic, t in TOPICS}
+        self.types = {name: t for name, _, t in TOPICS}
+
+    def matched(self) -> None:
+        wait_matched(list(self.pubs.values()))
+
+    def publish(self, state: dict[str, Any], gap_before_trigger: float = 0.0) -> None:
+        for name, pub in self.pubs.items():
+            if name == "turnoffUVC" and gap_before_trigger:
+                time.sleep(gap_before_trigger)  # the controller's outputs, then its trigger
+            pub.publish(self.types[name](data=state[name]))
+
+    def until(
+        self,
+        state: dict[str, Any],
+        daemon: Daemon,
+        predicate: Callable[[dict[str, Any]], bool],
+        what: str,
+        timeout: float = 15,
+    ) -> dict[str, Any]:
+        """Publish ``state`` at the robot's rate (20 Hz) until a log record
+        matches: DDS does not order messages across topics, so one burst may
+        reach the supervisor with its trigger before the other values."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self.publish(state, gap_before_trigger=0.005)
+            found = next((r for r in daemon.records() if predicate(r)), None)
+            if found is not None:
+                return found
+            if time.monotonic() > deadline:
+                raise AssertionError(
+                    f"timed out after {timeout} s waiting for {what}\n{daemon.explain()}"
+                )
+            time.sleep(0.05)  # the robot's publishing period

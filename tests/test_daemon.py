@@ -21,7 +21,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 from rclpy.node import Node  # noqa: E402
-from rosutil import Daemon, ros_node  # noqa: E402
+from rosutil import Daemon  # noqa: E402
 from std_msgs.msg import Bool, Int64  # noqa: E402
 
 # classifier=1 (trained worker) at 2 m (red zone) while the controller is in
@@ -47,16 +47,11 @@ def daemon(tmp_path: Path) -> Iterator[Daemon]:
         d.close()
 
 
-@pytest.fixture
-def robot() -> Iterator[Node]:
-    with ros_node() as node:
-        yield node
-
-
-def test_violation_logged_then_clean_stop(daemon: Daemon, robot: Node) -> None:
+def test_violation_logged_then_clean_stop(daemon: Daemon, robot_node: Node) -> None:
     daemon.wait_notify("READY=1", timeout=20)
     pubs = [
-        (name, robot.create_publisher(t, topic, 10), t, v) for name, topic, t, v in VIOLATING_STATE
+        (name, robot_node.create_publisher(t, topic, 10), t, v)
+        for name, topic, t, v in VIOLATING_STATE
     ]
 
     deadline = time.monotonic() + 15

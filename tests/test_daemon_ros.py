@@ -7,7 +7,6 @@ from __future__ import annotations
 import re
 import signal
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -16,64 +15,21 @@ import pytest
 pytest.importorskip("rclpy")
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from rosutil import SROBOT, Daemon, ros_node, spin_once, spin_until, wait_matched  # noqa: E402
+from rosutil import (  # noqa: E402
+    S0,
+    S1,
+    S2,
+    S3,
+    VIOLATING,
+    Daemon,
+    Robot,
+    ros_node,
+    spin_once,
+    spin_until,
+    variant,
+    wait_matched,
+)
 from std_msgs.msg import Bool, Int64, String  # noqa: E402
-
-TOPICS: list[tuple[str, str, type]] = [  # trigger (turnoffUVC) last, as the controller does
-    ("classifier", "/sRobotClassifier", Int64),
-    ("distance_to_target", "/scan", Int64),
-    ("OpState", "/sRobotState", Int64),
-    ("alert", "/sRobotAlert", Bool),
-    ("slowdown", "/sRobotSlowdown", Bool),
-    ("halt", "/sRobotHalt", Bool),
-    ("turnoffUVC", "/sRobotTurnoffUVC", Bool),
-]
-# Consistent states of the thesis's controller (Tables 7, 8): none violates anything.
-S0 = dict(classifier=0, distance_to_target=50, OpState=0, alert=False, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
-S1 = dict(classifier=1, distance_to_target=10, OpState=1, alert=True, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
-S3 = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, slowdown=False, halt=True, turnoffUVC=True)  # fmt: skip
-S2 = dict(classifier=2, distance_to_target=10, OpState=2, alert=True, slowdown=True, halt=False, turnoffUVC=False)  # fmt: skip
-# A trained worker in the red zone while the controller is in state 2.
-VIOLATING = dict(S2, classifier=1, distance_to_target=2)
-
-
-def variant(tmp: Path, *edits: tuple[str, str], record_only: bool = True) -> Path:
-    """config/srobot.yaml edited; ``record_only``: every mitigation just logs,
-    so the supervisor's own halts do not change the inputs it watches."""
-    text = SROBOT.read_text()
-    if record_only:
-        text = re.sub(r"on_violation: \[[^\]]*\]", "on_violation: [record]", text)
-        text = text.replace("on_stale: [stop_robot]", "on_stale: [record]")
-    for old, new in edits:
-        assert old in text, old
-        text = text.replace(old, new)
-    path = tmp / "srobot.yaml"
-    path.write_text(text)
-    return path
-
-
-class Robot:
-    """The 7 srobot topics, published from this process."""
-
-    def __init__(self, node: Any) -> None:
-        self.node = node
-        self.pubs = {name: node.create_publisher(t, topic, 10) for name, topic, t in TOPICS}
-        self.types = {name: t for name, _, t in TOPICS}
-
-    def matched(self) -> None:
-        wait_matched(list(self.pubs.values()))
-
-    def publish(self, state: dict[str, Any], gap_before_trigger: float = 0.0) -> None:
-        for name, pub in self.pubs.items():
-            if name == "turnoffUVC" and gap_before_trigger:
-                time.sleep(gap_before_trigger)  # the controller's outputs, then its trigger
-            pub.publish(self.types[name](data=state[name]))
-
-
-@pytest.fixture
-def robot_node() -> Iterator[Any]:
-    with ros_node() as node:
-        yield node
 
 
 def _daemon(tmp_path: Path, config: Path, **kw: Any) -> Daemon:
@@ -243,8 +199,9 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
         robot = Robot(robot_node)
         robot.matched()
         robot.publish(S0)
-        robot.publish(VIOLATING)
-        v = d.wait_record(
+        v = robot.until(
+            VIOLATING,
+            d,
             lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
             "violation after a rejected reload",
         )
@@ -267,8 +224,9 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
         ok = d.wait_record(lambda r: r.get("what") == "reload" and r.get("ok") is True, "reload")
         assert ok["requirements"] == 14
         assert ok["config_sha256"] != rejected["config_sha256"]
-        robot.publish(VIOLATING)
-        new = d.wait_record(
+        new = robot.until(
+            VIOLATING,
+            d,
             lambda r: r["event"] == "violation" and r["requirement"] == "no_state2_for_trained",
             "the new requirement's violation",
         )
