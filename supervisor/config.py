@@ -950,9 +950,40 @@ _REQUIRED = {
             "backoff_s",
         },
     ),
-    "command": ({"argv"}, {"argv", "timeout_s", "env"}),
+    "command": ({"argv"}, {"argv", "timeout_s", "env", "retries", "backoff_s"}),
     "log": (set(), {"message"}),
 }
+
+
+_POSITIVE = {"connect_timeout_s", "command_timeout_s", "timeout_s"}
+
+
+def _check_setting_types(name: str, kind: str, params: dict, where: LineDict) -> None:
+    """Types and ranges of ssh/command settings, so the daemon never meets them first."""
+    what = f"mitigation '{name}' ({kind})"
+    for key, v in params.items():
+        bad = None
+        if key == "port":
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 < v < 65536:
+                bad = "must be a port number 1..65535"
+        elif key == "retries":
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                bad = "must be a whole number of attempts >= 1"
+        elif key in _POSITIVE or key == "backoff_s":
+            if isinstance(v, bool) or not isinstance(v, int | float):
+                bad = "must be a number of seconds"
+            elif v < 0 or (key in _POSITIVE and v == 0):
+                bad = "must be positive" if key in _POSITIVE else "must not be negative"
+        elif key in ("host", "user", "command", "key", "known_hosts"):
+            if not isinstance(v, str) or not v.strip():
+                bad = "must be a non-empty string"
+        elif key == "env":
+            if not isinstance(v, dict) or not all(
+                isinstance(x, str | int | float) and not isinstance(x, bool) for x in v.values()
+            ):
+                bad = "must be a mapping of variable names to values"
+        if bad:
+            raise _err(f"{what}: '{key}' {bad}, got {v!r}", where, kind)
 
 
 def _check_mitigation(name: str, kind: str, params: dict, where: LineDict) -> None:
@@ -976,6 +1007,7 @@ def _check_mitigation(name: str, kind: str, params: dict, where: LineDict) -> No
                 where,
                 kind,
             )
+    _check_setting_types(name, kind, params, where)
     if kind == "publish" and not str(params["topic"]).startswith("/"):
         raise _err(f"mitigation '{name}': topic must start with '/'", where, kind)
     if kind == "publish" and params.get("qos", "latched") not in PUBLISH_QOS:

@@ -14,6 +14,7 @@ import contextlib
 import os
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 from pathlib import Path
@@ -106,6 +107,9 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             )
         log = stack.enter_context(ViolationLog(path, cfg.component, cfg.sha256))
         log.supervisor("start", config=str(config), pid=os.getpid())
+        for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
+            print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
+            log.supervisor("check_warning", detail=w)
         ctx = init_ros()
         stack.callback(_shutdown_ros, ctx)
         node = SupervisorNode(

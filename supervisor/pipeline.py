@@ -218,11 +218,35 @@ def check_variables(
     return errors, warnings
 
 
+def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError], list[str]]:
+    """Publish actions: message type and value (errors).  SSH actions: key and
+    known_hosts files (warnings: a robot config is often checked on a laptop
+    that does not hold the robot's key)."""
+    errors: list[UserError] = []
+    warnings: list[str] = []
+    for m in cfg.mitigations.values():
+        if m.kind == "publish" and ros:
+            from .rosmsg import build_message, message_class
+
+            try:
+                build_message(message_class(str(m.params["msg"])), m.params.get("value"), "value")
+            except UserError as e:
+                e.message = f"mitigation '{m.name}': {e.message}"
+                errors.append(_located(e, cfg.path, m.line))
+        elif m.kind == "ssh":
+            from mitigations.ssh import SshAction
+
+            for problem in SshAction(m.name, m.params).check():
+                warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
+    return errors, warnings
+
+
 def build_project(cfg: Config, *, ros: bool = True) -> Project:
     env = _env(cfg)
     reqs = [compile_requirement(e, cfg, env) for e in cfg.requirements]
     errors, warnings = check_variables(cfg, reqs, ros=ros)
-    return Project(cfg, reqs, errors, warnings)
+    m_errors, m_warnings = check_mitigations(cfg, ros=ros)
+    return Project(cfg, reqs, errors + m_errors, warnings + m_warnings)
 
 
 def project_for(path: str | Path, *, ros: bool = True) -> Project:

@@ -171,3 +171,64 @@ def test_malformed_yaml(tmp_path):
 def test_unknown_top_level_key_suggests(tmp_path):
     e = error_of(tmp_path, BASE.replace("mitigations:", "mitigation:"))
     assert "did you mean 'mitigations'" in str(e)
+
+
+MITIGATION_BASE = """component: T
+variables:
+  p: {type: bool, topic: /p, msg: std_msgs/msg/Bool}
+requirements:
+  - {id: r, text: T shall always satisfy p, on_violation: [m]}
+mitigations:
+  m: MITIGATION
+"""
+
+
+@pytest.mark.parametrize(
+    ("mitigation", "expected"),
+    [
+        ("{command: {argv: [/bin/true], retries: 2, backoff_s: 0.1}}", None),
+        ("{command: {argv: [/bin/true], timeout_s: 0}}", "'timeout_s' must be positive"),
+        ("{command: {argv: [/bin/true], env: [A]}}", "'env' must be a mapping"),
+        (
+            "{ssh: {host: h, user: u, key: k, known_hosts: kh, command: c, port: '22'}}",
+            "'port' must be a port number",
+        ),
+        (
+            "{ssh: {host: h, user: u, key: k, known_hosts: kh, command: c, retries: 0}}",
+            "'retries' must be a whole number",
+        ),
+        (
+            "{ssh: {host: h, user: u, key: k, known_hosts: kh, command: c, backoff_s: -1}}",
+            "'backoff_s' must not be negative",
+        ),
+        (
+            "{ssh: {host: '', user: u, key: k, known_hosts: kh, command: c}}",
+            "'host' must be a non-empty string",
+        ),
+        ("{publish: {topic: /h, msg: std_msgs/msg/Bool, qos: sticky}}", "unknown qos 'sticky'"),
+    ],
+)
+def test_mitigation_settings(tmp_path: Path, mitigation: str, expected: str | None) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text(MITIGATION_BASE.replace("MITIGATION", mitigation))
+    if expected is None:
+        load_config(path)
+        return
+    with pytest.raises(UserError) as e:
+        load_config(path)
+    assert expected in str(e.value) and ":7:" in str(e.value)
+
+
+def test_publish_value_checked_against_the_message(tmp_path: Path) -> None:
+    from supervisor.pipeline import project_for
+
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        MITIGATION_BASE.replace(
+            "MITIGATION", "{publish: {topic: /h, msg: std_msgs/msg/Bool, value: {dat: true}}}"
+        )
+    )
+    errors = [str(e) for e in project_for(path).errors]
+    assert any(":7:" in e and "mitigation 'm'" in e and "no field 'dat'" in e for e in errors), (
+        errors
+    )
