@@ -282,3 +282,19 @@ class Robot:
                     f"timed out after {timeout} s waiting for {what}\n{daemon.explain()}"
                 )
             time.sleep(0.05)  # the robot's publishing period
+
+    def warm_up(self, daemon: Daemon, state: dict[str, Any], timeout: float = 15) -> None:
+        """Publish ``state`` at 10 Hz until the daemon's STATUS= says every input
+        has a value: the first sample on a freshly matched topic can arrive a
+        repair period late, which would shift a synchronized monitor by one."""
+        deadline = time.monotonic() + timeout
+        while True:
+            self.publish(state)
+            note = daemon.recv(0.1)
+            if note and "STATUS=" in note and "waiting_for=" not in note and "ticks=" in note:
+                # one more round after the status, then let the stream settle
+                self.publish(state)
+                daemon.collect(0.3)
+                return
+            if time.monotonic() > deadline:
+                raise AssertionError(f"inputs never all received\n{daemon.explain()}")

@@ -45,24 +45,31 @@ def violations(d: Daemon) -> list[dict[str, Any]]:
 # ------------------------------------------------------------------ step policies
 
 
-@pytest.mark.parametrize("policy", ["on_message", "on_trigger"])
+@pytest.mark.parametrize("policy", ["on_message", "on_trigger", "synchronized"])
 def test_asynchronous_topics(tmp_path: Path, robot_node: Any, policy: str) -> None:
     """The thesis's sec. 5.1.2: stepping on every message judges half-updated
     states and reports violations that never happened; stepping on the
-    controller's trigger reports none, on the same stream of consistent states."""
-    config = variant(tmp_path, ("policy: on_trigger", f"policy: {policy}"))
+    controller's trigger reports none, on the same stream of consistent states.
+    on_trigger relies on the trigger arriving after the other topics (DDS does
+    not order across topics: the controller leaves 80 ms); synchronized waits
+    for a fresh message on every input and needs no such discipline."""
+    # synchronized: a round that starts before the supervisor matched every
+    # topic arrives partial and would shift every later step by one topic;
+    # max_skew_ms (well under the 200 ms cycle) closes such a round and resyncs.
+    step = f"policy: {policy}" + ("\n  max_skew_ms: 20" if policy == "synchronized" else "")
+    config = variant(tmp_path, ("policy: on_trigger", step))
     d = _daemon(tmp_path, config)
     try:
         robot = Robot(robot_node)
         robot.matched()
-        robot.publish(S0)
-        cycle = [S1, S3, S2, S0] * 6
+        robot.warm_up(d, S0)
+        cycle = [S1, S3, S2, S0] * 4
         for state in cycle:
-            robot.publish(state, gap_before_trigger=0.02)
-            time.sleep(0.05)  # the controller's cycle time, not synchronisation
+            robot.publish(state, gap_before_trigger=0.08 if policy == "on_trigger" else 0.0)
+            time.sleep(0.2)  # the controller's cycle (5 Hz), not synchronisation
         # Mark the end of the stream with a real violation, so the test knows
         # every earlier message was processed before counting.
-        robot.publish(VIOLATING, gap_before_trigger=0.02)
+        robot.publish(VIOLATING, gap_before_trigger=0.08)
         d.wait_record(
             lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
             "the marker violation",
@@ -307,5 +314,47 @@ def test_garbage_on_topics(tmp_path: Path, robot_node: Any) -> None:
         )
         assert d.proc.poll() is None
         d.terminate()
+    finally:
+        d.close()
+
+
+def test_incompatible_qos_reported_and_auto_qos_follows(tmp_path: Path, robot_node: Any) -> None:
+    """A best-effort sensor publisher: a `qos: reliable` input cannot match it
+    (reported, as OGMA's monitor stays silent); an `auto` input subscribed
+    before the publisher existed resubscribes to match and receives."""
+    config = tmp_path / "qos.yaml"
+    config.write_text(
+        "component: R\n"
+        "step: {policy: on_message}\n"
+        "variables:\n"
+        "  a: {type: int64, topic: /a, msg: std_msgs/msg/Int64, qos: reliable}\n"
+        "  b: {type: int64, topic: /b, msg: std_msgs/msg/Int64, initial: 0}\n"
+        "requirements:\n"
+        "  - {id: small, text: R shall always satisfy a + b < 10, on_violation: [record]}\n"
+        "mitigations:\n"
+        "  record: {log: {message: violated}}\n"
+    )
+    d = _daemon(tmp_path, config)
+    try:
+        sensor = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+        pa = robot_node.create_publisher(Int64, "/a", sensor)
+        pb = robot_node.create_publisher(Int64, "/b", sensor)
+        problem = d.wait_record(
+            lambda r: r.get("what") == "input_problem" and r["input"] == "a", "QoS problem on a"
+        )
+        assert (
+            "incompatible QoS" in problem["detail"] and "best effort" in problem["detail"].lower()
+        )
+        changed = d.wait_record(lambda r: r.get("what") == "input_qos_changed", "b resubscribed")
+        assert changed["input"] == "b" and changed["reliability"] == "best_effort"
+        wait_matched([pb])
+        assert pa.get_subscription_count() == 0  # the reliable reader never matches
+        for _ in range(20):  # a never arrives, so nothing steps: count b's messages at stop
+            pb.publish(Int64(data=42))
+            time.sleep(0.05)  # the sensor's rate
+        d.terminate()
+        stop = [r for r in d.records() if r.get("what") == "stop"][-1]
+        assert stop["inputs"]["b"]["messages"] > 0  # b is received after the resubscription
+        assert stop["inputs"]["a"]["messages"] == 0
     finally:
         d.close()
