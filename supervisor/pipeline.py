@@ -168,6 +168,12 @@ def check_variables(
     """Type-check defines, check message types and fields, find unused variables."""
     errors: list[UserError] = []
     warnings: list[str] = []
+    if cfg.step.policy == "synchronized" and not cfg.step.max_skew_ms:
+        warnings.append(
+            f"{cfg.path}:{cfg.step.line}: step.policy synchronized without max_skew_ms: one "
+            "partial round (a lost or late message) shifts every later step by one topic; "
+            "set max_skew_ms below the robot's publishing period"
+        )
     env = _env(cfg)
     for v in cfg.defines:
         try:
