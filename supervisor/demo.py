@@ -740,13 +740,16 @@ class Run:
             self.out.flush()
             return
         self.print_events()
-        print(status_line(self.st), file=self.out, flush=True)
+        if self.st.cycle:  # nothing to say before the first perception cycle
+            print(status_line(self.st), file=self.out, flush=True)
 
-    def print_events(self, settle: float = 0.3) -> None:
-        """Line mode: each event once, after its mitigations had time to be logged."""
+    def print_events(self, settle: float = 0.5) -> None:
+        """Line mode: each event once; a violation once its mitigations are
+        logged (a few ms) or ``settle`` s later, so its line says what was done."""
         now = self.st.elapsed()
         for ev in self.st.timeline():
-            if not ev.shown and (now - ev.t >= settle or settle == 0):
+            waiting = ev.requirement is not None and not ev.actions and now - ev.t < settle
+            if not ev.shown and not (waiting and settle):
                 ev.shown = True
                 print(f"{ev.render()}", file=self.out, flush=True)
 
