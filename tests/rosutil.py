@@ -298,3 +298,12 @@ class Robot:
                 return
             if time.monotonic() > deadline:
                 raise AssertionError(f"inputs never all received\n{daemon.explain()}")
+
+    def violate(
+        self, daemon: Daemon, predicate: Callable[[dict[str, Any]], bool], what: str
+    ) -> dict[str, Any]:
+        """From the nominal state S0, hold VIOLATING (a trained worker in the red
+        zone, controller in state 2) until a log record matches."""
+        self.matched()
+        self.publish(S0)
+        return self.until(VIOLATING, daemon, predicate, what)

@@ -204,10 +204,7 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
         )
         assert re.search(r"srobot\.yaml:\d+", rejected["why"]), rejected
         robot = Robot(robot_node)
-        robot.matched()
-        robot.publish(S0)
-        v = robot.until(
-            VIOLATING,
+        v = robot.violate(
             d,
             lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
             "violation after a rejected reload",

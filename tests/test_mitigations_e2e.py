@@ -95,10 +95,7 @@ def test_latched_halt_and_operator_reset(tmp_path: Path, robot_node: Any) -> Non
     d = start(tmp_path, config)
     try:
         robot = Robot(robot_node)
-        robot.matched()
-        robot.publish(S0)
-        v = robot.until(
-            VIOLATING,
+        v = robot.violate(
             d,
             lambda r: r["event"] == "violation" and r["requirement"] == "state_req103",
             "violation",
@@ -164,10 +161,7 @@ def test_ssh_shutdown_runs_on_the_robot(tmp_path: Path, robot_node: Any, sshd: A
     d = start(tmp_path, config)
     try:
         robot = Robot(robot_node)
-        robot.matched()
-        robot.publish(S0)
-        rec = robot.until(
-            VIOLATING,
+        rec = robot.violate(
             d,
             lambda r: r["event"] == "mitigation" and r["action"] == "power_off",
             "the power_off record",
@@ -233,10 +227,7 @@ def test_sshd_down_retries_while_monitoring_goes_on(
     d = start(tmp_path, config)
     try:
         robot = Robot(robot_node)
-        robot.matched()
-        robot.publish(S0)
-        first = robot.until(
-            VIOLATING,
+        first = robot.violate(
             d,
             lambda r: r["event"] == "mitigation" and r["action"] == "power_off",
             "the first power_off attempt",
