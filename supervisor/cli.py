@@ -19,6 +19,8 @@ from pathlib import Path
 
 from monitors.errors import UserError
 
+from .demo import add_parser as add_demo_parser
+from .demo import cmd_demo
 from .install import add_parser as add_install_parser
 from .install import cmd_install_service
 from .logs import add_parser as add_logs_parser
@@ -219,6 +221,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "run": cmd_run,
     "reset": cmd_reset,
     "install-service": cmd_install_service,
+    "demo": cmd_demo,
 }
 
 
@@ -269,6 +272,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_logs_parser(sub)
     add_reset_parser(sub)
     add_install_parser(sub)
+    add_demo_parser(sub)
     return p
 
 

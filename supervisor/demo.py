@@ -820,7 +820,7 @@ def add_parser(sub: Any) -> None:
         "--fault-rate",
         type=_fraction,
         default=DEFAULT_FAULT_RATE,
-        help="chance per entry into state 3 that the UV light stays on (default 0.01)",
+        help="chance per update in state 3 that the UV light sticks on, as in the thesis (default 0.01)",
     )
     p.add_argument(
         "--seed", type=int, default=None, help="the walk and the faults (default: random)"

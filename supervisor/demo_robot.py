@@ -11,9 +11,9 @@
     The safety controller: class and zone -> OpState and the outputs of
     Tables 7 and 8, published once per perception cycle with turnoffUVC last
     (the supervisor's trigger).  The fault of sec. 5.3.2: with probability P
-    per entry into state 3, the UV light stays on (turnoffUVC false) while in
-    state 3, until the supervisor's ``uv_off`` mitigation (true on
-    /sRobotTurnoffUVC) cuts it, as the robot's UV relay would.
+    per update in state 3, the UV light sticks on (turnoffUVC false) for the
+    rest of the stay in state 3, until the supervisor's ``uv_off`` mitigation
+    (true on /sRobotTurnoffUVC) cuts it, as the robot's UV relay would.
 
 ``python -m supervisor.demo_robot poweroff-marker DIR``
     What the demo config runs instead of ``ssh robot-pc.local sudo systemctl
@@ -207,6 +207,7 @@ class Controller:
         node = proc.node
         self.rng = random.Random(f"{seed}:controller")
         self.fault_rate = fault_rate
+        self.cut = False  # uv_off cut a stuck relay during this stay in state 3
         self.pending: dict[str, dict[int, int]] = {"c": {}, "d": {}}
         self.counters = {"c": 0, "d": 0}
         self.state = 0
@@ -268,11 +269,16 @@ class Controller:
 
     def _cycle(self, cls: int, dist: int) -> None:
         state = op_state(cls, dist)
-        if state == 3 and self.state != 3:
-            self.faulty = self.rng.random() < self.fault_rate
-            if self.faulty:
+        if state == 3:
+            # The thesis's fault (sec. 5.3.2): on each update in state 3 the UV
+            # relay may stick on, until the supervisor's uv_off cuts it for the
+            # rest of this stay.
+            if self.state != 3:
+                self.cut = False
+            if not self.faulty and not self.cut and self.rng.random() < self.fault_rate:
+                self.faulty = True
                 emit(ev="fault")
-        elif state != 3:
+        else:
             self.faulty = False
         if state != self.state:
             emit(ev="state", old=self.state, new=state)
@@ -293,6 +299,7 @@ class Controller:
         # The UV relay obeys the cut: the fault is over for this stay in state 3.
         fixed = self.faulty
         self.faulty = False
+        self.cut = self.cut or fixed
         emit(ev="uv_off", fixed=fixed, state=self.state)
 
     def _halt(self, msg: Any) -> None:

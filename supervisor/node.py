@@ -591,6 +591,10 @@ class SupervisorNode:
             except Exception as e:  # noqa: BLE001 - graph queries fail during shutdown
                 warn(f"cannot query publishers of {topic}: {e}")
                 return
+            # Our own mitigation publishers (a halt on the robot's halt topic)
+            # are not the robot: they must not hide a missing robot publisher.
+            me = (self.node.get_name(), self.node.get_namespace())
+            pubs = [p for p in pubs if (p.node_name, p.node_namespace) != me]
             mine = s.sub.qos_profile if hasattr(s.sub, "qos_profile") else None
             problem = None
             expected = _type_name(s.var.msg or "")

@@ -239,7 +239,21 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
             except UserError as e:
                 e.message = f"mitigation '{m.name}': {e.message}"
                 errors.append(_located(e, cfg.path, m.line))
-        elif m.kind == "ssh":
+        if m.kind == "publish":
+            topic = str(m.params["topic"])
+            readers = [v.name for v in cfg.inputs if v.topic == topic]
+            for name in readers:
+                trigger = (
+                    " (the step trigger: each action adds a tick)"
+                    if name == cfg.step.trigger
+                    else ""
+                )
+                warnings.append(
+                    f"{cfg.path}:{m.line}: mitigation '{m.name}' publishes on {topic}, which is "
+                    f"also input '{name}'{trigger}: the supervisor reads its own command as the "
+                    "robot's state; prefer a command topic the robot echoes on its own topic"
+                )
+        if m.kind == "ssh":
             from mitigations.ssh import SshAction
 
             for problem in SshAction(m.name, m.params).check():

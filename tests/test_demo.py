@@ -23,7 +23,7 @@ import pytest
 pytest.importorskip("rclpy")
 
 ROOT = Path(__file__).resolve().parent.parent
-DEMO = [sys.executable, "-m", "supervisor.demo"]
+DEMO = [sys.executable, "-m", "supervisor", "demo"]
 
 
 def _env() -> dict[str, str]:
