@@ -1,0 +1,239 @@
+"""The analyses for a loaded project, and their plain-text report.
+
+``check`` prints ``format_analysis``; ``explain`` prints ``explain_lines`` per
+requirement.  Findings are tables a safety engineer reads without knowing z3:
+the requirement ids, a trace tick by tick (one column per variable, then the
+reference interpreter's verdict per requirement), and what to change.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from monitors.analysis import (
+    DEFAULT_TIMEOUT_S,
+    Analysis,
+    Example,
+    Finding,
+    Req,
+    VarInfo,
+    activation,
+    analyse,
+)
+from monitors.errors import UserError
+from monitors.interpret import Value
+from monitors.spec import Define, expand_defines
+
+from .config import Config
+from .pipeline import Project
+
+ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
+LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
+
+
+# ------------------------------------------------------------------ settings
+
+
+def _key_line(cfg: Config, key: str | None) -> int | None:
+    """The line of ``analysis:`` (or one of its keys) in the config file, for errors:
+    Config keeps the section as a plain dict, so the file is read again here."""
+    from .yamlload import LineDict, load_yaml
+
+    try:
+        doc = load_yaml(cfg.path)
+    except UserError:
+        return None
+    if not isinstance(doc, LineDict):
+        return None
+    if key is None or not isinstance(doc.get("analysis"), LineDict):
+        return doc.key_line("analysis")
+    return doc["analysis"].key_line(key)
+
+
+def analysis_settings(cfg: Config) -> tuple[int | None, float, bool]:
+    """(k, timeout_s, enabled) from the config's ``analysis:`` section."""
+    sec: dict[str, Any] = cfg.analysis or {}
+    for key in sec:
+        if key not in ANALYSIS_KEYS:
+            raise UserError(
+                f"unknown key '{key}' in analysis",
+                file=cfg.path,
+                line=_key_line(cfg, key),
+                hint=f"known keys: {', '.join(sorted(ANALYSIS_KEYS))}",
+            )
+    k = sec.get("k")
+    if k is not None:
+        try:
+            k = int(str(k))
+        except ValueError:
+            k = 0
+        if k < 1:
+            raise UserError(
+                "analysis.k must be a whole number of ticks, at least 1",
+                file=cfg.path,
+                line=_key_line(cfg, "k"),
+            )
+    timeout = sec.get("timeout_s", DEFAULT_TIMEOUT_S)
+    try:
+        timeout = float(str(timeout))
+    except ValueError:
+        timeout = -1.0
+    if not timeout > 0 or math.isinf(timeout):
+        raise UserError(
+            "analysis.timeout_s must be a positive number of seconds",
+            file=cfg.path,
+            line=_key_line(cfg, "timeout_s"),
+        )
+    enabled = str(sec.get("enabled", True)).lower() not in ("false", "no", "0", "off")
+    return k, timeout, enabled
+
+
+def k_arg(text: str) -> int:
+    """argparse type of ``--k``: a trace length of at least one tick (else usage error)."""
+    import argparse
+
+    try:
+        k = int(text)
+    except ValueError:
+        k = 0
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"--k needs a whole number of ticks >= 1, not '{text}'")
+    return k
+
+
+# ------------------------------------------------------------------ project -> analysis
+
+
+def project_requirements(project: Project) -> tuple[list[Req], list[VarInfo]]:
+    """Every requirement that formalized, over declared variables (defines expanded)."""
+    cfg = project.config
+    defines = tuple(Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None)
+    reqs = []
+    for r in project.requirements:
+        if not r.ok or r.formalization is None or r.parsed is None:
+            continue
+        reqs.append(
+            Req(
+                r.id,
+                expand_defines(r.formula, defines),
+                assumption=r.entry.assumption,
+                monotone=r.formalization.monotone,
+                activation=expand_defines(activation(r.parsed), defines),
+                note=r.formalization.note,
+                text=r.entry.text,
+            )
+        )
+    roles = [VarInfo(v.name, v.type, v.role, v.range) for v in cfg.inputs]
+    return reqs, roles
+
+
+def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
+    """The analyses with the config's settings (``k`` overrides analysis.k); None
+    when the config switches them off."""
+    cfg_k, timeout, enabled = analysis_settings(project.config)
+    if not enabled:
+        return None
+    reqs, roles = project_requirements(project)
+    return analyse(reqs, roles, k=k or cfg_k, timeout_s=timeout)
+
+
+# ------------------------------------------------------------------ text
+
+
+def _value(v: Value) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return repr(v) if not math.isnan(v) else "nan"
+    return str(v)
+
+
+def format_trace(
+    trace: list[dict[str, Value]],
+    verdicts: dict[str, list[bool]],
+    variables: dict[str, VarInfo],
+    indent: str = "    ",
+) -> list[str]:
+    """A trace as a table: tick, one column per variable (its role below the name),
+    then one column per requirement with the interpreter's verdict."""
+    names = list(trace[0]) if trace else []
+    head = ["tick", *names]
+    roles = ["", *(variables[n].role if n in variables else "" for n in names)]
+    rows = [[str(t), *(_value(row[n]) for n in names)] for t, row in enumerate(trace)]
+    reqs = list(verdicts)
+    head += reqs
+    roles += ["" for _ in reqs]
+    for t, row in enumerate(rows):
+        row += ["ok" if verdicts[r][t] else "VIOLATED" for r in reqs]
+    width = [max(len(x[i]) for x in [head, roles, *rows]) for i in range(len(head))]
+    sep = len(names) + 1  # a bar between the values and the verdicts
+
+    def line(cells: list[str]) -> str:
+        parts = [
+            c.rjust(width[i]) if i <= len(names) else c.ljust(width[i]) for i, c in enumerate(cells)
+        ]
+        if reqs:
+            return (indent + "  ".join(parts[:sep]) + " | " + "  ".join(parts[sep:])).rstrip()
+        return (indent + "  ".join(parts)).rstrip()
+
+    out = [line(head)]
+    if any(roles):
+        out.append(line(roles))
+    out.append(line(["-" * w for w in width]))
+    out.extend(line(r) for r in rows)
+    return out
+
+
+def format_finding(f: Finding, variables: dict[str, VarInfo]) -> list[str]:
+    ids = ", ".join(f.requirements) if f.requirements else "(whole set)"
+    out = [f"{LABEL[f.severity]} {f.kind}: {ids}", f"  {f.message}"]
+    if f.trace:
+        out.append(f"  trace: {f.trace_note}" if f.trace_note else "  trace:")
+        out.extend(format_trace(f.trace, f.verdicts, variables))
+    out.append(f"  what to change: {f.fix}")
+    return out
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
+def format_analysis(a: Analysis) -> str:
+    n_a = sum(1 for r in a.requirements if r.assumption)
+    n = len(a.requirements)
+    out = [
+        f"analysis: {_count(n, 'requirement')} ({_count(n_a, 'assumption')}, "
+        f"{_count(n - n_a, 'guarantee')}), "
+        f"traces of k = {a.k} ticks, {a.seconds.get('total', 0.0):.2f} s",
+        f"  consistency:   {a.consistency}",
+        f"  realizability: {a.realizability}",
+    ]
+    errors, warnings = len(a.errors), len(a.warnings)
+    out.append(f"  findings:      {_count(errors, 'error')}, {_count(warnings, 'warning')}")
+    for f in a.findings:
+        out.append("")
+        out.extend(format_finding(f, a.variables))
+    return "\n".join(out)
+
+
+def format_example(ex: Example | None, what: str, variables: dict[str, VarInfo]) -> list[str]:
+    if ex is None:
+        return [f"  {what}: none within the analysed traces"]
+    return [f"  {what}: {ex.note}", *format_trace(ex.trace, ex.verdicts, variables)]
+
+
+def explain_lines(a: Analysis, rid: str) -> list[str]:
+    """What ``explain`` adds per requirement: the analysis results that concern it
+    and an example trace satisfying it and one violating it."""
+    out = []
+    found = a.concerning(rid)
+    if found:
+        for f in found:
+            out.append(f"  analysis:  {LABEL[f.severity]} {f.kind}: {f.message}")
+    else:
+        out.append(f"  analysis:  no findings (traces of {a.k} ticks)")
+    sat, viol = a.examples(rid)
+    out.extend(format_example(sat, "satisfied by", a.variables))
+    out.extend(format_example(viol, "violated by", a.variables))
+    return out
