@@ -286,6 +286,10 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_FAIL
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # `safety-supervisor explain ... | head`: the reader left; not an error.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as e:  # noqa: BLE001 - last line of defence: no raw tracebacks for users
         if os.environ.get("SAFETY_SUPERVISOR_DEBUG"):
             raise
