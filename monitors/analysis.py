@@ -12,6 +12,23 @@ tick, and a non-monotone one (a pending obligation) when it holds at the last
 tick.  Variable ranges are constraints too: on inputs they are assumptions, on
 outputs they limit what the controller may choose.
 
+Realizability is a game: the environment picks inputs allowed by the
+assumptions and input ranges, the controller picks outputs, and at each tick t,
+if the assumptions held up to t, the guarantees must hold at t.
+
+- When every requirement is a pure invariant (``H p``, p without temporal
+  operators) the game has no memory: "for every allowed input at one tick there
+  are outputs" is checked once and proves realizability for all time.
+- Otherwise it is bounded to k ticks.  "Causal" means the outputs at tick t may
+  depend on inputs up to t only (forall i0 exists o0 forall i1 exists o1 ...);
+  that is what a controller can do and what is reported as realizable.  The
+  weaker "clairvoyant" check (for every whole input sequence there are outputs,
+  which may depend on future inputs) is what finds a concrete defeating input
+  sequence; when only it could be decided, the report says so.  Requirements
+  that share no variable are solved as separate games, and comparisons over
+  numbers are abstracted into Booleans when none mixes inputs with outputs
+  (exact, see _abstract_arena).
+
 Every trace reported in a finding is re-evaluated with the reference
 interpreter (``monitors.interpret``) and must agree with what z3 claimed; a
 disagreement raises ``AssertionError`` (an encoding bug, never hidden).
@@ -19,6 +36,7 @@ disagreement raises ``AssertionError`` (an encoding bug, never hidden).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -36,7 +54,21 @@ from .bmc import (
     pure_invariant,
     tick_encoding,
 )
-from .formula import TRUE, Formula, O, Y, and_, max_bound, not_, variables
+from .formula import (
+    REL_OPS,
+    TRUE,
+    BinOp,
+    Const,
+    Formula,
+    O,
+    Var,
+    Y,
+    and_,
+    map_children,
+    max_bound,
+    not_,
+    variables,
+)
 from .formula import H as H_
 from .interpret import Value, verdicts
 from .parse import Requirement
@@ -104,6 +136,7 @@ def activation(req: Requirement) -> Formula:
 class Finding:
     kind: str  # conflict | unrealizable | realizability | vacuous | unreachable | redundant
     #            | non-monotone | not-analysed | assumption-reads-outputs | no-outputs
+    #            | k-too-small
     severity: str  # error | warning | info
     requirements: tuple[str, ...]
     message: str
@@ -162,14 +195,10 @@ def default_k(reqs: Iterable[Req]) -> int:
 
 
 def _range_formula(v: VarInfo) -> Formula | None:
-    from .formula import BinOp, Const, Var
-
     if v.range is None or v.type == "bool":
         return None
     lo, hi = v.range
     if v.type == "int64":
-        import math
-
         c_lo, c_hi = Const(math.ceil(lo)), Const(math.floor(hi))
     else:
         c_lo, c_hi = Const(float(lo)), Const(float(hi))
@@ -211,7 +240,6 @@ class _Context:
         self.solver = z3.Solver()
         self.solver.set(timeout=self.timeout_ms)
         self._lits: dict[tuple, z3.BoolRef] = {}
-        self._lit_key: dict[str, tuple] = {}
 
     # -------------------------------------------------------------- building blocks
 
@@ -235,7 +263,6 @@ class _Context:
             b = z3.Bool("|" + ":".join(map(str, key)) + "|")
             self.solver.add(z3.Implies(b, build()))
             self._lits[key] = b
-            self._lit_key[str(b)] = key
         return self._lits[key]
 
     def ok_lit(self, item: str, n: int) -> z3.BoolRef:
@@ -251,10 +278,6 @@ class _Context:
     def fired_lit(self, rid: str, n: int) -> z3.BoolRef:
         xs = self.at(self.reqs[rid].activation)
         return self.lit(("fired", rid, n), lambda: z3.Or(xs[:n]) if n > 1 else xs[0])
-
-    def item_of(self, lit: z3.BoolRef) -> str:
-        key = self._lit_key[str(lit)]
-        return f"range:{key[1]}" if key[0] == "range" else key[1]
 
     def check(self, lits: Sequence[z3.BoolRef]) -> z3.CheckSatResult:
         return self.solver.check(*lits)
@@ -675,6 +698,7 @@ class _Arena:
     out_tick: list[z3.BoolRef]
     # concrete inputs (for the context's rows) from a model of this arena
     concretize: Callable[[z3.ModelRef, int], list[dict[str, z3.ExprRef]]]
+    boolean: bool  # the Boolean abstraction (fast games) or the values themselves
 
 
 class _Abstraction(Exception):
@@ -701,6 +725,7 @@ def _concrete_arena(game: _Game) -> _Arena:
         [ranges(game.ins, t) for t in range(ctx.k)],
         [ranges(game.outs, t) for t in range(ctx.k)],
         concretize,
+        False,
     )
 
 
@@ -716,8 +741,6 @@ def _abstract_arena(game: _Game) -> _Arena:
     independent choices); z3 solves the Boolean game far faster than the one over
     64-bit values.  Raises _Abstraction when a comparison mixes inputs and outputs
     or too many comparisons share variables."""
-    from .formula import REL_OPS, BinOp, Var, map_children
-
     ctx = game.ctx
     ins, outs = set(game.ins), set(game.outs)
     types_enc = Encoder(ctx.types, [])
@@ -794,6 +817,7 @@ def _abstract_arena(game: _Game) -> _Arena:
         [allowed("in", t) for t in range(ctx.k)],
         [allowed("out", t) for t in range(ctx.k)],
         concretize,
+        True,
     )
 
 
@@ -963,9 +987,11 @@ class _Game:
     def bounded(self, findings: list[Finding]) -> tuple[str, str]:
         """(status, summary): status causal | clairvoyant | unknown | unrealizable."""
         ctx, k = self.ctx, self.ctx.k
-        # The game first: when a causal controller exists (the usual case) that is
-        # the strongest answer and the clairvoyant question is moot.
-        causal = self.causal(k)
+        # On Booleans the game first: when a causal controller exists (the usual
+        # case) that is the strongest answer and takes z3 milliseconds.  Over 64-bit
+        # values the alternating game is slow, and the two-level clairvoyant question
+        # finds most unrealizable sets faster, so it goes first there.
+        causal = self.causal(k) if self.arena.boolean else None
         if causal == "sat":
             return "causal", f"realizable by a causal controller for {k} ticks"
         status, model = self.clairvoyant(k)
@@ -984,6 +1010,10 @@ class _Game:
         if status == "unknown":
             self._unknown(findings, "bounded")
             return "unknown", f"unknown: z3 could not decide realizability for {k} ticks"
+        if causal is None:
+            causal = self.causal(k)
+        if causal == "sat":
+            return "causal", f"realizable by a causal controller for {k} ticks"
         if causal == "unknown":
             findings.append(
                 Finding(
@@ -1149,8 +1179,6 @@ class _Game:
 
 
 def _quiet_value(v: VarInfo) -> z3.ExprRef:
-    import math
-
     lo, hi = v.range if v.range is not None else (0.0, 0.0)
     x = min(max(0.0, lo), hi)
     if v.type == "bool":
