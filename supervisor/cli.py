@@ -21,6 +21,8 @@ from monitors.errors import UserError
 
 from .demo import add_parser as add_demo_parser
 from .demo import cmd_demo
+from .inject import add_parser as add_inject_parser
+from .inject import cmd_inject
 from .install import add_parser as add_install_parser
 from .install import cmd_install_service
 from .logs import add_parser as add_logs_parser
@@ -222,6 +224,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "reset": cmd_reset,
     "install-service": cmd_install_service,
     "demo": cmd_demo,
+    "inject": cmd_inject,
 }
 
 
@@ -273,6 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_reset_parser(sub)
     add_install_parser(sub)
     add_demo_parser(sub)
+    add_inject_parser(sub)
     return p
 
 

@@ -39,6 +39,9 @@ class _SdNotifier(sdnotify.SystemdNotifier):
         except OSError:
             self.socket.close()
             raise
+        # Never block the monitoring loop on a reader that does not read (a full
+        # socket queue): the datagram is dropped and the failure reported once.
+        self.socket.setblocking(False)
 
 
 def watchdog_interval() -> float | None:
