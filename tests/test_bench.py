@@ -1,0 +1,118 @@
+"""``safety-supervisor bench`` end to end in a short configuration.
+
+Only structure and sanity are asserted (every number present, received <= sent,
+losses between 0 and 100 %, positive latencies, p50 <= p99), never speed: speed
+goals are benchmarks, and this machine is shared with other test runs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytest.importorskip("rclpy")
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _number(x: Any) -> bool:
+    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
+    return subprocess.run(
+        [sys.executable, "-m", "supervisor.bench", *args],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def _percentiles_sane(st: dict[str, Any]) -> None:
+    for k in ("p50", "p90", "p99", "max", "mean"):
+        assert _number(st[k]) and st[k] > 0, (k, st)
+    assert st["p50"] <= st["p90"] <= st["p99"] <= st["max"], st
+
+
+def test_bench_short_run() -> None:
+    p = _bench("--rates", "2000", "--seconds", "1", "--latency-trials", "20", "--json")
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    r = json.loads(p.stdout)
+    assert r["topics"] and r["trigger"] == "turnoffUVC"
+    assert 215 <= r["domain_id"] <= 232  # clear of the test suite's 1..200
+
+    (row,) = r["throughput"]
+    assert row["offered"] == 2000
+    sent = row["sent"]
+    assert sent > 0 and sent % len(r["topics"]) == 0  # whole rounds, trigger last
+    assert sum(row["sent_per_topic"].values()) == sent
+    assert _number(row["achieved"]) and row["achieved"] > 0
+    assert set(row["receivers"]) == {"daemon", "rclpy wait-set"}
+    for name, rc in row["receivers"].items():
+        assert 0 <= rc["received"] <= sent, name
+        assert set(rc["received_per_topic"]) == set(row["sent_per_topic"]), name
+        assert 0.0 <= rc["loss_pct"] <= 100.0, name
+        for k in ("msg_per_s", "cpu_s", "cpu_us_per_msg"):
+            assert _number(rc[k]) and rc[k] >= 0, (name, k, rc)
+    assert _number(row["overhead_pct"])
+    assert row["fastest_baseline"] == "rclpy wait-set"
+    assert row["daemon_violations"] == 0  # the published state is nominal
+
+    lat = r["latency"]
+    for who in ("echo", "daemon"):
+        st = lat[who]
+        assert st["n"] + st["missed"] == 20, (who, st)
+        assert st["n"] > 0
+        _percentiles_sane(st)
+    d = lat["daemon"]
+    assert d["violation_records"] >= lat["warmup"] + d["n"]  # every halt had its record first
+    _percentiles_sane(d["detect_to_publish_ms"])
+    _percentiles_sane(lat["fsync"])
+    assert lat["thesis_mean_ms"] == 33.0 and lat["tessla_mean_ms"] == 15.0
+
+
+def test_bench_text_and_errors(tmp_path: Path) -> None:
+    """Tables for people; a bad config or option is one line, never a traceback."""
+    p = _bench("--skip-latency", "--rates", "1500", "--seconds", "0.5")
+    assert p.returncode == 0, p.stderr
+    out = p.stdout
+    assert "overhead (eq. 1) vs rclpy wait-set" in out
+    assert "load average" in out and "summary" in out
+
+    missing = tmp_path / "nope.yaml"
+    p = _bench("--config", str(missing), timeout=60)
+    assert p.returncode == 1
+    assert p.stderr.strip().count("\n") == 0 and str(missing) in p.stderr
+    assert "Traceback" not in p.stderr
+
+    no_latency = tmp_path / "small.yaml"
+    no_latency.write_text(
+        "component: R\n"
+        "step: {policy: on_message}\n"
+        "variables:\n"
+        "  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}\n"
+        "requirements:\n"
+        "  - id: r1\n"
+        "    text: R shall always satisfy x >= 0\n"
+        "    on_violation: [record]\n"
+        "mitigations:\n"
+        "  record: {log: {message: violated}}\n"
+        "logging: {violations: /tmp/unused.jsonl}\n"
+    )
+    p = _bench("--config", str(no_latency), "--skip-throughput", timeout=60)
+    assert p.returncode == 1
+    assert "--skip-latency" in p.stderr and "Traceback" not in p.stderr
+
+    p = _bench("--rates", "fast", timeout=60)
+    assert p.returncode == 2
