@@ -560,8 +560,7 @@ def _loadavg() -> str:
 
 
 def throughput(s: Session, plan: Plan, rate: float, seconds: float, naive: bool) -> dict[str, Any]:
-    work = s.tmp / f"throughput-{rate:g}"
-    work.mkdir()
+    work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
     daemon = s.daemon(config, work)
