@@ -19,6 +19,8 @@ from pathlib import Path
 
 from monitors.errors import UserError
 
+from .bench import add_parser as add_bench_parser
+from .bench import cmd_bench
 from .demo import add_parser as add_demo_parser
 from .demo import cmd_demo
 from .inject import add_parser as add_inject_parser
@@ -225,6 +227,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "install-service": cmd_install_service,
     "demo": cmd_demo,
     "inject": cmd_inject,
+    "bench": cmd_bench,
 }
 
 
@@ -277,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_install_parser(sub)
     add_demo_parser(sub)
     add_inject_parser(sub)
+    add_bench_parser(sub)
     return p
 
 

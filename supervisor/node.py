@@ -227,6 +227,7 @@ class SupervisorNode:
         self._reload_thread: threading.Thread | None = None
         self._reload_result: Session | Exception | None = None
         self._retired: list[Any] = []  # subscriptions replaced by a QoS change
+        self._unpublished: list[dict[str, Any]] = []  # violation records for the topic
 
         cfg = session.config
         self.node = Node(cfg.ros.node_name, context=context)
@@ -330,13 +331,9 @@ class SupervisorNode:
     def run(self) -> None:
         """Receive until :meth:`stop`."""
         now = time.monotonic_ns()
-        self._next = {
-            "stale": now,
-            "heartbeat": now,
-            "diagnostics": now,
-            "status": now,
-            "watchdog": now,
-        }
+        self._next = {"stale": now, "heartbeat": now, "diagnostics": now, "status": now}
+        if self.watchdog_ns:  # only a real deadline: a stale one would make the wait spin
+            self._next["watchdog"] = now
         self._heartbeats = 0
         while not self._stop.is_set() and self.node.context.ok():
             self._rebuild = False
@@ -398,6 +395,8 @@ class SupervisorNode:
                 self._input_events(events)
             if result is not None:
                 self.supervision.after_step(result)
+                if self._unpublished:
+                    self._publish_reports()
 
     def _timed_work(self, now: int) -> None:
         rt = self.session.runtime
@@ -405,6 +404,8 @@ class SupervisorNode:
         if due is not None and due <= now:
             self.supervision.after_step(rt.on_timer(now))
         self.supervision.on_time(now)
+        if self._unpublished:
+            self._publish_reports()
         if self._done:
             self._outcomes()
         nxt = self._next
@@ -421,7 +422,7 @@ class SupervisorNode:
             self._check_graph()
             self._publish_diagnostics(now)
             nxt["diagnostics"] = now + int(self.session.config.ros.diagnostics_ms * 1e6)
-        if self.watchdog_ns and now >= nxt["watchdog"]:
+        if self.watchdog_ns and now >= nxt.get("watchdog", now):
             if self._ticking(now):
                 self.notifier.watchdog()
                 nxt["watchdog"] = now + self.watchdog_ns
@@ -486,12 +487,19 @@ class SupervisorNode:
         # On disk (fsynced) before any action of this step is submitted (CONTRACT.md).
         self.log.violation(**record)
         self.violations += 1
-        msg = _msg("std_msgs/msg/String")()
-        msg.data = json.dumps(json_safe({"event": "violation", **record}))
-        try:
-            self.publisher.publish(msg)
-        except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
-            warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
+        # The JSON copy for /safety_supervisor/violations goes out after this
+        # step's actions were queued: the halt must not wait for it.
+        self._unpublished.append(record)
+
+    def _publish_reports(self) -> None:
+        records, self._unpublished = self._unpublished, []
+        for record in records:
+            msg = _msg("std_msgs/msg/String")()
+            msg.data = json.dumps(json_safe({"event": "violation", **record}))
+            try:
+                self.publisher.publish(msg)
+            except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
+                warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
 
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
         req = self.session.requirements[index]
