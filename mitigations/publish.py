@@ -35,6 +35,7 @@ def qos_profile(name: str | None) -> QoSProfile:
 
 class PublishAction:
     kind = "publish"
+    inline = True  # microseconds: the engine runs it in the loop, no thread handoff
 
     def __init__(
         self, node: Node, mitigation: Mitigation, reuse: PublishAction | None = None
