@@ -170,16 +170,11 @@ def _progress(text: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
-        prog="python -m supervisor.bench", description=__doc__.split("\n")[0]
-    )
-    _add_arguments(p)
-    args = p.parse_args(argv)
-    try:
-        return cmd_bench(args)
-    except Exception as e:  # noqa: BLE001 - one line, never a traceback
-        print(f"safety-supervisor bench: internal error: {type(e).__name__}: {e}", file=sys.stderr)
-        return 3
+    """``python -m supervisor.bench``: the same as ``safety-supervisor bench`` (one error
+    handling for every command: the CLI's)."""
+    from .cli import main as cli_main
+
+    return cli_main(["bench", *(sys.argv[1:] if argv is None else argv)])
 
 
 # ------------------------------------------------------------------ plan

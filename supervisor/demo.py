@@ -895,18 +895,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m supervisor.demo [OPTIONS]``: the same as ``safety-supervisor demo``."""
-    parser = argparse.ArgumentParser(prog="safety-supervisor")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["demo", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return cmd_demo(args)
-    except Exception as e:  # noqa: BLE001 - one line for users, as the CLI does
-        if os.environ.get("SAFETY_SUPERVISOR_DEBUG"):
-            raise
-        _err(f"internal error: {type(e).__name__}: {e} (set SAFETY_SUPERVISOR_DEBUG=1)")
-        return 3
+    """``python -m supervisor.demo``: the same as ``safety-supervisor demo`` (one error
+    handling for every command: the CLI's)."""
+    from .cli import main as cli_main
+
+    return cli_main(["demo", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -1128,18 +1128,11 @@ def _reset(out: RosOut) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m supervisor.inject CONFIG REQ ...``: the command without the CLI."""
-    parser = argparse.ArgumentParser(prog="safety-supervisor")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["inject", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        return cmd_inject(args)
-    except UserError as e:
-        print(e, file=sys.stderr, flush=True)
-        return EXIT_FAIL
-    except KeyboardInterrupt:
-        return 130
+    """``python -m supervisor.inject``: the same as ``safety-supervisor inject`` (one error
+    handling for every command: the CLI's)."""
+    from .cli import main as cli_main
+
+    return cli_main(["inject", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

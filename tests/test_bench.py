@@ -29,7 +29,7 @@ def _number(x: Any) -> bool:
 def _bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     return subprocess.run(
-        [sys.executable, "-m", "supervisor.bench", *args],
+        [sys.executable, "-m", "supervisor", "bench", *args],
         cwd=ROOT,
         env=env,
         capture_output=True,

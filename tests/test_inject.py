@@ -64,12 +64,7 @@ EXTRA
 
 
 def command() -> list[str]:
-    """The CLI once `inject` is wired into it, else the module's own entry point."""
-    from supervisor import cli
-
-    if "inject" in cli.COMMANDS:
-        return [sys.executable, "-m", "supervisor", "inject"]
-    return [sys.executable, "-m", "supervisor.inject"]
+    return [sys.executable, "-m", "supervisor", "inject"]
 
 
 def run(*args: str, env: dict[str, str] | None = None, timeout: float = 120) -> Any:
