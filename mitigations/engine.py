@@ -48,7 +48,9 @@ class Engine:
         self.cancel = threading.Event()
         self._queues: dict[str, queue.SimpleQueue[Request | None]] = {}
         self._threads: list[threading.Thread] = []
-        for name in self.actions:
+        for name, action in self.actions.items():
+            if getattr(action, "inline", False):
+                continue  # run by submit() in the caller's thread: no worker needed
             q: queue.SimpleQueue[Request | None] = queue.SimpleQueue()
             self._queues[name] = q
             t = threading.Thread(target=self._work, args=(name, q), name=f"mitigation-{name}")
@@ -59,8 +61,8 @@ class Engine:
     def submit(self, request: Request) -> None:
         """Queue the request's actions; returns at once."""
         for name in request.actions:
-            q = self._queues.get(name)
-            if q is None:  # config validation makes this unreachable; never drop silently
+            action = self.actions.get(name)
+            if action is None:  # config validation makes this unreachable; never drop silently
                 self.log.mitigation(
                     request.requirement,
                     action=name,
@@ -70,13 +72,12 @@ class Engine:
                     latency_ms=0.0,
                     stage=request.stage,
                 )
-                continue
-            if getattr(self.actions[name], "inline", False):
+            elif getattr(action, "inline", False):
                 # A publish takes microseconds: done here, right after the fsynced
                 # violation record, instead of paying a thread handoff before the halt.
                 self._run(name, request)
             else:
-                q.put(request)
+                self._queues[name].put(request)
 
     def close(self, timeout: float = 1.0) -> list[str]:
         """Cancel retries, let running attempts end; names of workers still busy."""
