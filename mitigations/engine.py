@@ -16,9 +16,8 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from supervisor.log import ViolationLog
-
-from .action import Action, Outcome
+from mitigations.actions.base import Action, Outcome
+from mitigations.violationlog.writer import ViolationLog
 
 
 @dataclass(frozen=True)

@@ -15,9 +15,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, Protocol
 
-from supervisor.runtime import Runtime, StepResult
-
-from .policy import Act, Effect, Note, Report, RequirementPolicy, ResetMonitor
+from mitigations.policy import Act, Effect, Note, Report, RequirementPolicy, ResetMonitor
+from supervisor.daemon.runtime import Runtime, StepResult
 
 
 class Sink(Protocol):

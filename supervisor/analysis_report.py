@@ -11,7 +11,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from monitors.analysis import (
+from monitors.errors import UserError
+from monitors.ir.spec import Define, expand_defines
+from monitors.verify.analysis import (
     DEFAULT_TIMEOUT_S,
     Analysis,
     Example,
@@ -21,12 +23,9 @@ from monitors.analysis import (
     activation,
     analyse,
 )
-from monitors.errors import UserError
-from monitors.interpret import Value
-from monitors.spec import Define, expand_defines
-
-from .config import Config
-from .pipeline import Project
+from monitors.verify.interpret import Value
+from supervisor.config.load import Config
+from supervisor.pipeline import Project
 
 ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
 LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
@@ -38,7 +37,7 @@ LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
 def _key_line(cfg: Config, key: str | None) -> int | None:
     """The line of ``analysis:`` (or one of its keys) in the config file, for errors:
     Config keeps the section as a plain dict, so the file is read again here."""
-    from .yamlload import LineDict, load_yaml
+    from supervisor.config.yamlload import LineDict, load_yaml
 
     try:
         doc = load_yaml(cfg.path)

@@ -18,19 +18,18 @@ from collections.abc import Callable
 from pathlib import Path
 
 from monitors.errors import UserError
-
-from .bench import add_parser as add_bench_parser
-from .bench import cmd_bench
-from .demo import add_parser as add_demo_parser
-from .demo import cmd_demo
-from .inject import add_parser as add_inject_parser
-from .inject import cmd_inject
-from .install import add_parser as add_install_parser
-from .install import cmd_install_service
-from .logs import add_parser as add_logs_parser
-from .logs import cmd_logs
-from .operator import add_parser as add_reset_parser
-from .operator import cmd_reset
+from supervisor.tools.bench.run import add_parser as add_bench_parser
+from supervisor.tools.bench.run import cmd_bench
+from supervisor.tools.demo.run import add_parser as add_demo_parser
+from supervisor.tools.demo.run import cmd_demo
+from supervisor.tools.inject.run import add_parser as add_inject_parser
+from supervisor.tools.inject.run import cmd_inject
+from supervisor.tools.install import add_parser as add_install_parser
+from supervisor.tools.install import cmd_install_service
+from supervisor.tools.logs import add_parser as add_logs_parser
+from supervisor.tools.logs import cmd_logs
+from supervisor.tools.reset import add_parser as add_reset_parser
+from supervisor.tools.reset import cmd_reset
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 
@@ -47,9 +46,9 @@ def _err(text: str) -> None:
 
 
 def cmd_formalize(args: argparse.Namespace) -> int:
-    from monitors.formalize import formalize
-    from monitors.formula import to_fret
-    from monitors.parse import parse_requirement
+    from monitors.frontend.formalize import formalize
+    from monitors.frontend.parse import parse_requirement
+    from monitors.ir.formula import to_fret
 
     if args.text:
         items = [(t, "<arg>", 1) for t in args.text]
@@ -78,18 +77,17 @@ def cmd_formalize(args: argparse.Namespace) -> int:
 
 
 def cmd_explain(args: argparse.Namespace) -> int:
-    from monitors.formalize import describe
-    from monitors.formula import to_fret, variables
-
-    from .config import load_config
-    from .pipeline import build_project
+    from monitors.frontend.formalize import describe
+    from monitors.ir.formula import to_fret, variables
+    from supervisor.config.load import load_config
+    from supervisor.pipeline import build_project
 
     project = build_project(load_config(args.config), ros=False)
     wanted = set(args.requirements or [])
     unknown = wanted - {r.id for r in project.requirements}
     if unknown:
         project.config.requirement(sorted(unknown)[0])  # raises with the list of ids
-    from .analysis_report import analyse_project, explain_lines
+    from supervisor.analysis_report import analyse_project, explain_lines
 
     analysis = analyse_project(project, args.k)
     status = EXIT_OK
@@ -135,9 +133,8 @@ def cmd_explain(args: argparse.Namespace) -> int:
 
 
 def _print_project(project: object) -> int:
-    from monitors.formula import to_fret
-
-    from .pipeline import Project
+    from monitors.ir.formula import to_fret
+    from supervisor.pipeline import Project
 
     assert isinstance(project, Project)
     width = max((len(r.id) for r in project.requirements), default=2)
@@ -157,8 +154,8 @@ def _print_project(project: object) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from .config import load_config
-    from .pipeline import build_project, compile_project
+    from supervisor.config.load import load_config
+    from supervisor.pipeline import build_project, compile_project
 
     t0 = time.perf_counter()
     cfg = load_config(args.config)
@@ -171,7 +168,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"{failures} error(s); monitor not compiled"
         )
         return EXIT_FAIL
-    from .analysis_report import analyse_project, format_analysis
+    from supervisor.analysis_report import analyse_project, format_analysis
 
     analysis = analyse_project(project, args.k)
     if analysis is not None:
@@ -190,8 +187,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
-    from .config import load_config
-    from .pipeline import build_project, compile_project
+    from supervisor.config.load import load_config
+    from supervisor.pipeline import build_project, compile_project
 
     project = build_project(load_config(args.config))
     if not project.ok:
@@ -209,7 +206,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .daemon import run_daemon
+    from supervisor.daemon.process import run_daemon
 
     return run_daemon(args.config, log_path=args.log, build_dir=args.build_dir)
 
@@ -232,7 +229,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .analysis_report import k_arg
+    from supervisor.analysis_report import k_arg
 
     p = argparse.ArgumentParser(
         prog="safety-supervisor",

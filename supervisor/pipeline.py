@@ -11,16 +11,15 @@ import random
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from mitigations.rosmsg import check_field
 from monitors.errors import UserError
-from monitors.formalize import Formalization, formalize
-from monitors.formula import Formula, FormulaSyntaxError, parse_formula, variables
-from monitors.interpret import verdicts
-from monitors.parse import Requirement, parse_requirement
-from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl, expand_defines
-from monitors.typecheck import check_bool, type_of
-
-from .config import Config, RequirementEntry, Variable
-from .rosmsg import check_field
+from monitors.frontend.formalize import Formalization, formalize
+from monitors.frontend.parse import Requirement, parse_requirement
+from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula, variables
+from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, expand_defines
+from monitors.ir.typecheck import check_bool, type_of
+from monitors.verify.interpret import verdicts
+from supervisor.config.load import Config, RequirementEntry, Variable
 
 
 @dataclass
@@ -232,7 +231,7 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
     warnings: list[str] = []
     for m in cfg.mitigations.values():
         if m.kind == "publish" and ros:
-            from .rosmsg import build_message, message_class
+            from mitigations.rosmsg import build_message, message_class
 
             try:
                 build_message(message_class(str(m.params["msg"])), m.params.get("value"), "value")
@@ -254,7 +253,7 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
                     "robot's state; prefer a command topic the robot echoes on its own topic"
                 )
         if m.kind == "ssh":
-            from mitigations.ssh import SshAction
+            from mitigations.actions.ssh import SshAction
 
             for problem in SshAction(m.name, m.params).check():
                 warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
@@ -270,7 +269,7 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
 
 
 def project_for(path: str | Path, *, ros: bool = True) -> Project:
-    from .config import load_config
+    from supervisor.config.load import load_config
 
     return build_project(load_config(path), ros=ros)
 
@@ -280,15 +279,15 @@ def compile_project(project: Project, out_dir: Path, *, backend: str = "native")
     write manifest.json.  Returns the manifest."""
     import json
 
-    from monitors.build import build_library
-    from monitors.c99 import write_c
-    from monitors.load import load_monitor
-    from monitors.spec import c_name
+    from monitors.backends.build import build_library
+    from monitors.backends.c99 import write_c
+    from monitors.backends.load import load_monitor
+    from monitors.ir.spec import c_name
 
     spec = project.spec()
     out_dir.mkdir(parents=True, exist_ok=True)
     if backend == "copilot":
-        from monitors.copilot import compile_copilot
+        from monitors.backends.copilot import compile_copilot
 
         c_files = compile_copilot(spec, out_dir)
         sources = [f for f in c_files if f.suffix == ".c"]

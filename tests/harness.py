@@ -6,8 +6,8 @@ from __future__ import annotations
 import math
 import random
 
-from monitors.interpret import verdicts
-from monitors.spec import MonitorSpec, VarDecl
+from monitors.ir.spec import MonitorSpec, VarDecl
+from monitors.verify.interpret import verdicts
 
 I64_MIN, I64_MAX = -(1 << 63), (1 << 63) - 1
 BOOLS, INTS, REALS = ("b0", "b1", "b2"), ("i0", "i1"), ("d0", "d1")

@@ -14,12 +14,12 @@ import textwrap
 import time
 from pathlib import Path
 
-from monitors.analysis import Analysis, Req, VarInfo, analyse
-from monitors.analysis_bench import generated
-from monitors.formula import parse_formula
-from monitors.interpret import verdicts
+from monitors.ir.formula import parse_formula
+from monitors.verify.analysis import Analysis, Req, VarInfo, analyse
+from monitors.verify.interpret import verdicts
 from supervisor.analysis_report import analyse_project, format_analysis
 from supervisor.pipeline import project_for
+from supervisor.tools.bench.analysis import generated
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data" / "analysis"

@@ -3,7 +3,7 @@
 Random well-typed formulas over every operator and temporal bound, random traces
 with int64/double edge values (tests/harness.py): with the trace fixed in z3,
 every tick's truth value, and every numeric subterm's value bit for bit, must be
-what monitors.interpret computes.  Models found by z3 must read back as traces on
+what monitors.verify.interpret computes.  Models found by z3 must read back as traces on
 which the interpreter agrees.
 """
 
@@ -18,18 +18,7 @@ from harness import BOOLS, INTS, REALS, make_trace
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from monitors.bmc import (
-    Encoder,
-    Unsupported,
-    evaluate_z3,
-    fresh_rows,
-    model_trace,
-    pure_invariant,
-    py_value,
-    tick_encoding,
-    z3_value,
-)
-from monitors.formula import (
+from monitors.ir.formula import (
     BinOp,
     Const,
     Formula,
@@ -41,7 +30,18 @@ from monitors.formula import (
     parse_formula,
     subterms,
 )
-from monitors.interpret import evaluate, verdicts
+from monitors.verify.bmc import (
+    Encoder,
+    Unsupported,
+    evaluate_z3,
+    fresh_rows,
+    model_trace,
+    pure_invariant,
+    py_value,
+    tick_encoding,
+    z3_value,
+)
+from monitors.verify.interpret import evaluate, verdicts
 
 TYPES = {
     **dict.fromkeys(BOOLS, "bool"),

@@ -19,12 +19,12 @@ from harness import BOOLS, I64_MAX, I64_MIN, INPUTS, INTS, REALS, make_trace, or
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from monitors.build import build_library
-from monitors.c99 import generate, write_c
+from monitors.backends.build import build_library
+from monitors.backends.c99 import generate, write_c
+from monitors.backends.load import compile_spec, load_monitor
 from monitors.errors import UserError
-from monitors.formula import BinOp, Const, Formula, Neg, Not, Past, Since, Var, parse_formula
-from monitors.load import compile_spec, load_monitor
-from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl
+from monitors.ir.formula import BinOp, Const, Formula, Neg, Not, Past, Since, Var, parse_formula
+from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl
 
 # a non-temporal define (a C local) and a temporal one (expanded per requirement)
 DEFINES = (

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from mitigations.action import Outcome
-from mitigations.command import CommandAction
+from mitigations.actions.base import Outcome
+from mitigations.actions.command import CommandAction
 
 
 def run(params: dict, cancel: threading.Event | None = None) -> tuple[Outcome, list[Outcome]]:

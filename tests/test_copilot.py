@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from monitors.copilot import (
+from monitors.backends.copilot import (
     INSTALL_HINT,
     build_copilot_monitor,
     compile_copilot,
@@ -30,8 +30,9 @@ from monitors.copilot import (
     run_copilot,
     run_haskell,
 )
+from monitors.backends.load import compile_spec
 from monitors.errors import UserError
-from monitors.formula import (
+from monitors.ir.formula import (
     ARITH_OPS,
     BOOL_OPS,
     REL_OPS,
@@ -46,8 +47,7 @@ from monitors.formula import (
     parse_formula,
     subterms,
 )
-from monitors.load import compile_spec
-from monitors.spec import Define, MonitorSpec, RequirementSpec, VarDecl
+from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl
 
 REQUIRE = os.environ.get("SAFETY_SUPERVISOR_REQUIRE_COPILOT") == "1"
 SROBOT_EXPORT = Path(__file__).resolve().parent / "data" / "sRobot-fret-export.json"

@@ -1,6 +1,6 @@
 """``safety-supervisor demo`` end to end: real processes, real DDS, no mocks.
 
-The demo runs as ``python -m supervisor.demo`` (the same ``cmd_demo`` as the
+The demo runs as ``python -m supervisor.tools.demo.run`` (the same ``cmd_demo`` as the
 CLI's ``demo`` command) with ``--log`` in the test's directory, so the
 summary it prints can be checked against the violation log it leaves.
 """
@@ -79,7 +79,7 @@ def leftovers(*markers: str) -> list[str]:
 
 def no_leftovers(log: Path, seed: int) -> None:
     assert leftovers("supervisor", "run", str(log)) == []
-    assert leftovers("supervisor.demo_robot", f"--seed {seed}") == []
+    assert leftovers("supervisor.tools.demo.robot", f"--seed {seed}") == []
 
 
 def test_clean_run_has_no_violations(tmp_path: Path) -> None:
@@ -197,8 +197,8 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
 ) -> None:
     import yaml
 
-    from supervisor.config import load_config
-    from supervisor.demo import SHIPPED_CONFIG, demo_config
+    from supervisor.config.load import load_config
+    from supervisor.tools.demo.run import SHIPPED_CONFIG, demo_config
 
     log = tmp_path / "v.jsonl"
     path = demo_config(SHIPPED_CONFIG, tmp_path, log)
@@ -222,7 +222,7 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
 
 
 def test_explain_in_words() -> None:
-    from supervisor.demo import explain
+    from supervisor.tools.demo.run import explain
 
     uv_on = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, halt=True, slowdown=False, turnoffUVC=False)  # fmt: skip
     assert explain("operationalstate_3", uv_on) == "UV on in state 3"

@@ -17,8 +17,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from monitors.errors import UserError
-from monitors.formalize import describe, formalize, ticks
-from monitors.formula import (
+from monitors.frontend.formalize import describe, formalize, ticks
+from monitors.frontend.parse import Duration, parse_requirement
+from monitors.ir.formula import (
     ARITH_OPS,
     REL_OPS,
     BinOp,
@@ -33,8 +34,7 @@ from monitors.formula import (
     parse_formula,
     subterms,
 )
-from monitors.interpret import verdicts
-from monitors.parse import Duration, parse_requirement
+from monitors.verify.interpret import verdicts
 
 EXAMPLES = Path(__file__).resolve().parent / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from monitors.formula import (
+from monitors.ir.formula import (
     FALSE,
     FTP,
     TRUE,

@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 from rosutil import ROOT, ROS_ENV, SROBOT, Daemon, variant
 
-from monitors.interpret import verdicts
-from supervisor import inject
+from monitors.verify.interpret import verdicts
+from supervisor.tools.inject import run as inject
 from supervisor.analysis_report import project_requirements
 from supervisor.pipeline import project_for
 

@@ -3,8 +3,8 @@
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from monitors.formula import parse_formula
-from monitors.interpret import evaluate, verdicts, wrap64
+from monitors.ir.formula import parse_formula
+from monitors.verify.interpret import evaluate, verdicts, wrap64
 
 
 def run(text, **cols):

@@ -1,4 +1,4 @@
-"""supervisor.log (the violation log writer) on real files, verified through the CLI."""
+"""mitigations.violationlog.writer (the violation log writer) on real files, verified through the CLI."""
 
 from __future__ import annotations
 
@@ -16,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
+from mitigations.violationlog.format import EMPTY_SHA256
+from mitigations.violationlog.reader import verify_bytes
+from mitigations.violationlog.writer import ViolationLog
 from monitors.errors import UserError
-from supervisor.log import ViolationLog
-from supervisor.logs import EMPTY_SHA256, verify_bytes
 
 REPO = Path(__file__).resolve().parents[1]
 CFG = "c0" * 32
@@ -128,7 +129,7 @@ def test_records_have_the_contract_schema(tmp_path: Path) -> None:
     )
     assert recs[3]["reason"] == "operator"
     assert recs[0]["what"] == "start" and recs[4]["what"] == "reload" and recs[4]["why"] == "SIGHUP"
-    # the chain, recomputed here independently of supervisor.logs
+    # the chain, recomputed here independently of supervisor.tools.logs
     lines = path.read_bytes().splitlines(keepends=True)
     assert recs[0]["prev_sha256"] == hashlib.sha256(b"").hexdigest()
     for prev_line, rec in zip(lines, recs[1:], strict=False):
@@ -152,7 +153,7 @@ def _edit_byte(lines: list[bytes]) -> tuple[list[bytes], int]:
 
 def _edit_and_reseal(lines: list[bytes]) -> tuple[list[bytes], int]:
     # someone who knows line_sha256 and recomputes it: caught by the next line's prev
-    from supervisor.logs import seal_line
+    from mitigations.violationlog.format import seal_line
 
     rec = json.loads(lines[2])
     rec["tick"] = 99
@@ -219,7 +220,7 @@ def test_fsync_comes_after_the_write_and_before_violation_returns(tmp_path: Path
     path = tmp_path / "v.log"
     child = textwrap.dedent(f"""
         import os
-        from supervisor.log import ViolationLog
+        from mitigations.violationlog.writer import ViolationLog
         log = ViolationLog({str(path)!r}, "sRobot", "00", echo=False)
         log.reset("R1", reason="marker-reset")
         os.write(1, b"AFTER-RESET\\n")

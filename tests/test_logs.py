@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from mitigations.violationlog.writer import ViolationLog
 from supervisor.cli import main
-from supervisor.log import ViolationLog
 
 
 def _violation(log: ViolationLog, req: str, tick: int) -> None:

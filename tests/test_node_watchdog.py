@@ -18,11 +18,11 @@ pytest.importorskip("rclpy")
 from rosutil import SROBOT, ros_node, wait_matched  # noqa: E402
 from std_msgs.msg import Bool, Int64  # noqa: E402
 
-from monitors.load import compile_spec  # noqa: E402
-from supervisor.daemon import init_ros  # noqa: E402
-from supervisor.log import ViolationLog  # noqa: E402
-from supervisor.node import SupervisorNode, build_session  # noqa: E402
-from supervisor.notify import Notifier  # noqa: E402
+from mitigations.violationlog.writer import ViolationLog  # noqa: E402
+from monitors.backends.load import compile_spec  # noqa: E402
+from supervisor.daemon.node import SupervisorNode, build_session  # noqa: E402
+from supervisor.daemon.notify import Notifier  # noqa: E402
+from supervisor.daemon.process import init_ros  # noqa: E402
 from supervisor.pipeline import project_for  # noqa: E402
 
 
@@ -111,7 +111,7 @@ def test_watchdog_stops_when_the_loop_stalls(
             stop.set()
             listener.join(5)
             node.close()
-            from supervisor.daemon import _shutdown_ros
+            from supervisor.daemon.process import _shutdown_ros
 
             _shutdown_ros(ctx)
             sock.close()

@@ -1,4 +1,4 @@
-"""supervisor.notify against real Unix datagram sockets (path and abstract)."""
+"""supervisor.daemon.notify against real Unix datagram sockets (path and abstract)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from supervisor.notify import Notifier, watchdog_interval
+from supervisor.daemon.notify import Notifier, watchdog_interval
 
 
 def _bind(address: str) -> socket.socket:

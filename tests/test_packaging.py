@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from supervisor import install
-from supervisor.install import render_logrotate, render_unit, unit_directives
+from supervisor.tools import install
+from supervisor.tools.install import render_logrotate, render_unit, unit_directives
 
 ROOT = Path(__file__).resolve().parent.parent
 UNIT = ROOT / "packaging/systemd/safety-supervisor.service"

@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from monitors.errors import UserError
-from monitors.formalize import formalize
-from monitors.formula import FTP, BinOp, Const, Neg, Not, Past, Since, Var, parse_formula
-from monitors.parse import Duration, parse_requirement
+from monitors.frontend.formalize import formalize
+from monitors.frontend.parse import Duration, parse_requirement
+from monitors.ir.formula import FTP, BinOp, Const, Neg, Not, Past, Since, Var, parse_formula
 
 EXAMPLES = Path(__file__).resolve().parent / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]

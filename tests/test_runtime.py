@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from monitors.load import compile_spec
+from monitors.backends.load import compile_spec
+from supervisor.daemon.runtime import InputSpec, Runtime, coerce
 from supervisor.pipeline import project_for
-from supervisor.runtime import InputSpec, Runtime, coerce
 
 ROOT = Path(__file__).resolve().parents[1]
 MS = 1_000_000

@@ -3,9 +3,9 @@
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from monitors.formula import FALSE, FTP, TRUE, BinOp, Not, Past, Since, Var, parse_formula
-from monitors.interpret import verdicts
-from monitors.simplify import simplify
+from monitors.ir.formula import FALSE, FTP, TRUE, BinOp, Not, Past, Since, Var, parse_formula
+from monitors.ir.simplify import simplify
+from monitors.verify.interpret import verdicts
 
 leaves = st.one_of(st.sampled_from(["a", "b"]).map(Var), st.sampled_from([TRUE, FALSE, FTP]))
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from monitors.interpret import verdicts
-from monitors.load import compile_spec
+from monitors.backends.load import compile_spec
+from monitors.verify.interpret import verdicts
 from supervisor.pipeline import project_for
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from sshd import Sshd, free_port, keygen, known_hosts_line
 
-from mitigations.action import Outcome, backoff_delay
-from mitigations.ssh import SshAction
+from mitigations.actions.base import Outcome, backoff_delay
+from mitigations.actions.ssh import SshAction
 
 
 class Recorder:

@@ -1,0 +1,22 @@
+"""``log`` mitigations: the record is the action (no effect on the robot)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from mitigations.actions.base import Outcome
+from supervisor.config.load import Mitigation
+
+
+class RecordAction:
+    kind = "log"
+
+    def __init__(self, mitigation: Mitigation) -> None:
+        self.name = mitigation.name
+        self.message = str(mitigation.params.get("message", ""))
+
+    def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
+        out = Outcome(ok=True, detail={"message": self.message} if self.message else {})
+        on_attempt(out)
+        return out

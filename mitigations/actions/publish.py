@@ -1,0 +1,61 @@
+"""``publish`` mitigations: a message of any installed type on a topic.
+
+Default QoS is reliable + transient_local (depth 1): a controller that starts,
+or restarts, after the violation still receives the latched halt.  The message
+is built once, at start (``check`` has already validated type and fields), so
+publishing costs one rclpy call on the mitigation worker.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from mitigations.actions.base import Outcome
+from mitigations.rosmsg import build_message, message_class
+from supervisor.config.load import Mitigation
+
+QOS = {
+    # name: (reliability, durability)
+    "latched": (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL),
+    "reliable": (ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE),
+    "best_effort": (ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE),
+}
+
+
+def qos_profile(name: str | None) -> QoSProfile:
+    reliability, durability = QOS[name or "latched"]
+    return QoSProfile(depth=1, reliability=reliability, durability=durability)
+
+
+class PublishAction:
+    kind = "publish"
+    inline = True  # microseconds: the engine runs it in the loop, no thread handoff
+
+    def __init__(
+        self, node: Node, mitigation: Mitigation, reuse: PublishAction | None = None
+    ) -> None:
+        """``reuse``: an action on the same topic, type and QoS (from before a
+        config reload) whose publisher is kept, so what it latched stays latched."""
+        p = mitigation.params
+        self.name = mitigation.name
+        self.topic = str(p["topic"])
+        klass = message_class(str(p["msg"]))
+        self.message: Any = build_message(klass, p.get("value"), f"mitigation '{self.name}' value")
+        if reuse is not None:
+            self.publisher = reuse.publisher
+        else:
+            self.publisher = node.create_publisher(klass, self.topic, qos_profile(p.get("qos")))
+
+    def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
+        try:
+            self.publisher.publish(self.message)
+            out = Outcome(ok=True, detail={"topic": self.topic})
+        except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
+            out = Outcome(ok=False, error=f"publish on {self.topic}: {type(e).__name__}: {e}")
+        on_attempt(out)
+        return out

@@ -1,0 +1,136 @@
+"""Reading violation logs: records in order, and verification of the hash chain.
+
+The one reader of the format defined in :mod:`mitigations.violationlog.format`;
+rotated files compressed by logrotate (``.gz``) are read as they are.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from mitigations.violationlog.format import _PREV_RE, EMPTY_SHA256, line_seal_ok, sha256_hex
+from monitors.errors import UserError
+
+
+@dataclass
+class VerifyResult:
+    path: str
+    records: int = 0
+    errors: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    last_sha256: str = EMPTY_SHA256
+    links: list[tuple[int, str]] = field(default_factory=list)  # (line, previous_last_sha256)
+
+    @property
+    def intact(self) -> bool:
+        return not self.errors
+
+
+def read_bytes(path: str) -> bytes:
+    try:
+        if path.endswith(".gz"):  # logrotate's compress
+            with gzip.open(path, "rb") as f:
+                return f.read()
+        return Path(path).read_bytes()
+    except (OSError, EOFError) as e:
+        raise UserError(f"cannot read log: {getattr(e, 'strerror', None) or e}", file=path) from e
+
+
+def split_lines(data: bytes) -> list[bytes]:
+    """Lines with their newline; a final line without one is kept as it is.
+    (Not bytes.splitlines: the chain is defined on \\n only.)"""
+    out, start = [], 0
+    while start < len(data):
+        end = data.find(b"\n", start)
+        end = len(data) if end < 0 else end + 1
+        out.append(data[start:end])
+        start = end
+    return out
+
+
+def verify_bytes(path: str, data: bytes) -> VerifyResult:
+    res = VerifyResult(path)
+    lines = split_lines(data)
+    expected = EMPTY_SHA256
+    for i, line in enumerate(lines, 1):
+        where = f"{path}:{i}"
+        last = i == len(lines)
+        if not line.endswith(b"\n"):
+            res.errors.append(
+                f"{where}: incomplete final line (writer interrupted or file "
+                f"truncated); the {res.records} records before it are intact"
+            )
+            break
+        try:
+            rec = json.loads(line)
+            if not isinstance(rec, dict) or "prev_sha256" not in rec:
+                raise ValueError("not a record")
+        except ValueError:
+            nxt = None if last else _PREV_RE.search(lines[i])
+            m = _PREV_RE.search(line)
+            if (
+                nxt is not None
+                and nxt.group(1).decode() == sha256_hex(line)
+                and (m is None or m.group(1).decode() == expected)
+            ):
+                res.warnings.append(
+                    f"{where}: warning: incomplete record (writer interrupted); "
+                    "the writer continued the chain after it"
+                )
+                expected = sha256_hex(line)
+                continue
+            res.errors.append(
+                f"{where}: hash chain broken: not a log record (line was edited or inserted)"
+            )
+            break
+        seal = line_seal_ok(line)
+        if seal is False:
+            res.errors.append(f"{where}: hash chain broken: line was edited")
+            break
+        if rec["prev_sha256"] != expected:
+            if seal is None:
+                msg = "line was edited or a line before it was removed"
+            elif i == 1:
+                msg = "the file's first line(s) were removed (or this line was inserted)"
+            else:
+                msg = "line was inserted, or a line before it was removed or rewritten"
+            res.errors.append(f"{where}: hash chain broken: {msg}")
+            break
+        res.records += 1
+        if rec.get("event") == "supervisor" and rec.get("previous_last_sha256"):
+            res.links.append((i, str(rec["previous_last_sha256"])))
+        expected = sha256_hex(line)
+    res.last_sha256 = expected
+    return res
+
+
+def parse_time(text: str) -> datetime:
+    """ISO 8601; a time without a zone is UTC (the log is in UTC)."""
+    try:
+        t = datetime.fromisoformat(text.strip())
+    except ValueError as e:
+        raise ValueError(
+            f"not an ISO 8601 time: {text!r} (e.g. 2026-11-21T20:24:13Z or 2026-11-21)"
+        ) from e
+    return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
+
+
+def iter_records(path: str, err: Any = None) -> Iterator[dict[str, Any]]:
+    err = err or sys.stderr
+    for i, line in enumerate(split_lines(read_bytes(path)), 1):
+        try:
+            rec = json.loads(line)
+            if not isinstance(rec, dict) or "event" not in rec or "ts" not in rec:
+                raise ValueError
+            rec["_ts"] = parse_time(str(rec["ts"]))
+        except ValueError:
+            print(f"{path}:{i}: warning: not a log record, skipped", file=err)
+            continue
+        yield rec

@@ -1,0 +1,593 @@
+"""Native backend: a MonitorSpec as hard real-time C99 (``monitor.c`` + ``monitor.h``).
+
+Interface (CONTRACT.md, Copilot-compatible): the inputs are ``extern`` globals
+defined by the host; ``step()`` (``<prefix>_step``) evaluates every
+requirement once and calls ``handler<ID>()`` where its formula is false;
+``monitor_reset()`` (``<prefix>_reset``) resets everything and
+``monitor_reset_<ID>()`` (``<reset name>_<ID>``) one requirement.  Each
+requirement owns its temporal state (one static struct), so resetting one never
+disturbs another's pending obligations.
+
+No allocation, loops or recursion; every reset is a fixed list of assignments.
+Temporal operators (arguments taken as booleans, i = current tick):
+
+  Y a, Z a        one stored bit (initially 0 for Y, 1 for Z).
+  O a             latch.   H a = !O !a.
+  a S b           s := b | (a & s).   a T b = !(!a S !b).
+  O[0,w] a        counter c of ticks since a last held, saturating at w+1
+                  (w+1 means "not within w"): holds iff c <= w.
+  a S[0,w] b      counter k = age of the newest j with b(j) and a on (j, i]:
+                  k := b ? 0 : (a & k <= w ? k+1 : w+1); holds iff k <= w.
+                  (If a held at i, the candidates of i-1 stay candidates, one
+                  tick older; if not, only j = i can be one.)
+  lo > 0          X[lo,hi] = the [0,hi-lo] version delayed by lo ticks:
+                  O[lo,hi] a at i = O[0,hi-lo] a at i-lo (false while i < lo), and
+                  a S[lo,hi] b = H[0,lo-1] a  &  delay_lo(a S[0,hi-lo] b),
+                  where H[0,lo-1] a is a counter of consecutive ticks with a
+                  (saturating at lo).  Unbounded hi: the unbounded core, delayed.
+  delay_L x       a 64-bit shift register when L <= 64, else a ring buffer of L
+                  bytes with a fill counter (reset = two assignments).
+  H[..], T[..]    by duality with O[..] and S[..].
+
+Values follow monitors/interpret.py exactly: int64 arithmetic is done in
+uint64_t and wrapped back without undefined behaviour, ``/`` and ``mod``
+guard 0 and INT64_MIN / -1, int ``^`` (constant exponent 0..63) is unrolled
+into multiplications, real ``^`` is pow() with Python's math.pow error cases,
+int64-vs-double relations compare exactly (as Python does), not via a lossy
+conversion.  <math.h> is not included (its many names, e.g. ``log``, would
+clash with input names); pow/fmod are declared directly, which C99 7.1.4
+allows.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from monitors.errors import UserError
+from monitors.ir.formula import (
+    ARITH_OPS,
+    BOOL_OPS,
+    REL_OPS,
+    BinOp,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    is_temporal,
+    subterms,
+    to_fret,
+)
+from monitors.ir.spec import C_TYPES, MonitorSpec, RequirementSpec, c_name, expand_defines
+
+INT64_MIN = -(1 << 63)
+INT64_MAX = (1 << 63) - 1
+# Largest delay line (bytes of static memory per lower time bound).
+MAX_DELAY = 1 << 20
+
+# Identifiers the generated C (or the host shim) declares itself.
+_RESERVED = re.compile(
+    r"ss_\w*|pow|fmod|memcpy|u?int(8|16|32|64|ptr|max)_t|u?int_(least|fast)(8|16|32|64)_t"
+    r"|U?INT\w*_(MAX|MIN|C)|(PTRDIFF|SIZE|SIG_ATOMIC|WCHAR|WINT)_(MAX|MIN)"
+    r"|__bool_true_false_are_defined"
+)
+_C_REL = {"=": "==", "!=": "!=", "<": "<", "<=": "<=", ">": ">", ">=": ">="}
+# ss__cmp_id result bits: 1 less, 2 equal, 4 greater, 0 unordered (NaN).
+_REL_MASK = {"<": 1, "<=": 3, "=": 2, ">": 4, ">=": 6}
+_MIRROR = {"<": ">", "<=": ">=", ">": "<", ">=": "<=", "=": "=", "!=": "!="}
+
+_HELPERS: dict[str, str] = {
+    "wrap": """/* uint64_t -> int64_t two's complement, without implementation-defined casts */
+static int64_t ss__wrap(uint64_t u)
+{
+    return u <= (uint64_t)INT64_MAX ? (int64_t)u : -(int64_t)(~u) - 1;
+}""",
+    "div": """/* '/' truncates; x / 0 = 0; INT64_MIN / -1 wraps (C would trap) */
+static int64_t ss__div(int64_t a, int64_t b)
+{
+    if (b == 0) {
+        return 0;
+    }
+    if (b == -1) {
+        return ss__wrap(0u - (uint64_t)a);
+    }
+    return a / b;
+}""",
+    "mod": """/* 'mod' has the dividend's sign; x mod 0 = 0; x mod -1 = 0 (C traps on INT64_MIN % -1) */
+static int64_t ss__mod(int64_t a, int64_t b)
+{
+    if (b == 0 || b == -1) {
+        return 0;
+    }
+    return a % b;
+}""",
+    "cmp_id": """/* Exact int64-vs-double comparison (as Python compares): 1 a<b, 2 a==b, 4 a>b, 0 NaN */
+static int ss__cmp_id(int64_t a, double b)
+{
+    int64_t t;
+    double frac;
+    if (b != b) {
+        return 0;
+    }
+    if (b >= 9223372036854775808.0) {
+        return 1;
+    }
+    if (b < -9223372036854775808.0) {
+        return 4;
+    }
+    t = (int64_t)b;
+    if (a != t) {
+        return a < t ? 1 : 4;
+    }
+    frac = b - (double)t;
+    return frac > 0.0 ? 1 : (frac < 0.0 ? 4 : 2);
+}""",
+    "inf": """static double ss__inf(void)
+{
+    return 1e308 * 10.0;
+}""",
+    "fmod": "double fmod(double x, double y);",
+    "pow": """double pow(double x, double y);
+
+/* C's pow, except where Python's math.pow raises for finite operands (overflow, 0 to a
+   negative power, negative base to a fraction): inf when a > 0, else NaN, as the
+   reference interpreter defines it */
+static double ss__pow(double a, double b)
+{
+    const double r = pow(a, b);
+    if (a - a == 0.0 && b - b == 0.0 && !(r - r == 0.0)) {
+        return a > 0.0 ? r : r - r;
+    }
+    return r;
+}""",
+}
+_HELPER_DEPS = {"div": ("wrap",)}
+
+
+def reset_each_name(spec: MonitorSpec, req: RequirementSpec) -> str:
+    """C name of the function that resets one requirement's streams."""
+    return f"{spec.reset_name}_{c_name(req.id)}"
+
+
+def _comment(text: str) -> str:
+    return text.replace("*/", "* /")
+
+
+def _as_bool(e: str, t: str) -> str:
+    return e if t == "bool" else f"({e} != 0)"
+
+
+def _as_int(e: str, t: str) -> str:
+    return e if t == "int64" else f"((int64_t){e})"
+
+
+def _as_double(e: str, t: str) -> str:
+    return e if t == "double" else f"((double){e})"
+
+
+def _ulit(n: int, ctype: str) -> str:
+    return f"{n}u" if ctype == "uint32_t" else f"UINT64_C({n})"
+
+
+def _const_type(v: bool | int | float) -> str:
+    return "bool" if isinstance(v, bool) else "int64" if isinstance(v, int) else "double"
+
+
+def _counter_type(limit: int) -> str:
+    return "uint32_t" if limit < (1 << 32) - 1 else "uint64_t"
+
+
+@dataclass
+class _Req:
+    """Code for one requirement: its private state struct and its step block."""
+
+    index: int
+    fields: list[str] = field(default_factory=list)  # struct member declarations
+    inits: list[tuple[str, str]] = field(default_factory=list)  # (member, initial value)
+    body: list[str] = field(default_factory=list)
+
+    @property
+    def struct(self) -> str:
+        return f"ss__r{self.index}"
+
+
+class _Gen:
+    def __init__(self, spec: MonitorSpec) -> None:
+        self.spec = spec
+        self.helpers: set[str] = set()
+        self.n = 0
+        self.env: dict[str, str] = {}  # formula variable -> type
+        self.names: dict[str, str] = {}  # formula variable -> C expression
+        self._check_names()
+
+    # ------------------------------------------------------------ names
+    def _check_names(self) -> None:
+        seen: dict[str, str] = {}
+
+        def claim(cname: str, what: str) -> None:
+            if _RESERVED.fullmatch(cname):
+                raise UserError(
+                    f"{what} has the C name '{cname}', which the generated C reserves",
+                    hint="rename it",
+                )
+            if cname in seen:
+                raise UserError(f"{what} and {seen[cname]} both become '{cname}' in C")
+            seen[cname] = what
+
+        spec = self.spec
+        for v in spec.inputs:
+            if v.type not in C_TYPES:
+                raise UserError(f"input '{v.name}' has unknown type '{v.type}'")
+            claim(c_name(v.name), f"input '{v.name}'")
+            self.env[v.name] = v.type
+            self.names[v.name] = c_name(v.name)
+        for d in spec.defines:
+            claim(c_name(d.name), f"internal variable '{d.name}'")
+        claim(spec.step_name, "the step function")
+        claim(spec.reset_name, "the reset function")
+        for r in spec.requirements:
+            claim(c_name(r.handler), f"handler of requirement '{r.id}'")
+            claim(reset_each_name(spec, r), f"reset function of requirement '{r.id}'")
+
+    def fresh(self) -> str:
+        self.n += 1
+        return f"ss__v{self.n}"
+
+    def use(self, helper: str) -> None:
+        self.helpers.add(helper)
+        for dep in _HELPER_DEPS.get(helper, ()):
+            self.helpers.add(dep)
+
+    # ------------------------------------------------------------ types
+    def node_type(self, g: Formula, vals: dict[Formula, tuple[str, str]]) -> str:
+        """Type from the children's entries in ``vals`` (as the interpreter does)."""
+        match g:
+            case Neg(a):
+                return "double" if vals[a][1] == "double" else "int64"
+            case BinOp(op, a, b) if op in ARITH_OPS:
+                return "double" if "double" in (vals[a][1], vals[b][1]) else "int64"
+        return "bool"
+
+    # ------------------------------------------------------------ values
+    def const(self, v: bool | int | float) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, int):
+            if not INT64_MIN <= v <= INT64_MAX:
+                raise UserError(f"integer constant {v} does not fit in int64")
+            if v == INT64_MIN:
+                return "(-INT64_C(9223372036854775807) - 1)"
+            return f"INT64_C({v})" if v >= 0 else f"(-INT64_C({-v}))"
+        if v != v:
+            self.use("inf")
+            return "(ss__inf() - ss__inf())"
+        if v in (float("inf"), float("-inf")):
+            self.use("inf")
+            return "ss__inf()" if v > 0 else "(-ss__inf())"
+        text = float(v).hex()  # exact: C99 hexadecimal floating constant
+        return f"({text})" if text.startswith("-") else text
+
+    def expr(self, g: Formula, vals: dict[Formula, tuple[str, str]], body: list[str]) -> str:
+        """C expression for a non-temporal node (children already in ``vals``)."""
+        match g:
+            case Not(a):
+                return f"(!{_as_bool(*vals[a])})"
+            case Neg(a):
+                e, t = vals[a]
+                if t == "double":
+                    return f"(-{e})"
+                self.use("wrap")
+                return f"ss__wrap(0u - (uint64_t){_as_int(e, t)})"
+            case BinOp(op, a, b) if op in BOOL_OPS:
+                x, y = _as_bool(*vals[a]), _as_bool(*vals[b])
+                return {
+                    "&": f"({x} && {y})",
+                    "|": f"({x} || {y})",
+                    "xor": f"({x} != {y})",
+                    "->": f"(!{x} || {y})",
+                    "<->": f"({x} == {y})",
+                }[op]
+            case BinOp(op, a, b) if op in REL_OPS:
+                return self.relation(op, vals[a], vals[b])
+            case BinOp(op, a, b) if op in ARITH_OPS:
+                return self.arith(op, g, vals[a], vals[b], body)
+        raise TypeError(f"not a formula node: {g!r}")
+
+    def relation(self, op: str, a: tuple[str, str], b: tuple[str, str]) -> str:
+        (x, tx), (y, ty) = a, b
+        if "double" not in (tx, ty):
+            return f"({_as_int(x, tx)} {_C_REL[op]} {_as_int(y, ty)})"
+        if tx != "int64" and ty != "int64":  # double or bool: converting is exact
+            return f"({_as_double(x, tx)} {_C_REL[op]} {_as_double(y, ty)})"
+        if tx == "double":  # put the int64 on the left
+            (x, tx), (y, ty), op = (y, ty), (x, tx), _MIRROR[op]
+        self.use("cmp_id")
+        if op == "!=":
+            return f"((ss__cmp_id({x}, {y}) & 2) == 0)"
+        return f"((ss__cmp_id({x}, {y}) & {_REL_MASK[op]}) != 0)"
+
+    def arith(
+        self, op: str, g: BinOp, a: tuple[str, str], b: tuple[str, str], body: list[str]
+    ) -> str:
+        (x, tx), (y, ty) = a, b
+        if "double" in (tx, ty):
+            x, y = _as_double(x, tx), _as_double(y, ty)
+            if op == "mod":
+                self.use("fmod")
+                return f"fmod({x}, {y})"
+            if op == "^":
+                self.use("pow")
+                return f"ss__pow({x}, {y})"
+            return f"({x} {op} {y})"
+        x, y = _as_int(x, tx), _as_int(y, ty)
+        self.use("wrap")
+        if op in ("+", "-", "*"):
+            return f"ss__wrap((uint64_t){x} {op} (uint64_t){y})"
+        if op in ("/", "mod"):
+            self.use("div" if op == "/" else "mod")
+            return f"ss__{'div' if op == '/' else 'mod'}({x}, {y})"
+        # int ^: constant exponent, unrolled square-and-multiply in uint64_t
+        e = g.right.value if isinstance(g.right, Const) else None
+        if not isinstance(e, int) or not 0 <= e <= 63:
+            raise UserError(
+                f"integer '^' needs a constant exponent from 0 to 63: {to_fret(g)}",
+                hint="write the power as a product, or use a real base",
+            )
+        factors: list[str] = []
+        square = self.fresh()
+        body.append(f"const uint64_t {square} = (uint64_t){x};")
+        bit = 1
+        while True:
+            if e & bit:
+                factors.append(square)
+            if e < bit * 2:
+                break
+            nxt = self.fresh()
+            body.append(f"const uint64_t {nxt} = {square} * {square};")
+            square, bit = nxt, bit * 2
+        if not factors:
+            factors.append("1u")
+        return f"ss__wrap({' * '.join(factors)})"
+
+    # ------------------------------------------------------------ state
+    def member(self, req: _Req, ctype: str, init: str | None, length: int | None = None) -> str:
+        name = f"f{len(req.fields)}"
+        req.fields.append(f"{ctype} {name}{'' if length is None else f'[{length}]'};")
+        if init is not None:
+            req.inits.append((name, init))
+        return f"{req.struct}.{name}"
+
+    def local(self, req: _Req, e: str) -> str:
+        v = self.fresh()
+        req.body.append(f"const bool {v} = {e};")
+        return v
+
+    def delay(self, req: _Req, x: str, length: int) -> str:
+        """x as it was ``length`` ticks ago (false before tick ``length``)."""
+        if length > MAX_DELAY:
+            raise UserError(
+                f"time bound {length} needs a delay line of {length} ticks (at most {MAX_DELAY})",
+                hint="use a longer tick (step.period_ms)",
+            )
+        if length <= 64:
+            r = self.member(req, "uint64_t", "0u")
+            out = self.local(req, f"(({r} >> {length - 1}) & 1u) != 0")
+            req.body.append(f"{r} = ({r} << 1) | ({x} ? 1u : 0u);")
+            return out
+        buf = self.member(req, "uint8_t", None, length)
+        idx = self.member(req, "uint32_t", "0u")
+        fill = self.member(req, "uint32_t", "0u")
+        out = self.local(req, f"({fill} == {length}u) && ({buf}[{idx}] != 0u)")
+        req.body.append(f"{buf}[{idx}] = {x} ? 1u : 0u;")
+        req.body.append(f"{idx} = ({idx} + 1u == {length}u) ? 0u : {idx} + 1u;")
+        req.body.append(f"{fill} = ({fill} == {length}u) ? {fill} : {fill} + 1u;")
+        return out
+
+    def once(self, req: _Req, x: str, lo: int, hi: int | None) -> str:
+        """O[lo,hi] x."""
+        if hi is None:
+            latch = self.member(req, "bool", "false")
+            req.body.append(f"{latch} = {latch} || {x};")
+            core = self.local(req, latch)
+        else:
+            w = hi - lo
+            t = _counter_type(w + 1)
+            c = self.member(req, t, _ulit(w + 1, t))
+            req.body.append(
+                f"{c} = {x} ? {_ulit(0, t)} : (({c} <= {_ulit(w, t)}) ? {c} + 1u : {c});"
+            )
+            core = self.local(req, f"{c} <= {_ulit(w, t)}")
+        return self.delay(req, core, lo) if lo > 0 else core
+
+    def since(self, req: _Req, a: str, b: str, lo: int, hi: int | None) -> str:
+        """a S[lo,hi] b."""
+        if hi is None:
+            s = self.member(req, "bool", "false")
+            req.body.append(f"{s} = {b} || ({a} && {s});")
+            core = self.local(req, s)
+        else:
+            w = hi - lo
+            t = _counter_type(w + 1)
+            k = self.member(req, t, _ulit(w + 1, t))
+            req.body.append(
+                f"{k} = {b} ? {_ulit(0, t)} : (({a} && {k} <= {_ulit(w, t)}) ? {k} + 1u : "
+                f"{_ulit(w + 1, t)});"
+            )
+            core = self.local(req, f"{k} <= {_ulit(w, t)}")
+        if lo == 0:
+            return core
+        t = _counter_type(lo)
+        n = self.member(req, t, _ulit(0, t))
+        req.body.append(f"{n} = {a} ? (({n} < {_ulit(lo, t)}) ? {n} + 1u : {n}) : {_ulit(0, t)};")
+        delayed = self.delay(req, core, lo)
+        return self.local(req, f"({n} >= {_ulit(lo, t)}) && {delayed}")
+
+    def temporal(self, req: _Req, g: Past | Since, vals: dict[Formula, tuple[str, str]]) -> str:
+        lo = g.lo or 0
+        if isinstance(g, Past):
+            a = _as_bool(*vals[g.arg])
+            if g.op in ("Y", "Z"):
+                prev = self.member(req, "bool", "false" if g.op == "Y" else "true")
+                out = self.local(req, prev)
+                req.body.append(f"{prev} = {a};")
+                return out
+            if g.hi is not None and g.hi < lo:  # empty window
+                return "false" if g.op == "O" else "true"
+            if g.op == "O":
+                return self.once(req, a, lo, g.hi)
+            return self.local(req, f"!{self.once(req, f'(!{a})', lo, g.hi)}")
+        a, b = _as_bool(*vals[g.left]), _as_bool(*vals[g.right])
+        if g.hi is not None and g.hi < lo:
+            return "false" if g.op == "S" else "true"
+        if g.op == "S":
+            return self.since(req, a, b, lo, g.hi)
+        return self.local(req, f"!{self.since(req, f'(!{a})', f'(!{b})', lo, g.hi)}")
+
+    # ------------------------------------------------------------ requirements
+    def node(
+        self, g: Formula, vals: dict[Formula, tuple[str, str]], req: _Req | None, body: list[str]
+    ) -> tuple[str, str]:
+        match g:
+            case Const(v):
+                return self.const(v), _const_type(v)
+            case Var(name):
+                if name not in self.names:
+                    raise UserError(f"unknown variable '{name}'")
+                return self.names[name], self.env[name]
+            case Past() | Since():
+                assert req is not None
+                return self.temporal(req, g, vals), "bool"
+        t = self.node_type(g, vals)
+        e = self.expr(g, vals, body)
+        v = self.fresh()
+        body.append(f"const {C_TYPES[t]} {v} = {e};")
+        return v, t
+
+    def formula(self, f: Formula, req: _Req | None, body: list[str]) -> tuple[str, str]:
+        vals: dict[Formula, tuple[str, str]] = {}
+        for g in subterms(f):
+            vals[g] = self.node(g, vals, req, body)
+        return vals[f]
+
+
+def _define_plan(spec: MonitorSpec) -> tuple[list, list[Formula]]:
+    """(non-temporal defines used, in dependency order; requirement formulas with the
+    temporal defines expanded, so that each requirement owns their state)."""
+    by_name = {d.name: d for d in spec.defines}
+    temporal = [d for d in spec.defines if is_temporal(expand_defines(d.expr, spec.defines))]
+    formulas = [expand_defines(r.formula, temporal) for r in spec.requirements]
+    order: list = []
+    state: dict[str, int] = {}
+
+    def visit(name: str) -> None:
+        if state.get(name) == 2:
+            return
+        if state.get(name) == 1:
+            raise UserError(f"internal variable '{name}' is defined in terms of itself")
+        state[name] = 1
+        for g in subterms(by_name[name].expr):
+            if isinstance(g, Var) and g.name in by_name:
+                visit(g.name)
+        state[name] = 2
+        order.append(by_name[name])
+
+    for f in formulas:
+        for g in subterms(f):
+            if isinstance(g, Var) and g.name in by_name:
+                visit(g.name)
+    return order, formulas
+
+
+def generate(spec: MonitorSpec) -> tuple[str, str]:
+    """The text of (monitor.c, monitor.h) for ``spec``."""
+    gen = _Gen(spec)
+    defines, formulas = _define_plan(spec)
+    top: list[str] = []
+    for d in defines:
+        e, t = gen.formula(d.expr, None, top)
+        top.append(f"const {C_TYPES[t]} {c_name(d.name)} = {e};")
+        gen.env[d.name], gen.names[d.name] = t, c_name(d.name)
+    reqs: list[tuple[RequirementSpec, _Req]] = []
+    for i, (r, f) in enumerate(zip(spec.requirements, formulas, strict=True)):
+        req = _Req(i)
+        e, t = gen.formula(f, req, req.body)
+        req.body.append(f"if (!{_as_bool(e, t)}) {{")
+        req.body.append(f"    {c_name(r.handler)}();")
+        req.body.append("}")
+        reqs.append((r, req))
+
+    h = _header(spec)
+    c = [
+        "/* Monitor generated by safety-supervisor (native C99 backend): hard real-time,",
+        "   no dynamic allocation, no loops, no recursion.  Do not edit. */",
+        '#include "monitor.h"',
+        "",
+    ]
+    for name in _HELPERS:
+        if name in gen.helpers:
+            c += [_HELPERS[name], ""]
+    for r, req in reqs:
+        if not req.fields:
+            continue
+        c.append(f"/* state of {_comment(r.id)} */")
+        c.append("static struct {")
+        c += [f"    {m}" for m in req.fields]
+        inits = ", ".join(f".{m} = {v}" for m, v in req.inits)
+        c.append(f"}} {req.struct} = {{ {inits} }};" if inits else f"}} {req.struct};")
+        c.append("")
+    c += [f"void {spec.step_name}(void)", "{"]
+    c += [f"    {s}" for s in top]
+    for (r, req), f in zip(reqs, formulas, strict=True):
+        c.append(f"    /* {_comment(r.id)}: {_comment(to_fret(f))} */")
+        c.append("    {")
+        c += [f"        {s}" for s in req.body]
+        c.append("    }")
+    c += ["}", ""]
+    for r, req in reqs:
+        c += [f"void {reset_each_name(spec, r)}(void)", "{"]
+        c += [f"    {req.struct}.{m} = {v};" for m, v in req.inits]
+        c += ["}", ""]
+    c += [f"void {spec.reset_name}(void)", "{"]
+    c += [f"    {reset_each_name(spec, r)}();" for r in spec.requirements]
+    c += ["}", ""]
+    return "\n".join(c), h
+
+
+def _header(spec: MonitorSpec) -> str:
+    h = [
+        "/* Monitor interface generated by safety-supervisor (Copilot-compatible). */",
+        "#ifndef SS_MONITOR_H",
+        "#define SS_MONITOR_H",
+        "",
+        "#include <stdbool.h>",
+        "#include <stdint.h>",
+        "",
+        "/* inputs: defined by the host, set before each step */",
+    ]
+    h += [f"extern {C_TYPES[v.type]} {c_name(v.name)};" for v in spec.inputs]
+    h += ["", "/* called by step when the requirement is violated: defined by the host */"]
+    h += [f"extern void {c_name(r.handler)}(void);" for r in spec.requirements]
+    h += ["", "/* evaluate every requirement for one tick */", f"void {spec.step_name}(void);"]
+    h += [
+        "",
+        "/* back to tick 0: everything, or one requirement */",
+        f"void {spec.reset_name}(void);",
+    ]
+    h += [f"void {reset_each_name(spec, r)}(void);" for r in spec.requirements]
+    h += ["", "#endif", ""]
+    return "\n".join(h)
+
+
+def write_c(spec: MonitorSpec, out_dir: Path) -> tuple[Path, Path]:
+    """Write ``monitor.c`` and ``monitor.h`` into ``out_dir``; returns their paths."""
+    c_text, h_text = generate(spec)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    c_path, h_path = out_dir / "monitor.c", out_dir / "monitor.h"
+    c_path.write_text(c_text)
+    h_path.write_text(h_text)
+    return c_path, h_path

@@ -1,0 +1,559 @@
+"""FRETISH sentences -> Requirement (scope, condition, timing, response).
+
+The grammar is ``fretish.lark`` (LALR, contextual lexer, positions kept), so
+every error is one line ``FILE:LINE:COL: expected X near 'tok'`` pointing at
+the offending token, never a traceback.
+
+Deliberate differences from FRET 3.0 (documented extensions / refusals):
+- ``C is true`` / ``C is false`` (any case) are accepted; FRET only takes
+  ``TRUE``/``FALSE``/``True``/``False`` there.
+- A timing written after the response (``satisfy q within 3 ticks``) is
+  rejected, like FRET, but with a message saying where the timing goes.
+- A negative duration (``within -3 ticks``) is rejected; FRET accepts it and
+  produces a meaningless formula.
+- ``with probability OP P`` needs 0 <= P <= 1 (FRET says "Illegal probability").
+- Keywords are only keywords where the grammar expects them, so a mode or a
+  variable may be called ``hereafter``, ``beforehand`` or ``auto``.  FRET's
+  reserved names (``O H S Y Z X F G U V T A E abs max min mode next``) are
+  refused everywhere a name is expected.
+- Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
+  n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
+  ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
+  read as ``occurred(0, n, p)`` (no FRET example to check it against).
+  Other calls are errors.
+- ``FTP`` in an expression is FRET's first-time-point constant (``Z FALSE``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from fractions import Fraction
+from functools import cache
+from pathlib import Path
+
+from lark import Lark, Token, Transformer, v_args
+from lark.exceptions import (
+    UnexpectedCharacters,
+    UnexpectedEOF,
+    UnexpectedInput,
+    UnexpectedToken,
+    VisitError,
+)
+
+from monitors.errors import UserError
+from monitors.ir.formula import (
+    FALSE,
+    FTP,
+    TRUE,
+    BinOp,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    and_,
+)
+
+UNITS = ("tick", "hour", "minute", "second", "millisecond", "microsecond")
+_RESERVED_HINT = "FRET reserves O H S Y Z X F G U V T A E abs max min mode next; rename it"
+RESERVED = frozenset("O H S Y Z X F G U V T A E abs max min mode next".split())
+
+
+@dataclass(frozen=True)
+class Duration:
+    amount: Fraction
+    unit: str  # one of UNITS
+
+    def __str__(self) -> str:
+        plural = "" if self.amount == 1 else "s"
+        return f"{_num(self.amount)} {self.unit}{plural}"
+
+
+@dataclass(frozen=True)
+class Scope:
+    kind: str  # in notin onlyIn after before onlyAfter onlyBefore
+    mode: Formula
+
+
+@dataclass(frozen=True)
+class Condition:
+    kind: str  # regular | holding
+    expr: Formula
+
+
+@dataclass(frozen=True)
+class Timing:
+    kind: str  # immediately next eventually always never within for after until before finally null
+    duration: Duration | None = None
+    stop: Formula | None = None
+
+
+@dataclass(frozen=True)
+class Requirement:
+    text: str
+    component: str
+    scope: Scope | None
+    condition: Condition | None
+    timing: Timing
+    response: Formula
+    probability: str | None = None
+
+
+def _num(x: Fraction) -> str:
+    return str(x.numerator) if x.denominator == 1 else str(float(x))
+
+
+# ---------------------------------------------------------------- errors
+
+
+class _Located(Exception):
+    """Raised inside the transformer; carries the position of the bad token."""
+
+    def __init__(self, message: str, line: int, col: int, hint: str | None = None) -> None:
+        super().__init__(message)
+        self.message, self.line, self.col, self.hint = message, line, col, hint
+
+
+def _at(tok: Token) -> tuple[int, int]:
+    return (tok.line or 1, tok.column or 1)
+
+
+# Readable names for what lark says it expected.
+_TERMINAL_TEXT = {
+    "SHALL": "'shall'",
+    "SATISFY": "'satisfy'",
+    "NAME": "a name",
+    "UNIT": "a time unit (ticks, seconds, milliseconds, ...)",
+    "NUMBER": "a number",
+    "LPAR": "'('",
+    "RPAR": "')'",
+    "REL_OP": "a comparison",
+    "MODE": "'mode'",
+    "IN": "'in'",
+    "TIMEPOINT": "'timepoint'",
+    "THEN": "'then'",
+    "$END": "end of sentence",
+}
+_EXPR_START = {"NAME", "NUMBER", "LPAR", "NOT_OP", "MINUS", "TRUE_KW", "FALSE_KW"}
+_TIMING_WORDS = {
+    "IMMEDIATELY", "INITIALLY", "AT", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR",
+    "AFTER", "UNTIL", "BEFORE", "FINALLY",
+}  # fmt: skip
+_TIMING_START = {"IMMEDIATELY", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR", "UNTIL"}
+
+
+def _expected_text(expected: set[str]) -> str:
+    if "UNIT" in expected:
+        return _TERMINAL_TEXT["UNIT"]
+    if "$END" in expected:
+        return "an operator or the end of the requirement"
+    if "UPON" in expected and "WHENEVER" in expected:
+        return "a qualifier (upon, when, whenever, if, where, unless)"
+    if expected and expected <= _TIMING_WORDS:
+        return "a timing (always, within N ticks, ...)"
+    if "SATISFY" in expected and expected & _TIMING_START:
+        return "a timing (always, within N ticks, ...) or 'satisfy'"
+    if "SATISFY" in expected:
+        return "'satisfy'"
+    if "SHALL" in expected:
+        return "'shall'"
+    if expected & _EXPR_START and "NAME" in expected:
+        return "an expression"
+    names = sorted(_TERMINAL_TEXT.get(e, f"'{e.lower()}'") for e in expected if e != "COMMA")
+    if len(names) > 4:
+        names = names[:4] + ["..."]
+    return " or ".join(names) if names else "something else"
+
+
+def _near(text: str, pos: int) -> str:
+    rest = text[pos:].split()
+    return rest[0] if rest else ""
+
+
+def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
+    if isinstance(e, UnexpectedEOF) or (isinstance(e, UnexpectedToken) and e.token.type == "$END"):
+        expected = set(getattr(e, "expected", ()) or ())
+        line, col = _end_position(text)
+        return UserError(
+            f"expected {_expected_text(expected)} at end of sentence", line=line, col=col
+        )
+    if isinstance(e, UnexpectedToken):
+        tok = e.token
+        msg = f"expected {_expected_text(set(e.expected))} near '{tok}'"
+        hint = None
+        if "UNIT" in e.expected:
+            msg = f"duration without a time unit near '{tok}'"
+            hint = "FRET needs a unit: ticks, hours, minutes, seconds, milliseconds, microseconds"
+        elif tok.type == "STRING":
+            msg = "free-form text is not FRETISH; FRET does not formalize it"
+        elif "UPON" in e.expected and "WHENEVER" in e.expected:
+            hint = "each 'and'/'or' between conditions needs its own qualifier; or use & and |"
+        elif tok.type in ("MODE", "NEXT") and "NAME" in e.expected:
+            msg = f"'{tok}' is reserved in FRETISH and cannot be used as a name"
+            hint = _RESERVED_HINT
+        return UserError(msg, line=tok.line, col=tok.column, hint=hint)
+    if isinstance(e, UnexpectedCharacters):
+        return UserError(
+            f"unexpected character '{text[e.pos_in_stream]}' near '{_near(text, e.pos_in_stream)}'",
+            line=e.line,
+            col=e.column,
+        )
+    return UserError(str(e).splitlines()[0])
+
+
+def _end_position(text: str) -> tuple[int, int]:
+    lines = text.rstrip().split("\n")
+    return len(lines), len(lines[-1]) + 1
+
+
+# ---------------------------------------------------------------- tree -> AST
+
+
+def _toks(items: list, *types: str) -> list[Token]:
+    return [t for t in items if isinstance(t, Token) and t.type in types]
+
+
+def _formulas(items: list) -> list[Formula]:
+    return [x for x in items if isinstance(x, Formula)]
+
+
+_UNIT_OF = {
+    "tick": "tick",
+    "hour": "hour",
+    "minute": "minute",
+    "ms": "millisecond",
+    "millisec": "millisecond",
+    "millisecond": "millisecond",
+    "microsec": "microsecond",
+    "microsecond": "microsecond",
+    "sec": "second",
+    "second": "second",
+}
+
+
+class _Build(Transformer):
+    def __init__(self, text: str) -> None:
+        super().__init__()
+        self.text = text
+
+    # -- sentence
+    def start(self, items: list) -> Requirement:
+        return items[0]
+
+    def freeform(self, items: list) -> Requirement:
+        line, col = _at(items[0])
+        raise _Located("free-form text is not FRETISH; FRET does not formalize it", line, col)
+
+    def requirement(self, items: list) -> Requirement:
+        scope = next((x for x in items if isinstance(x, Scope)), None)
+        cond = next((x for x in items if isinstance(x, Condition)), None)
+        component = next(x for x in items if isinstance(x, _Component))
+        timing = next((x for x in items if isinstance(x, Timing)), Timing("null"))
+        prob = next((x for x in items if isinstance(x, _Probability)), None)
+        post = next((x for x in items if isinstance(x, _PostTiming)), None)
+        if post is not None:
+            raise _Located(
+                f"the timing '{post.words}' must come before 'satisfy'",
+                post.line,
+                post.col,
+                hint=f"write: {component.name} shall {post.words} satisfy ...",
+            )
+        response = _formulas(items)[-1]
+        return Requirement(
+            text=self.text.strip(),
+            component=component.name,
+            scope=scope,
+            condition=cond,
+            timing=timing,
+            response=response,
+            probability=prob.text if prob else None,
+        )
+
+    # -- scope
+    def scope(self, items: list) -> Scope:
+        return items[0]
+
+    def _scope(self, kind: str, items: list) -> Scope:
+        return Scope(kind, _formulas(items)[-1])
+
+    def only_in(self, items: list) -> Scope:
+        return self._scope("onlyIn", items)
+
+    def only_after(self, items: list) -> Scope:
+        return self._scope("onlyAfter", items)
+
+    def only_before(self, items: list) -> Scope:
+        return self._scope("onlyBefore", items)
+
+    def notin(self, items: list) -> Scope:
+        return self._scope("notin", items)
+
+    def in_(self, items: list) -> Scope:
+        return self._scope("in", items)
+
+    def after(self, items: list) -> Scope:
+        return self._scope("after", items)
+
+    def before(self, items: list) -> Scope:
+        return self._scope("before", items)
+
+    def smode(self, items: list) -> Formula:
+        return _formulas(items)[0]
+
+    # -- condition
+    def condition(self, items: list) -> Condition:
+        # 'and' binds tighter than 'or' (commas and plain juxtaposition mean 'and');
+        # the condition is regular as soon as one qualifier is regular (FRET's rule).
+        quals = [x for x in items if isinstance(x, _Qualifier)]
+        joins = [x for x in items if type(x) is str]  # join_and/join_or results, not tokens
+        disjuncts: list[list[Formula]] = [[quals[0].expr]]
+        for j, q in zip(joins, quals[1:], strict=True):
+            if j == "or":
+                disjuncts.append([q.expr])
+            else:
+                disjuncts[-1].append(q.expr)
+        expr = _join(disjuncts)
+        kind = "holding" if all(q.word == "whenever" for q in quals) else "regular"
+        return Condition(kind, expr)
+
+    def join_and(self, _: list) -> str:
+        return "and"
+
+    def join_or(self, _: list) -> str:
+        return "or"
+
+    def qword(self, items: list) -> Token:
+        return items[0]
+
+    def qualifier(self, items: list) -> _Qualifier:
+        word = str(items[0]).lower()
+        expr = items[1]
+        negate = word == "unless"
+        if len(items) > 2 and items[2] == "false":
+            negate = not negate
+        return _Qualifier(word, Not(expr) if negate else expr)
+
+    def is_true(self, _: list) -> str:
+        return "true"
+
+    def is_false(self, _: list) -> str:
+        return "false"
+
+    # -- component, probability
+    def component(self, items: list) -> _Component:
+        name = _toks(items, "NAME")[0]
+        return _Component(str(name))
+
+    def probability(self, items: list) -> _Probability:
+        op, num = _toks(items, "REL_OP")[0], _toks(items, "NUMBER")[0]
+        value = float(num)
+        if not 0.0 <= value <= 1.0:
+            line, col = _at(num)
+            raise _Located(f"illegal probability {num}: it must be between 0 and 1", line, col)
+        return _Probability(f"{op} {num}")
+
+    # -- timing
+    def t_immediately(self, _: list) -> Timing:
+        return Timing("immediately")
+
+    def t_next(self, _: list) -> Timing:
+        return Timing("next")
+
+    def t_eventually(self, _: list) -> Timing:
+        return Timing("eventually")
+
+    def t_always(self, _: list) -> Timing:
+        return Timing("always")
+
+    def t_never(self, _: list) -> Timing:
+        return Timing("never")
+
+    def t_finally(self, _: list) -> Timing:
+        return Timing("finally")
+
+    def t_within(self, items: list) -> Timing:
+        return Timing("within", duration=items[-1])
+
+    def t_for(self, items: list) -> Timing:
+        return Timing("for", duration=items[-1])
+
+    def t_after(self, items: list) -> Timing:
+        return Timing("after", duration=items[-1])
+
+    def t_until(self, items: list) -> Timing:
+        return Timing("until", stop=_formulas(items)[0])
+
+    def t_before(self, items: list) -> Timing:
+        return Timing("before", stop=_formulas(items)[0])
+
+    @v_args(meta=True)
+    def post_timing(self, meta: object, items: list) -> _PostTiming:
+        start, end = meta.start_pos, meta.end_pos  # type: ignore[attr-defined]
+        words = " ".join(self.text[start:end].lstrip(",").split())
+        return _PostTiming(words, meta.line, meta.column)  # type: ignore[attr-defined]
+
+    def duration(self, items: list) -> Duration:
+        num = _toks(items, "NUMBER")[0]
+        line, col = _at(items[0])
+        if _toks(items, "MINUS"):
+            raise _Located(f"negative duration -{num}: a duration must be 0 or more", line, col)
+        units = _toks(items, "UNIT")
+        if not units:  # the grammar makes UNIT optional only to say this clearly
+            raise _Located(
+                f"duration {num} has no time unit",
+                *_at(num),
+                hint="FRET needs a unit: ticks, hours, minutes, seconds, milliseconds, microseconds",
+            )
+        word = str(units[0]).lower()
+        word = word[:-1] if word.endswith("s") and word != "ms" else word
+        return Duration(Fraction(str(num)), _UNIT_OF[word])
+
+    # -- expressions
+    def ifthen(self, items: list) -> Formula:
+        a, b = _formulas(items)
+        return BinOp("->", a, b)
+
+    def binop(self, items: list) -> Formula:
+        a, op, b = items
+        text = str(op).lower()
+        text = {"=>": "->", "<=>": "<->"}.get(text, text)
+        return BinOp(text, a, b)
+
+    def not_(self, items: list) -> Formula:
+        return Not(items[-1])
+
+    def uminus(self, items: list) -> Formula:
+        a = items[-1]
+        if isinstance(a, Const) and not isinstance(a.value, bool):
+            return Const(-a.value)
+        return Neg(a)
+
+    def number(self, items: list) -> Formula:
+        text = str(items[0])
+        if any(c in text for c in ".eE"):
+            return Const(float(text))
+        return Const(int(text))
+
+    def true(self, _: list) -> Formula:
+        return TRUE
+
+    def false(self, _: list) -> Formula:
+        return FALSE
+
+    def var(self, items: list) -> Formula:
+        if str(items[0]) == "FTP":  # FRET's "first time point" constant
+            return FTP
+        return Var(_name(items[0]))
+
+    def call(self, items: list) -> Formula:
+        fn = items[0]
+        args = _formulas(items[1:])
+        name = str(fn)
+        if name == "persisted" and len(args) == 2:
+            n = _tick_arg(args[0], fn)
+            # FRET: p held at each of the last n+1 ticks and those ticks exist.
+            if n == 0:
+                return args[1]
+            return and_(Past("H", args[1], 0, n), Past("H", Past("Y", TRUE), 0, n - 1))
+        if name == "occurred" and len(args) == 2:
+            return Since("S", Past("Y", TRUE), args[1], 0, _tick_arg(args[0], fn))
+        if name == "occurred" and len(args) == 3:
+            lo, hi = _tick_arg(args[0], fn), _tick_arg(args[1], fn)
+            return Since("S", Past("Y", TRUE), args[2], lo, hi)
+        line, col = _at(fn)
+        if name in RESERVED:
+            raise _Located(f"'{name}' is reserved in FRETISH and cannot be used", line, col)
+        raise _Located(
+            f"unknown function {name}/{len(args)}",
+            line,
+            col,
+            hint="FRETISH functions: persisted(n, p), occurred(n, p), occurred(m, n, p)",
+        )
+
+
+def _join(disjuncts: list[list[Formula]]) -> Formula:
+    out: Formula | None = None
+    for d in disjuncts:
+        conj = d[0]
+        for x in d[1:]:
+            conj = BinOp("&", conj, x)
+        out = conj if out is None else BinOp("|", out, conj)
+    assert out is not None
+    return out
+
+
+def _name(tok: Token) -> str:
+    name = str(tok)
+    if name in RESERVED:
+        line, col = _at(tok)
+        raise _Located(
+            f"'{name}' is reserved in FRETISH and cannot be used as a name",
+            line,
+            col,
+            hint=_RESERVED_HINT,
+        )
+    return name
+
+
+def _tick_arg(f: Formula, fn: Token) -> int:
+    if isinstance(f, Const) and isinstance(f.value, int) and not isinstance(f.value, bool):
+        if f.value >= 0:
+            return f.value
+    line, col = _at(fn)
+    raise _Located(f"{fn}(...) needs a tick count (a whole number >= 0) first", line, col)
+
+
+@dataclass(frozen=True)
+class _Qualifier:
+    word: str
+    expr: Formula
+
+
+@dataclass(frozen=True)
+class _Component:
+    name: str
+
+
+@dataclass(frozen=True)
+class _Probability:
+    text: str
+
+
+@dataclass(frozen=True)
+class _PostTiming:
+    words: str
+    line: int
+    col: int
+
+
+# ---------------------------------------------------------------- entry point
+
+
+@cache
+def _parser() -> Lark:
+    grammar = (Path(__file__).with_name("fretish.lark")).read_text()
+    return Lark(grammar, parser="lalr", propagate_positions=True, maybe_placeholders=False)
+
+
+def parse_requirement(
+    text: str, *, file: str = "<input>", line: int = 1, col: int = 1
+) -> Requirement:
+    """Parse one FRETISH sentence.  ``line``/``col`` say where ``text`` starts in
+    ``file`` so that errors point at the offending token in that file."""
+    try:
+        if not text.strip():
+            raise UserError("empty requirement", line=1, col=1)
+        tree = _parser().parse(text)
+        return _Build(text).transform(tree)
+    except VisitError as e:
+        orig = e.orig_exc
+        if isinstance(orig, _Located):
+            err = UserError(orig.message, line=orig.line, col=orig.col, hint=orig.hint)
+            raise err.at(file, line, col) from None
+        raise
+    except UnexpectedInput as e:
+        raise _syntax_error(e, text).at(file, line, col) from None
+    except UserError as e:
+        raise e.at(file, line, col) from None

@@ -1,0 +1,98 @@
+"""Type checking of formulas against declared variable types.
+
+Catches what a C compiler would accept silently or what FRET never checks:
+``classifier & halt`` (int used as a condition), ``halt + 1`` (bool in
+arithmetic), an integer power with a non-constant exponent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from monitors.errors import UserError
+from monitors.ir.formula import (
+    ARITH_OPS,
+    BOOL_OPS,
+    REL_OPS,
+    BinOp,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    to_fret,
+)
+
+
+def _const_type(v: object) -> str:
+    if isinstance(v, bool):
+        return "bool"
+    if isinstance(v, int):
+        return "int64"
+    return "double"
+
+
+def type_of(f: Formula, env: Mapping[str, str]) -> str:
+    """The type of ``f`` ('bool', 'int64' or 'double'); raises UserError (no location:
+    callers anchor it with ``.at``) naming the offending subterm."""
+    match f:
+        case Const(v):
+            return _const_type(v)
+        case Var(name):
+            if name not in env:
+                raise UserError(f"unknown variable '{name}'")
+            return env[name]
+        case Not(a):
+            _expect(a, env, "bool", "'!' needs a boolean")
+            return "bool"
+        case Neg(a):
+            t = type_of(a, env)
+            if t == "bool":
+                raise UserError(f"unary '-' needs a number, but {to_fret(a)} is bool")
+            return t
+        case Past(op, a, _, _):
+            _expect(a, env, "bool", f"temporal operator {op} needs a boolean")
+            return "bool"
+        case Since(op, a, b, _, _):
+            _expect(a, env, "bool", f"temporal operator {op} needs booleans")
+            _expect(b, env, "bool", f"temporal operator {op} needs booleans")
+            return "bool"
+        case BinOp(op, a, b) if op in BOOL_OPS:
+            _expect(a, env, "bool", f"'{op}' needs booleans")
+            _expect(b, env, "bool", f"'{op}' needs booleans")
+            return "bool"
+        case BinOp(op, a, b) if op in REL_OPS:
+            ta, tb = type_of(a, env), type_of(b, env)
+            if (ta == "bool") != (tb == "bool"):
+                raise UserError(f"cannot compare {to_fret(a)} ({ta}) with {to_fret(b)} ({tb})")
+            if ta == "bool" and op not in ("=", "!="):
+                raise UserError(f"'{op}' needs numbers, but {to_fret(a)} is bool")
+            return "bool"
+        case BinOp(op, a, b) if op in ARITH_OPS:
+            ta, tb = type_of(a, env), type_of(b, env)
+            for side, t in ((a, ta), (b, tb)):
+                if t == "bool":
+                    raise UserError(f"'{op}' needs numbers, but {to_fret(side)} is bool")
+            result = "double" if "double" in (ta, tb) else "int64"
+            if op == "^" and result == "int64":
+                if not (isinstance(b, Const) and isinstance(b.value, int) and 0 <= b.value <= 63):
+                    raise UserError(
+                        f"integer power needs a constant exponent from 0 to 63, got {to_fret(b)}",
+                        hint="use a real base (e.g. 2.0 ^ n) for a variable exponent",
+                    )
+            return result
+    raise UserError(f"cannot type {f!r}")
+
+
+def _expect(f: Formula, env: Mapping[str, str], want: str, why: str) -> None:
+    t = type_of(f, env)
+    if t != want:
+        raise UserError(f"{why}, but {to_fret(f)} is {t}")
+
+
+def check_bool(f: Formula, env: Mapping[str, str], what: str = "requirement") -> None:
+    t = type_of(f, env)
+    if t != "bool":
+        raise UserError(f"{what} must be a boolean condition, but {to_fret(f)} is {t}")

@@ -1,0 +1,201 @@
+"""Reference interpreter: the judge of every compiled monitor.
+
+Written from the textbook semantics of past-time metric LTL over a finite
+trace, evaluated at every tick i (the formula "holds at i" looks only at ticks
+0..i).  It is deliberately direct (quantifiers over windows, no incremental
+state) so that it shares no algorithm with the generated C.
+
+Value semantics shared with the C backend (documented in the README):
+- int is int64 with wrap-around on overflow;
+- integer ``/`` truncates toward zero and ``mod`` takes the sign of the
+  dividend (C99); division or mod by zero gives 0;
+- real is IEEE double (x / 0.0 is inf or nan, comparisons with nan are false);
+- ``^`` on ints needs a constant exponent 0..63; on reals it is C's pow().
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+from monitors.ir.formula import BinOp, Const, Formula, Neg, Not, Past, Since, Var, subterms
+
+Value = bool | int | float
+Trace = Sequence[Mapping[str, Value]]
+
+_I64 = 1 << 64
+
+
+def wrap64(x: int) -> int:
+    """Two's-complement wrap to int64."""
+    x &= _I64 - 1
+    return x - _I64 if x >= 1 << 63 else x
+
+
+def _int_div(a: int, b: int) -> int:
+    if b == 0:
+        return 0
+    q = abs(a) // abs(b)
+    return wrap64(q if (a >= 0) == (b >= 0) else -q)
+
+
+def _int_mod(a: int, b: int) -> int:
+    if b == 0:
+        return 0
+    return wrap64(a - _int_div(a, b) * b)
+
+
+def _real_div(a: float, b: float) -> float:
+    if b == 0:
+        if a == 0 or math.isnan(a):
+            return math.nan
+        return math.copysign(math.inf, a) * math.copysign(1.0, b)
+    return a / b
+
+
+def _arith(op: str, a: Value, b: Value) -> Value:
+    real = isinstance(a, float) or isinstance(b, float)
+    if real:
+        a, b = float(a), float(b)
+        match op:
+            case "+":
+                return a + b
+            case "-":
+                return a - b
+            case "*":
+                return a * b
+            case "/":
+                return _real_div(a, b)
+            case "mod":
+                # C's fmod: NaN for an infinite dividend or a zero divisor
+                return math.fmod(a, b) if b != 0 and math.isfinite(a) else math.nan
+            case "^":
+                try:
+                    return math.pow(a, b)
+                except (OverflowError, ValueError):
+                    return math.inf if a > 0 else math.nan
+    a, b = int(a), int(b)
+    match op:
+        case "+":
+            return wrap64(a + b)
+        case "-":
+            return wrap64(a - b)
+        case "*":
+            return wrap64(a * b)
+        case "/":
+            return _int_div(a, b)
+        case "mod":
+            return _int_mod(a, b)
+        case "^":
+            if not 0 <= b <= 63:
+                raise ValueError("integer ^ needs an exponent from 0 to 63")
+            return wrap64(a**b)
+    raise ValueError(f"unknown operator {op}")
+
+
+def _rel(op: str, a: Value, b: Value) -> bool:
+    match op:
+        case "=":
+            return a == b
+        case "!=":
+            return a != b
+        case "<":
+            return a < b
+        case "<=":
+            return a <= b
+        case ">":
+            return a > b
+        case ">=":
+            return a >= b
+    raise ValueError(f"unknown relation {op}")
+
+
+def _bool(op: str, a: bool, b: bool) -> bool:
+    match op:
+        case "&":
+            return a and b
+        case "|":
+            return a or b
+        case "xor":
+            return a != b
+        case "->":
+            return (not a) or b
+        case "<->":
+            return a == b
+    raise ValueError(f"unknown connective {op}")
+
+
+def _window(i: int, lo: int | None, hi: int | None) -> range:
+    """Ticks j with lo <= i - j <= hi and j >= 0 (hi None: unbounded)."""
+    first = 0 if hi is None else max(0, i - hi)
+    last = i - (lo or 0)
+    return range(first, last + 1)
+
+
+def evaluate(formula: Formula, trace: Trace) -> list[Value]:
+    """Value of ``formula`` at every tick of ``trace``."""
+    n = len(trace)
+    table: dict[Formula, list[Value]] = {}
+    for g in subterms(formula):
+        table[g] = _eval_node(g, trace, table, n)
+    return table[formula]
+
+
+def verdicts(formula: Formula, trace: Trace) -> list[bool]:
+    """True at each tick where the formula holds (the monitor is silent)."""
+    return [bool(v) for v in evaluate(formula, trace)]
+
+
+def _eval_node(g: Formula, trace: Trace, t: dict[Formula, list[Value]], n: int) -> list[Value]:
+    match g:
+        case Const(v):
+            return [v] * n
+        case Var(name):
+            return [row[name] for row in trace]
+        case Not(a):
+            return [not x for x in t[a]]
+        case Neg(a):
+            return [(-x if isinstance(x, float) else wrap64(-x)) for x in t[a]]
+        case BinOp(op, a, b):
+            xs, ys = t[a], t[b]
+            if op in ("&", "|", "xor", "->", "<->"):
+                return [_bool(op, bool(x), bool(y)) for x, y in zip(xs, ys, strict=True)]
+            if op in ("=", "!=", "<", "<=", ">", ">="):
+                return [_rel(op, x, y) for x, y in zip(xs, ys, strict=True)]
+            return [_arith(op, x, y) for x, y in zip(xs, ys, strict=True)]
+        case Past("Y", a):
+            xs = t[a]
+            return [i > 0 and bool(xs[i - 1]) for i in range(n)]
+        case Past("Z", a):
+            xs = t[a]
+            return [i == 0 or bool(xs[i - 1]) for i in range(n)]
+        case Past("O", a, lo, hi):
+            xs = t[a]
+            return [any(xs[j] for j in _window(i, lo, hi)) for i in range(n)]
+        case Past("H", a, lo, hi):
+            xs = t[a]
+            return [all(xs[j] for j in _window(i, lo, hi)) for i in range(n)]
+        case Since(op, a, b, lo, hi):
+            xs, ys = t[a], t[b]
+            return [_since(op == "S", xs, ys, i, lo, hi) for i in range(n)]
+    raise TypeError(f"cannot evaluate {g!r}")
+
+
+def _since(
+    strong: bool, xs: list[Value], ys: list[Value], i: int, lo: int | None, hi: int | None
+) -> bool:
+    """a S b: some j in the window has b(j) and a holds at every k in (j, i].
+    a T b: every j in the window has b(j) or a holds at some k in (j, i].
+    Scans j from i down, tracking whether a held (S) / occurred (T) on (j, i]."""
+    window = _window(i, lo, hi)
+    a_between = True if strong else False
+    for j in range(i, -1, -1):
+        if j in window:
+            if strong and ys[j] and a_between:
+                return True
+            if not strong and not ys[j] and not a_between:
+                return False
+        if j < window.start:
+            break
+        a_between = (a_between and bool(xs[j])) if strong else (a_between or bool(xs[j]))
+    return not strong

@@ -1,0 +1,751 @@
+"""The rclpy side of the daemon: subscriptions -> Runtime -> policies -> actions.
+
+Everything ROS-independent (latest values, step policies, stale inputs) lives
+in :mod:`supervisor.daemon.runtime`, the per-requirement mitigation policy in
+:mod:`mitigations.policy`; this module moves messages in and effects out.
+
+Receiving: rclpy's default executor receives only about 4k msg/s on the
+7 srobot topics on the reference machine, a loop over rclpy's wait set with
+``take_message`` about 24k msg/s (issue 3, "Benchmark").  :class:`SupervisorNode`
+therefore creates its subscriptions with rclpy (so they exist in the graph and
+are destroyed with the node) but never spins an executor: :meth:`run` waits on
+one ``_rclpy.WaitSet`` holding every subscription, the reset service and a
+guard condition, and drains each ready subscription with ``take_message``.
+This is the same private API ``rclpy.executors`` uses (rclpy 7.1.6).  All
+timed work (periodic steps, synchronized skew, policy deadlines, stale checks,
+heartbeat, diagnostics, watchdog) is done in the same loop by computing the
+wait timeout from the earliest deadline, so the monitor, its policies and the
+runtime are only ever touched by this one thread.
+
+Violations: the policy decides (debounce, cooldown, latch, reset, escalation,
+confirmation); a ``violation`` record is written and fsynced in the loop
+thread before its actions are handed to the engine's workers, so a slow action
+never delays the next step.  A monitor reset happens between two steps: no
+tick is lost.
+
+Reload (SIGHUP): the new config is checked and compiled on a helper thread
+while the old monitor keeps running; the swap happens between two loop
+iterations.  Inputs keep their latest values, unchanged subscriptions and
+mitigation publishers are kept (a latched halt stays latched).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    QoSCompatibility,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_check_compatible,
+    qos_profile_sensor_data,
+)
+
+from mitigations.actions.base import Action, Outcome
+from mitigations.engine import Engine, Request
+from mitigations.policy import Note, RequirementPolicy
+from mitigations.rosmsg import get_field, message_class
+from mitigations.supervision import Supervision
+from mitigations.violationlog.format import json_safe
+from mitigations.violationlog.writer import ViolationLog
+from monitors.ir.formula import to_fret
+from supervisor.config.load import Config, Mitigation, Variable
+from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
+from supervisor.daemon.notify import Notifier
+from supervisor.daemon.runtime import InputEvent, InputSpec, Runtime, StepResult
+from supervisor.pipeline import CompiledRequirement, Project
+
+VIOLATIONS_TOPIC = "/safety_supervisor/violations"
+HEARTBEAT_TOPIC = "/safety_supervisor/heartbeat"
+RESET_SERVICE = "/safety_supervisor/reset"
+MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
+STALE_CHECK_MAX_NS = 50_000_000
+STATUS_EVERY_NS = 1_000_000_000
+REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
+REJECT_REPORT_EVERY = 1000
+
+
+def warn(text: str) -> None:
+    try:
+        print(f"safety-supervisor: WARNING: {text}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+def qos_for(node: Node, var: Variable) -> tuple[QoSProfile, str | None]:
+    """The subscription QoS of ``var`` and, for ``auto``, a warning when the
+    topic has no publisher yet (then: reliable, volatile)."""
+    depth = var.depth
+    if var.qos == "reliable":
+        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE), None
+    if var.qos == "best_effort":
+        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT), None
+    if var.qos == "sensor_data":
+        p = QoSProfile(
+            depth=depth,
+            reliability=qos_profile_sensor_data.reliability,
+            durability=qos_profile_sensor_data.durability,
+            history=qos_profile_sensor_data.history,
+        )
+        return p, None
+    assert var.topic is not None
+    pubs = node.get_publishers_info_by_topic(var.topic)
+    if not pubs:
+        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE), (
+            f"input '{var.name}': no publisher on {var.topic} yet; subscribing reliable "
+            "(set qos: in the config to choose)"
+        )
+    return _matching_qos(depth, [p.qos_profile for p in pubs]), None
+
+
+def _matching_qos(depth: int, offered: list[QoSProfile]) -> QoSProfile:
+    # A reliable reader does not match a best-effort writer; a transient-local
+    # reader does not match a volatile writer: take the weakest offered.
+    best_effort = any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
+    transient = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(
+        depth=depth,
+        reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
+    )
+
+
+def _type_name(msg: str) -> str:
+    """``std_msgs/msg/Int64`` as the graph reports it."""
+    parts = msg.split("/")
+    return msg if len(parts) == 3 else f"{parts[0]}/msg/{parts[-1]}"
+
+
+@dataclass
+class _Sub:
+    name: str
+    var: Variable
+    msg_type: type
+    sub: Any  # rclpy Subscription
+    auto_qos: bool
+    problem: str | None = None  # last graph problem reported (wrong type, QoS)
+    publishers: int | None = None
+
+
+@dataclass
+class Session:
+    """What a config reload replaces, built off the loop and swapped in at once."""
+
+    project: Project
+    runtime: Runtime
+    requirements: list[CompiledRequirement] = field(default_factory=list)
+    formulas: list[str] = field(default_factory=list)
+    policies: list[RequirementPolicy] = field(default_factory=list)
+    cleanup: Callable[[], None] | None = None  # e.g. remove the build directory
+
+    @property
+    def config(self) -> Config:
+        return self.project.config
+
+
+def build_runtime(project: Project, monitor: Any) -> Runtime:
+    cfg = project.config
+    step = cfg.step
+    specs = [
+        InputSpec(
+            v.name,
+            v.type,
+            initial=v.initial,
+            stale_after_ns=int(v.stale_after_ms * 1e6) if v.stale_after_ms else None,
+        )
+        for v in cfg.inputs
+    ]
+    return Runtime(
+        inputs=specs,
+        monitor=monitor,
+        policy=step.policy,
+        trigger=step.trigger,
+        period_ns=int(step.period_ms * 1e6) if step.period_ms else None,
+        max_skew_ns=int(step.max_skew_ms * 1e6) if step.max_skew_ms else None,
+        recent_len=cfg.recent,
+    )
+
+
+def build_session(
+    project: Project, monitor: Any, cleanup: Callable[[], None] | None = None
+) -> Session:
+    cfg = project.config
+    reqs = [r for r in project.requirements if r.ok]  # monitor order
+    publish = {n for n, m in cfg.mitigations.items() if m.kind == "publish"}
+    policies = [
+        RequirementPolicy(
+            r.entry.policy_config,
+            tuple(r.entry.on_violation),
+            tuple(a for a in r.entry.on_violation if a in publish),
+        )
+        for r in reqs
+    ]
+    return Session(
+        project,
+        build_runtime(project, monitor),
+        reqs,
+        [to_fret(r.formula) for r in reqs],
+        policies,
+        cleanup,
+    )
+
+
+class SupervisorNode:
+    """One rclpy node feeding a Session; :meth:`run` is the receive loop."""
+
+    def __init__(
+        self,
+        session: Session,
+        log: ViolationLog,
+        *,
+        context: Context | None = None,
+        notifier: Notifier | None = None,
+        watchdog_s: float | None = None,
+    ) -> None:
+        self.session = session
+        self.log = log
+        self.notifier = notifier or Notifier()
+        self.watchdog_ns = int(watchdog_s * 1e9) if watchdog_s else None
+        self._stop = threading.Event()
+        self._rebuild = False  # leave the inner loop: subscriptions changed
+        self.violations = 0
+        self.reloads = 0
+        self._done: list[tuple[Request, str, Outcome]] = []  # engine -> loop
+        self._done_lock = threading.Lock()
+        self._reload_request: Callable[[], Session] | None = None
+        self._reload_thread: threading.Thread | None = None
+        self._reload_result: Session | Exception | None = None
+        self._retired: list[Any] = []  # subscriptions replaced by a QoS change
+        self._unpublished: list[dict[str, Any]] = []  # violation records for the topic
+
+        cfg = session.config
+        self.node = Node(cfg.ros.node_name, context=context)
+        self._subs: list[_Sub] = []
+        self._make_subscriptions(cfg)
+        self.publisher = self.node.create_publisher(
+            _msg("std_msgs/msg/String"), VIOLATIONS_TOPIC, 10
+        )
+        self.heartbeat = self.node.create_publisher(_msg("std_msgs/msg/UInt64"), HEARTBEAT_TOPIC, 1)
+        self.diagnostics = self.node.create_publisher(
+            _msg("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", 10
+        )
+        from std_srvs.srv import Trigger
+
+        self._trigger = Trigger
+        self.reset_service = self.node.create_service(Trigger, RESET_SERVICE, _never)
+        self._wake = self.node.create_guard_condition(_never)
+        self._publish_actions: dict[tuple[str, str, str], Action] = {}
+        self.engine = self._make_engine(cfg)
+        self.supervision = Supervision(session.runtime, session.policies, self)
+
+    # ------------------------------------------------------------ building
+
+    def _make_subscriptions(self, cfg: Config) -> None:
+        """Subscriptions for ``cfg``'s inputs, keeping those that did not change."""
+        old = {(s.var.topic, s.var.msg, s.var.qos, s.var.depth): s for s in self._subs}
+        subs: list[_Sub] = []
+        for var in cfg.inputs:
+            assert var.topic is not None and var.msg is not None
+            key = (var.topic, var.msg, var.qos, var.depth)
+            kept = old.pop(key, None)
+            if kept is not None:
+                kept.name, kept.var = var.name, var
+                subs.append(kept)
+                continue
+            klass = message_class(var.msg)
+            qos, warning = qos_for(self.node, var)
+            if warning:
+                warn(warning)
+                self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
+            sub = self.node.create_subscription(klass, var.topic, _never, qos)
+            subs.append(_Sub(var.name, var, klass, sub, auto_qos=var.qos == "auto"))
+        for s in old.values():
+            self.node.destroy_subscription(s.sub)
+        self._subs = subs
+
+    def _make_engine(self, cfg: Config) -> Engine:
+        actions: dict[str, Action] = {}
+        for name, m in cfg.mitigations.items():
+            actions[name] = self._action(m)
+        return Engine(actions, self.log, on_done=self._on_done)
+
+    def _action(self, m: Mitigation) -> Action:
+        if m.kind == "publish":
+            from mitigations.actions.publish import PublishAction
+
+            key = (str(m.params["topic"]), str(m.params["msg"]), str(m.params.get("qos")))
+            existing = self._publish_actions.get(key)
+            # Keep the publisher (and the halt it latched) across reloads.
+            action = PublishAction(self.node, m, existing)  # type: ignore[arg-type]
+            self._publish_actions[key] = action
+            return action
+        if m.kind == "ssh":
+            from mitigations.actions.ssh import SshAction
+
+            return SshAction(m.name, m.params)
+        if m.kind == "command":
+            from mitigations.actions.command import CommandAction
+
+            return CommandAction(m.name, m.params)
+        from mitigations.actions.log import RecordAction
+
+        return RecordAction(m)
+
+    def _on_done(self, request: Request, action: str, outcome: Outcome) -> None:
+        # Engine worker thread: hand the outcome to the loop (policies are the loop's).
+        with self._done_lock:
+            self._done.append((request, action, outcome))
+
+    # ------------------------------------------------------------ control
+
+    def stop(self) -> None:
+        """Ask :meth:`run` to return (safe from a signal handler)."""
+        self._stop.set()
+
+    def request_reload(self, prepare: Callable[[], Session]) -> None:
+        """Reload with ``prepare()`` (run on a helper thread); safe from a signal handler."""
+        self._reload_request = prepare
+
+    def close(self) -> None:
+        """After :meth:`run`: stop the action workers, destroy the node."""
+        busy = self.engine.close(timeout=1.0)
+        if busy:
+            warn(f"mitigations still running at exit: {', '.join(busy)}")
+        self.node.destroy_node()
+        if self.session.cleanup is not None:
+            self.session.cleanup()
+
+    # ------------------------------------------------------------ receive loop
+
+    def run(self) -> None:
+        """Receive until :meth:`stop`."""
+        now = time.monotonic_ns()
+        self._next = {"stale": now, "heartbeat": now, "diagnostics": now, "status": now}
+        if self.watchdog_ns:  # only a real deadline: a stale one would make the wait spin
+            self._next["watchdog"] = now
+        self._heartbeats = 0
+        while not self._stop.is_set() and self.node.context.ok():
+            self._rebuild = False
+            self._serve()
+
+    def _serve(self) -> None:
+        ctx = self.node.context
+        by_ptr: dict[int, _Sub] = {}
+        with contextlib.ExitStack() as stack:
+            for s in self._subs:
+                stack.enter_context(s.sub.handle)
+                by_ptr[s.sub.handle.pointer] = s
+            srv = self.reset_service.handle
+            stack.enter_context(srv)
+            stack.enter_context(self._wake.handle)
+            stack.enter_context(ctx.handle)
+            wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 1, 0, ctx.handle)
+            while not self._stop.is_set() and not self._rebuild and ctx.ok():
+                rt = self.session.runtime
+                now = time.monotonic_ns()
+                wait_set.clear_entities()
+                for s in self._subs:
+                    wait_set.add_subscription(s.sub.handle)
+                wait_set.add_service(srv)
+                wait_set.add_guard_condition(self._wake.handle)
+                wait_set.wait(max(0, self._deadline(now) - now))
+                for ptr in wait_set.get_ready_entities("subscription"):
+                    self._drain(by_ptr[ptr], rt)
+                if wait_set.get_ready_entities("service"):
+                    self._serve_reset(srv)
+                self._timed_work(time.monotonic_ns())
+
+    def _deadline(self, now: int) -> int:
+        rt = self.session.runtime
+        times = [now + MAX_WAIT_NS, *self._next.values()]
+        due = rt.due(now)
+        if due is not None:
+            times.append(due)
+        d = self.supervision.next_deadline()
+        if d is not None:
+            times.append(d)
+        return min(times)
+
+    def _drain(self, s: _Sub, rt: Runtime) -> None:
+        take = s.sub.handle.take_message
+        field_path = s.var.field
+        while True:
+            info = take(s.msg_type, False)
+            if info is None:
+                return
+            t = time.monotonic_ns()
+            try:
+                value = get_field(info[0], field_path)
+            except AttributeError as e:  # cannot happen after check; report
+                self._input_events([InputEvent("input_rejected", s.name, t, str(e))])
+                continue
+            result, events = rt.on_message(s.name, value, t)
+            if events:
+                self._input_events(events)
+            if result is not None:
+                self.supervision.after_step(result)
+                if self._unpublished:
+                    self._publish_reports()
+
+    def _timed_work(self, now: int) -> None:
+        rt = self.session.runtime
+        due = rt.due(now)
+        if due is not None and due <= now:
+            self.supervision.after_step(rt.on_timer(now))
+        self.supervision.on_time(now)
+        if self._unpublished:
+            self._publish_reports()
+        if self._done:
+            self._outcomes()
+        nxt = self._next
+        if now >= nxt["stale"]:
+            events = rt.check_stale(now, self._stale_after_ns())
+            if events:
+                self._input_events(events)
+            nxt["stale"] = now + self._stale_every_ns()
+        if now >= nxt["heartbeat"]:
+            self._heartbeats += 1
+            self.heartbeat.publish(_msg("std_msgs/msg/UInt64")(data=self._heartbeats))
+            nxt["heartbeat"] = now + int(self.session.config.ros.heartbeat_ms * 1e6)
+        if now >= nxt["diagnostics"]:
+            self._check_graph()
+            self._publish_diagnostics(now)
+            nxt["diagnostics"] = now + int(self.session.config.ros.diagnostics_ms * 1e6)
+        if self.watchdog_ns and now >= nxt.get("watchdog", now):
+            if self._ticking(now):
+                self.notifier.watchdog()
+                nxt["watchdog"] = now + self.watchdog_ns
+        if now >= nxt["status"]:
+            nxt["status"] = now + STATUS_EVERY_NS
+            if self.notifier.enabled:
+                self.notifier.status(self.status_line())
+        self._reload_step()
+
+    def _ticking(self, now: int) -> bool:
+        """Ticks flow as configured: a periodic monitor is not behind its timer
+        by more than a watchdog interval (event-driven policies step inside
+        this loop, so the loop running is the evidence)."""
+        due = self.session.runtime.due(now)
+        if self.session.config.step.policy != "periodic" or due is None:
+            return True
+        assert self.watchdog_ns is not None
+        return now - due < self.watchdog_ns
+
+    def _stale_after_ns(self) -> int | None:
+        ms = self.session.config.step.stale_after_ms
+        return int(ms * 1e6) if ms else None
+
+    def _stale_every_ns(self) -> int:
+        ms = self.session.config.step.period_ms
+        return min(int(ms * 1e6), STALE_CHECK_MAX_NS) if ms else STALE_CHECK_MAX_NS
+
+    def status_line(self) -> str:
+        rt = self.session.runtime
+        stale = rt.stale_inputs()
+        missing = rt.missing_inputs()
+        latched = [self.session.requirements[i].id for i in self.supervision.latched()]
+        parts = [
+            f"ticks={rt.tick}",
+            f"violations={self.violations}",
+            f"stale={','.join(stale) if stale else 'none'}",
+        ]
+        if missing:
+            parts.append(f"waiting_for={','.join(missing)}")
+        if latched:
+            parts.append(f"latched={','.join(sorted(latched))}")
+        return " ".join(parts)
+
+    # ------------------------------------------------------------ violations
+
+    # Sink of mitigations.supervision: effects, in the policy's order.
+
+    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None:
+        s = self.session
+        req = s.requirements[index]
+        rt = s.runtime
+        record = {
+            "requirement": req.id,
+            "text": req.entry.text,
+            "formula": s.formulas[index],
+            "tick": result.tick,
+            "inputs": dict(result.inputs),
+            "recent": list(rt.recent),
+            "stale": rt.stale_inputs(),
+            "policy_state": policy_state,
+        }
+        # On disk (fsynced) before any action of this step is submitted (CONTRACT.md).
+        self.log.violation(**record)
+        self.violations += 1
+        # The JSON copy for /safety_supervisor/violations goes out after this
+        # step's actions were queued: the halt must not wait for it.
+        self._unpublished.append(record)
+
+    def _publish_reports(self) -> None:
+        records, self._unpublished = self._unpublished, []
+        for record in records:
+            msg = _msg("std_msgs/msg/String")()
+            msg.data = json.dumps(json_safe({"event": "violation", **record}))
+            try:
+                self.publisher.publish(msg)
+            except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
+                warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
+
+    def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        self.engine.submit(Request(req.id, actions, t_ns, stage))
+
+    def reset(self, index: int, reason: str) -> None:
+        req = self.session.requirements[index]
+        self.log.reset(req.id, reason=reason, tick=self.session.runtime.tick)
+
+    def note(self, index: int, note: Note, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        pol = self.session.policies[index]
+        ok = note.what == "confirmed"
+        since = pol.incident_ns
+        self.log.mitigation(
+            req.id,
+            action=f"confirm:{note.detail.get('variable')}",
+            kind="confirm",
+            ok=ok,
+            error=None
+            if ok
+            else (
+                f"{note.detail.get('variable')} = {note.detail.get('actual')!r}, "
+                f"expected {note.detail.get('expected')!r} within {note.detail.get('within_ms')} ms"
+            ),
+            latency_ms=0.0 if since is None else round((t_ns - since) / 1e6, 3),
+        )
+        if not ok:
+            warn(f"mitigation of {req.id} did not take effect: {note.detail}")
+
+    def _outcomes(self) -> None:
+        with self._done_lock:
+            done, self._done = self._done, []
+        for request, action, outcome in done:
+            if not outcome.ok:
+                warn(f"mitigation {action} for {request.requirement} failed: {outcome.error}")
+
+    def _input_events(self, events: list[InputEvent]) -> None:
+        rt = self.session.runtime
+        for ev in events:
+            if ev.what in ("input_rejected", "input_nan"):
+                key = "rejected" if ev.what == "input_rejected" else "nan"
+                n = rt.input_stats()[ev.name][key]
+                if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
+                    continue  # a flood is counted, and reported every 1000th
+                verb = "rejected" if key == "rejected" else "accepted"
+                warn(f"input '{ev.name}': {verb} {ev.detail} ({n} so far)")
+                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail, count=n)
+                continue
+            self.log.supervisor(ev.what, input=ev.name, detail=ev.detail)
+            if ev.what == "input_stale":
+                warn(f"input '{ev.name}' is stale: {ev.detail}")
+                on_stale = self.session.config.on_stale
+                if on_stale:
+                    self.engine.submit(
+                        Request(f"on_stale:{ev.name}", tuple(on_stale), ev.t_ns, "stale")
+                    )
+
+    # ------------------------------------------------------------ operator reset
+
+    def _serve_reset(self, srv: Any) -> None:
+        taken = srv.service_take_request(self._trigger.Request)
+        if taken is None:
+            return
+        request, header = taken
+        if header is None:
+            return
+        ok, message = self.operator_reset()
+        # take_request gives rmw_service_info_t; the reply wants its request id.
+        request_id = getattr(header, "request_id", header)
+        try:
+            srv.service_send_response(
+                self._trigger.Response(success=ok, message=message), request_id
+            )
+        except Exception as e:  # noqa: BLE001 - the caller went away; the reset stands
+            warn(f"cannot answer {RESET_SERVICE}: {e}")
+
+    def operator_reset(self) -> tuple[bool, str]:
+        """Reset every requirement's monitor; lift latches of requirements that hold."""
+        ids = [r.id for r in self.session.requirements]
+        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
+        self.log.reset("*", reason="operator reset (/safety_supervisor/reset)", refused=refused)
+        if refused:
+            return False, "not reset: " + ", ".join(refused)
+        return True, "all requirements reset"
+
+    # ------------------------------------------------------------ graph and diagnostics
+
+    def _check_graph(self) -> None:
+        """Publishers that cannot reach us (wrong type, incompatible QoS), topics
+        without publishers; auto-QoS subscriptions follow the publishers found."""
+        for s in self._subs:
+            topic = s.var.topic
+            assert topic is not None
+            try:
+                pubs = self.node.get_publishers_info_by_topic(topic)
+            except Exception as e:  # noqa: BLE001 - graph queries fail during shutdown
+                warn(f"cannot query publishers of {topic}: {e}")
+                return
+            # Our own mitigation publishers (a halt on the robot's halt topic)
+            # are not the robot: they must not hide a missing robot publisher.
+            me = (self.node.get_name(), self.node.get_namespace())
+            pubs = [p for p in pubs if (p.node_name, p.node_namespace) != me]
+            mine = s.sub.qos_profile if hasattr(s.sub, "qos_profile") else None
+            problem = None
+            expected = _type_name(s.var.msg or "")
+            wrong = [p for p in pubs if p.topic_type != expected]
+            right = [p for p in pubs if p.topic_type == expected]
+            if not pubs:
+                problem = f"no publisher on {topic}"
+            elif wrong:
+                problem = (
+                    f"publisher of {wrong[0].topic_type} on {topic} ({wrong[0].node_name}); "
+                    f"expected {expected}: its messages cannot reach the supervisor"
+                )
+            elif mine is not None:
+                for p in right:
+                    compat, reason = qos_check_compatible(p.qos_profile, mine)
+                    if compat == QoSCompatibility.ERROR:
+                        if s.auto_qos:
+                            self._resubscribe(s, [q.qos_profile for q in right])
+                            problem = None
+                        else:
+                            problem = f"incompatible QoS with {p.node_name} on {topic}: {reason}"
+                        break
+            if s.publishers is not None and not pubs and s.publishers:
+                self.log.supervisor("input_publisher_gone", input=s.name, topic=topic)
+            if s.publishers is not None and pubs and not s.publishers:
+                self.log.supervisor("input_publisher_found", input=s.name, topic=topic)
+            s.publishers = len(right)
+            if problem != s.problem:
+                if problem is not None and (pubs or s.problem is not None):
+                    warn(f"input '{s.name}': {problem}")
+                    self.log.supervisor("input_problem", input=s.name, detail=problem)
+                elif problem is None and s.problem is not None:
+                    self.log.supervisor("input_problem_cleared", input=s.name, topic=topic)
+                s.problem = problem
+
+    def _resubscribe(self, s: _Sub, offered: list[QoSProfile]) -> None:
+        qos = _matching_qos(s.var.depth, offered)
+        self.log.supervisor(
+            "input_qos_changed",
+            input=s.name,
+            topic=s.var.topic,
+            reliability=qos.reliability.name.lower(),
+            durability=qos.durability.name.lower(),
+        )
+        old = s.sub
+        s.sub = self.node.create_subscription(s.msg_type, s.var.topic, _never, qos)
+        self._rebuild = True  # the wait set must be rebuilt with the new handle
+        self._retired.append(old)  # destroyed once the loop no longer holds its handle
+
+    def _publish_diagnostics(self, now: int) -> None:
+        for old in self._retired:
+            with contextlib.suppress(Exception):
+                self.node.destroy_subscription(old)
+        self._retired = []
+        s = self.session
+        cfg = s.config
+        name = cfg.ros.node_name
+        stats = s.runtime.input_stats()
+        statuses = []
+        for i, req in enumerate(s.requirements):
+            pol = s.policies[i]
+            statuses.append(
+                requirement_status(name, cfg.component, req.id, pol.state(), not pol.holds)
+            )
+        for sub in self._subs:
+            st = dict(stats[sub.name])
+            st["problem"], st["publishers"] = sub.problem, sub.publishers
+            statuses.append(
+                input_status(name, cfg.component, sub.name, sub.var.topic or "", st, now)
+            )
+        stamp = self.node.get_clock().now().to_msg()
+        try:
+            self.diagnostics.publish(diagnostic_array(stamp, statuses))
+        except Exception as e:  # noqa: BLE001 - shutdown race
+            warn(f"cannot publish /diagnostics: {e}")
+
+    # ------------------------------------------------------------ reload
+
+    def _reload_step(self) -> None:
+        prepare, self._reload_request = self._reload_request, None
+        if prepare is not None:
+            if self._reload_thread is not None:
+                warn("reload already in progress; ignoring SIGHUP")
+            else:
+                self.log.reopen()  # logrotate's create mode: a fresh file after rename
+                self.notifier.reloading(status="reloading configuration")
+
+                def work() -> None:
+                    try:
+                        self._reload_result = prepare()
+                    except Exception as e:  # noqa: BLE001 - reported by the loop
+                        self._reload_result = e
+                    self._wake.trigger()
+
+                self._reload_thread = threading.Thread(target=work, name="reload", daemon=True)
+                self._reload_thread.start()
+        if self._reload_thread is not None and not self._reload_thread.is_alive():
+            self._reload_thread = None
+            result, self._reload_result = self._reload_result, None
+            if isinstance(result, Session):
+                self._swap(result)
+            else:
+                why = str(result)
+                warn(f"reload rejected, still running the previous config: {why}")
+                self.log.supervisor("reload", ok=False, why=why)
+                self.notifier.ready(status=f"reload rejected: {why} | {self.status_line()}")
+
+    def _swap(self, new: Session) -> None:
+        old = self.session
+        rt_old, rt_new = old.runtime, new.runtime
+        rt_new.adopt(rt_old)
+        self._make_subscriptions(new.config)
+        old_engine = self.engine
+        self.session = new
+        self.engine = self._make_engine(new.config)
+        self.supervision = Supervision(new.runtime, new.policies, self)
+        self.log.config_sha256 = new.config.sha256
+        self.reloads += 1
+        self._rebuild = True
+        threading.Thread(target=old_engine.close, name="old-engine", daemon=True).start()
+        if old.cleanup is not None:
+            old.cleanup()
+        n = len(new.requirements)
+        self.log.supervisor(
+            "reload",
+            ok=True,
+            config=new.config.path,
+            requirements=n,
+            inputs=len(new.config.inputs),
+            policy=new.config.step.policy,
+        )
+        self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
+
+
+def _never(*_args: Any) -> None:
+    """Callback of entities the wait-set loop serves itself (never called)."""
+
+
+_MSG_CACHE: dict[str, type] = {}
+
+
+def _msg(name: str) -> type:
+    klass = _MSG_CACHE.get(name)
+    if klass is None:
+        klass = _MSG_CACHE[name] = message_class(name)
+    return klass

@@ -1,0 +1,136 @@
+"""``safety-supervisor run``: the process around :class:`~supervisor.daemon.node.SupervisorNode`.
+
+Start-up order matters to systemd: the config is checked and the monitor
+compiled and loaded, subscriptions are created, and only then ``READY=1``.
+SIGTERM/SIGINT: ``STOPPING=1`` and a clean exit within 2 s.  SIGHUP: the log
+is reopened (logrotate) and the config reloaded; a config that fails the
+same checks as ``safety-supervisor check`` is rejected, the reason is logged
+and the running monitor continues untouched.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from rclpy.context import Context
+
+from mitigations.violationlog.writer import ViolationLog
+from monitors.backends.load import compile_spec
+from monitors.errors import UserError
+from supervisor.daemon.node import Session, SupervisorNode, build_session
+from supervisor.daemon.notify import Notifier, watchdog_interval
+from supervisor.pipeline import project_for
+
+
+def init_ros(domain_id: int | None = None) -> Context:
+    """A fresh rclpy context without rclpy's signal handlers (the daemon has its own)."""
+    from rclpy.signals import SignalHandlerOptions
+
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
+    return ctx
+
+
+def _shutdown_ros(ctx: Context) -> None:
+    with contextlib.suppress(Exception):
+        rclpy.shutdown(context=ctx)
+
+
+def prepare_session(config: str | Path, build_root: Path) -> Session:
+    """Check and compile ``config`` into a loaded Session (raises UserError)."""
+    project = project_for(config)
+    if not project.ok:
+        err = project.first_error()
+        assert err is not None
+        raise err
+    build_root.mkdir(parents=True, exist_ok=True)
+    build = Path(tempfile.mkdtemp(prefix="monitor-", dir=build_root))
+    try:
+        monitor = compile_spec(project.spec(), build)
+    except Exception:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
+    return build_session(project, monitor, cleanup=lambda: shutil.rmtree(build, ignore_errors=True))
+
+
+def run_daemon(config: str, log_path: str | None = None, build_dir: str | None = None) -> int:
+    """Raises UserError for a bad config at start (exit 1 with FILE:LINE)."""
+    notifier = Notifier(unset_environment=True)
+    stop_requested = threading.Event()
+    node: SupervisorNode | None = None
+    build_root: Path
+
+    def reload_session() -> Session:
+        return prepare_session(config, build_root)
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        if signum == signal.SIGHUP:
+            if node is not None:
+                node.request_reload(reload_session)
+            return
+        stop_requested.set()
+        if node is not None:
+            node.stop()
+
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, on_signal)
+
+    with contextlib.ExitStack() as stack:
+        if build_dir is None:
+            build_root = Path(
+                stack.enter_context(tempfile.TemporaryDirectory(prefix="safety-supervisor-run-"))
+            )
+        else:
+            build_root = Path(build_dir)
+        session = prepare_session(config, build_root)
+        cfg = session.config
+        path = log_path or cfg.log_path
+        if not path:
+            raise UserError(
+                "no violation log configured", file=config, hint="set logging.violations or --log"
+            )
+        # rclpy writes its own log files; under ProtectSystem=strict only a few
+        # places are writable.
+        if not os.environ.get("ROS_LOG_DIR"):
+            os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or tempfile.mkdtemp(
+                prefix="safety-supervisor-ros-log-"
+            )
+        log = stack.enter_context(ViolationLog(path, cfg.component, cfg.sha256))
+        log.supervisor("start", config=str(config), pid=os.getpid())
+        for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
+            print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
+            log.supervisor("check_warning", detail=w)
+        ctx = init_ros()
+        stack.callback(_shutdown_ros, ctx)
+        node = SupervisorNode(
+            session, log, context=ctx, notifier=notifier, watchdog_s=watchdog_interval()
+        )
+        stack.callback(node.close)
+        if stop_requested.is_set():
+            node.stop()
+        n_req = len(session.requirements)
+        log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
+        notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")
+        node.run()
+        notifier.stopping(status="stopping")
+        log.supervisor(
+            "stop",
+            ticks=node.session.runtime.tick,
+            violations=node.violations,
+            reloads=node.reloads,
+            inputs={
+                name: {k: st[k] for k in ("messages", "rejected", "nan")}
+                for name, st in node.session.runtime.input_stats().items()
+            },
+        )
+    notifier.close()
+    return 0

@@ -1,0 +1,290 @@
+"""The runtime core: latest values -> step policy -> monitor -> violations.
+
+No rclpy here: the ROS node feeds messages in, and ``replay`` feeds a recorded
+trace in, through the same code, so online and offline verdicts are equal.
+
+Time is passed in explicitly (monotonic nanoseconds) so tests are tick-precise
+and replay uses the recorded timestamps.
+
+Step policies (config ``step.policy``), the thesis's asynchronous-topic problem
+(sec. 5.1.2) being the reason there is more than one:
+- ``periodic``: a timer samples the latest values every ``period_ms``
+  (Copilot's synchronous model);
+- ``on_message``: step after every message (OGMA's behaviour; shows transient
+  false violations while a burst of topics is half updated);
+- ``on_trigger``: step after the ``trigger`` variable's message (the thesis's fix);
+- ``synchronized``: step once every input has a message newer than the last
+  step, or ``max_skew_ms`` after the first new message when some never came.
+Nothing is stepped until every input has a value (or an ``initial:`` value).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+
+
+class Monitor(Protocol):
+    """What the runtime needs of a loaded monitor (monitors.backends.load.LoadedMonitor)."""
+
+    def tick(self, values: Sequence[Any]) -> Sequence[int]: ...
+    def reset(self) -> None: ...
+    def reset_requirement(self, index: int) -> None: ...
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    name: str
+    type: str  # bool | int64 | double
+    initial: Any = None
+    stale_after_ns: int | None = None
+
+
+@dataclass
+class Violation:
+    requirement: int  # index into the monitor's requirements
+    tick: int
+    t_ns: int
+    inputs: dict[str, Any]
+    stale: list[str]
+
+
+@dataclass
+class StepResult:
+    tick: int
+    t_ns: int
+    violated: list[int]  # requirement indices whose handler fired
+    inputs: dict[str, Any]
+
+
+@dataclass
+class InputEvent:
+    """Something the operator should know about an input (logged as `supervisor`)."""
+
+    what: str  # input_stale | input_recovered | input_rejected | input_nan
+    name: str
+    t_ns: int
+    detail: str = ""
+
+
+@dataclass
+class _Input:
+    spec: InputSpec
+    value: Any = None
+    has_value: bool = False
+    last_ns: int | None = None  # time of the last accepted message
+    stale: bool = False
+    fresh: bool = False  # updated since the last step (synchronized policy)
+    messages: int = 0
+    rejected: int = 0
+    nan: int = 0  # NaN doubles accepted (the formula decides; reported all the same)
+
+
+def coerce(value: Any, vtype: str) -> tuple[Any, str | None]:
+    """Convert a message field to the monitor's C type; (value, None) or (None, why)."""
+    if vtype == "bool":
+        if isinstance(value, bool):
+            return value, None
+        if isinstance(value, int) and value in (0, 1):
+            return bool(value), None
+        return None, f"{value!r} is not a bool"
+    if vtype == "int64":
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+                value = int(value)
+            else:
+                return None, f"{value!r} is not an integer"
+        if not INT64_MIN <= value <= INT64_MAX:
+            return None, f"{value} does not fit in int64"
+        return value, None
+    if isinstance(value, bool):
+        return None, f"{value!r} is not a number"
+    if isinstance(value, int | float):
+        return float(value), None
+    return None, f"{value!r} is not a number"
+
+
+@dataclass
+class Runtime:
+    inputs: Sequence[InputSpec]
+    monitor: Monitor
+    policy: str = "periodic"
+    trigger: str | None = None
+    period_ns: int | None = None
+    max_skew_ns: int | None = None
+    recent_len: int = 10
+    tick: int = 0
+    _in: list[_Input] = field(default_factory=list)
+    _index: dict[str, int] = field(default_factory=dict)
+    recent: deque = field(default_factory=deque)
+    _pending_since: int | None = None  # synchronized: first new message after the last step
+    _next_periodic: int | None = None
+
+    def __post_init__(self) -> None:
+        self._in = [_Input(s) for s in self.inputs]
+        self._index = {s.name: i for i, s in enumerate(self.inputs)}
+        self.recent = deque(maxlen=max(1, self.recent_len))
+        for inp in self._in:
+            if inp.spec.initial is not None:
+                inp.value, inp.has_value = inp.spec.initial, True
+        if self.policy == "on_trigger" and self.trigger not in self._index:
+            raise ValueError(f"trigger '{self.trigger}' is not an input")
+        if self.policy == "periodic" and not self.period_ns:
+            raise ValueError("periodic policy needs a period")
+
+    # ------------------------------------------------------------ state
+
+    @property
+    def ready(self) -> bool:
+        """Every input has a value: the monitor may be stepped."""
+        return all(i.has_value for i in self._in)
+
+    def values(self) -> list[Any]:
+        return [i.value for i in self._in]
+
+    def snapshot(self) -> dict[str, Any]:
+        return {i.spec.name: i.value for i in self._in}
+
+    def stale_inputs(self) -> list[str]:
+        return [i.spec.name for i in self._in if i.stale]
+
+    def missing_inputs(self) -> list[str]:
+        return [i.spec.name for i in self._in if not i.has_value]
+
+    def input_stats(self) -> dict[str, dict[str, Any]]:
+        return {
+            i.spec.name: {
+                "messages": i.messages,
+                "rejected": i.rejected,
+                "nan": i.nan,
+                "stale": i.stale,
+                "last_ns": i.last_ns,
+            }
+            for i in self._in
+        }
+
+    def adopt(self, old: Runtime) -> None:
+        """After a config reload: keep the latest values (same name and type),
+        message counts and the tick count, so the new monitor steps at once
+        instead of waiting for every input again."""
+        self.tick = old.tick
+        previous = {i.spec.name: i for i in old._in}
+        for inp in self._in:
+            o = previous.get(inp.spec.name)
+            if o is None or o.spec.type != inp.spec.type:
+                continue
+            if o.has_value:
+                inp.value, inp.has_value = o.value, True
+            inp.last_ns, inp.stale, inp.messages, inp.rejected = (
+                o.last_ns,
+                o.stale,
+                o.messages,
+                o.rejected,
+            )
+        self.recent.extend(old.recent)
+
+    # ------------------------------------------------------------ feeding
+
+    def on_message(
+        self, name: str, raw: Any, t_ns: int
+    ) -> tuple[StepResult | None, list[InputEvent]]:
+        """A message for input ``name`` arrived at ``t_ns``; maybe step."""
+        idx = self._index[name]
+        inp = self._in[idx]
+        events: list[InputEvent] = []
+        value, why = coerce(raw, inp.spec.type)
+        if why is not None:
+            inp.rejected += 1
+            events.append(InputEvent("input_rejected", name, t_ns, why))
+            return None, events
+        inp.value, inp.has_value, inp.last_ns, inp.fresh = value, True, t_ns, True
+        inp.messages += 1
+        if value != value:  # NaN: a valid double, but almost always a sensor fault
+            inp.nan += 1
+            events.append(
+                InputEvent("input_nan", name, t_ns, "NaN (every comparison with it is false)")
+            )
+        if inp.stale:
+            inp.stale = False
+            events.append(InputEvent("input_recovered", name, t_ns))
+        if self.policy == "on_message" or (self.policy == "on_trigger" and name == self.trigger):
+            return self.step(t_ns), events
+        if self.policy == "synchronized":
+            if self._pending_since is None:
+                self._pending_since = t_ns
+            if all(i.fresh for i in self._in):
+                return self.step(t_ns), events
+        return None, events
+
+    def due(self, t_ns: int) -> int | None:
+        """When the next timer-driven step is due (periodic / synchronized skew)."""
+        if self.policy == "periodic":
+            return self._next_periodic if self._next_periodic is not None else t_ns
+        if self.policy == "synchronized" and self._pending_since is not None and self.max_skew_ns:
+            return self._pending_since + self.max_skew_ns
+        return None
+
+    def on_timer(self, t_ns: int) -> StepResult | None:
+        """Called by the node's timer (and by replay between messages)."""
+        if self.policy == "periodic":
+            if self._next_periodic is None:
+                self._next_periodic = t_ns
+            if t_ns < self._next_periodic:
+                return None
+            assert self.period_ns
+            # Keep the grid even if a timer callback ran late: ticks stay period-aligned.
+            missed = (t_ns - self._next_periodic) // self.period_ns
+            self._next_periodic += (missed + 1) * self.period_ns
+            return self.step(t_ns)
+        if self.policy == "synchronized" and self._pending_since is not None and self.max_skew_ns:
+            if t_ns - self._pending_since >= self.max_skew_ns:
+                return self.step(t_ns)
+        return None
+
+    def check_stale(self, t_ns: int, default_after_ns: int | None) -> list[InputEvent]:
+        events = []
+        for inp in self._in:
+            after = inp.spec.stale_after_ns or default_after_ns
+            if not after or inp.stale:
+                continue
+            since = inp.last_ns
+            if since is None:
+                continue  # never received: reported as missing, not stale
+            if t_ns - since > after:
+                inp.stale = True
+                events.append(
+                    InputEvent(
+                        "input_stale",
+                        inp.spec.name,
+                        t_ns,
+                        f"silent for {(t_ns - since) / 1e6:.0f} ms",
+                    )
+                )
+        return events
+
+    # ------------------------------------------------------------ stepping
+
+    def step(self, t_ns: int) -> StepResult | None:
+        """Evaluate all requirements once with the latest values."""
+        if not self.ready:
+            return None
+        values = self.values()
+        flags = self.monitor.tick(values)
+        for inp in self._in:
+            inp.fresh = False
+        self._pending_since = None
+        snap = dict(zip((i.spec.name for i in self._in), values, strict=True))
+        result = StepResult(self.tick, t_ns, [i for i, f in enumerate(flags) if f], snap)
+        self.recent.append({"tick": self.tick, **snap})
+        self.tick += 1
+        return result
+
+    def reset_requirement(self, index: int) -> None:
+        """Judge requirement ``index`` afresh from the next tick (replaces the
+        thesis's node relaunch; no tick is skipped)."""
+        self.monitor.reset_requirement(index)
