@@ -21,9 +21,9 @@ import pytest
 from rosutil import ROOT, ROS_ENV, SROBOT, Daemon, variant
 
 from monitors.verify.interpret import verdicts
-from supervisor.tools.inject import run as inject
 from supervisor.analysis_report import project_requirements
 from supervisor.pipeline import project_for
+from supervisor.tools.inject import run as inject
 
 SROBOT_IDS = [
     "classifier_assumption",

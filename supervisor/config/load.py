@@ -21,6 +21,7 @@ from monitors.errors import UserError
 from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula
 from monitors.ir.spec import TYPE_ALIASES
 from supervisor.config.yamlload import LineDict, LineList, load_yaml
+from supervisor.names import NODE_NAME
 
 STEP_POLICIES = ("periodic", "on_message", "on_trigger", "synchronized")
 ROLES = ("input", "output", "internal")
@@ -91,7 +92,7 @@ class StepConfig:
 class RosConfig:
     """The supervisor's own ROS interfaces (``ros:``)."""
 
-    node_name: str = "safety_supervisor"
+    node_name: str = NODE_NAME
     heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
     diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
 

@@ -64,11 +64,14 @@ from supervisor.config.load import Config, Mitigation, Variable
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.runtime import InputEvent, InputSpec, Runtime, StepResult
+from supervisor.names import (
+    DIAGNOSTICS_TOPIC,
+    HEARTBEAT_TOPIC,
+    RESET_SERVICE,
+    VIOLATIONS_TOPIC,
+)
 from supervisor.pipeline import CompiledRequirement, Project
 
-VIOLATIONS_TOPIC = "/safety_supervisor/violations"
-HEARTBEAT_TOPIC = "/safety_supervisor/heartbeat"
-RESET_SERVICE = "/safety_supervisor/reset"
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STALE_CHECK_MAX_NS = 50_000_000
 STATUS_EVERY_NS = 1_000_000_000
@@ -238,7 +241,7 @@ class SupervisorNode:
         )
         self.heartbeat = self.node.create_publisher(_msg("std_msgs/msg/UInt64"), HEARTBEAT_TOPIC, 1)
         self.diagnostics = self.node.create_publisher(
-            _msg("diagnostic_msgs/msg/DiagnosticArray"), "/diagnostics", 10
+            _msg("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS_TOPIC, 10
         )
         from std_srvs.srv import Trigger
 

@@ -12,8 +12,7 @@ import argparse
 import time
 
 from monitors.errors import UserError
-
-RESET_SERVICE = "/safety_supervisor/reset"
+from supervisor.names import RESET_SERVICE
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:

@@ -17,8 +17,8 @@ from pathlib import Path
 from monitors.frontend.formalize import formalize
 from monitors.frontend.parse import parse_requirement
 from monitors.verify.analysis import Analysis, Req, VarInfo, activation, analyse
+from supervisor import data
 
-ROOT = Path(__file__).resolve().parents[3]
 
 
 def generated(
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("configs", nargs="*", help="more configs to time")
     p.add_argument("--timeout-s", type=float, default=None, help="per z3 query (default: config)")
     args = p.parse_args(argv)
-    for path in [ROOT / "config" / "srobot.yaml", *args.configs]:
+    for path in [data.example("srobot.yaml"), *args.configs]:
         reqs, vars_, k, timeout = from_config(path)
         t = time.perf_counter()
         a = analyse(reqs, vars_, k=k, timeout_s=args.timeout_s or timeout)

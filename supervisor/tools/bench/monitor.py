@@ -22,8 +22,9 @@ from pathlib import Path
 from monitors.backends.load import LoadedMonitor, compile_spec
 from monitors.ir.formula import parse_formula
 from monitors.ir.spec import TYPE_ALIASES, Define, MonitorSpec, RequirementSpec, VarDecl
+from supervisor import data
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "config" / "srobot.yaml"
+DEFAULT_CONFIG = data.example("srobot.yaml")
 
 
 def _backends() -> dict[str, Callable[[MonitorSpec, Path], LoadedMonitor]]:

@@ -49,8 +49,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from supervisor import data
+
 ROOT = Path(__file__).resolve().parents[3]
-DEFAULT_CONFIG = ROOT / "config" / "srobot.yaml"
+DEFAULT_CONFIG = data.example("srobot.yaml")
 DEFAULT_RATES = "5000,10000,12500,15000,17500,20000"
 DEPTH = 1000
 # tests/rosutil.py draws ROS_DOMAIN_ID from 1..200; 215..232 is disjoint from it

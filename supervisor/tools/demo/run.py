@@ -42,10 +42,11 @@ from datetime import datetime
 from pathlib import Path
 from typing import IO, Any
 
+from supervisor import data
 from supervisor.tools.demo.robot import OUTPUTS, op_state, zone_of
 
 ROOT = Path(__file__).resolve().parents[3]
-SHIPPED_CONFIG = ROOT / "config" / "srobot.yaml"
+SHIPPED_CONFIG = data.example("srobot.yaml")
 DEFAULT_FAULT_RATE = 0.01  # the thesis's 1 % (sec. 5.3.2)
 READY_TIMEOUT_S = 60.0  # compiling the monitor and importing rclpy; slow CI machines
 MATCH_TIMEOUT_S = 30.0  # DDS discovery takes ~3 s on localhost
