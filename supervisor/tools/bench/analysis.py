@@ -20,7 +20,6 @@ from monitors.verify.analysis import Analysis, Req, VarInfo, activation, analyse
 from supervisor import data
 
 
-
 def generated(
     n_channels: int = 15, max_bound: int = 20, seed: int = 6
 ) -> tuple[list[Req], list[VarInfo]]:
