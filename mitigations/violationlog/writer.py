@@ -1,4 +1,4 @@
-"""The violation log writer (CONTRACT.md, "Violation log").
+"""The violation log writer (docs/reference/log.md).
 
 JSON lines rendered by a structlog processor chain; the format, the hash chain
 (``prev_sha256``, ``line_sha256``), its semantics across rotation and the

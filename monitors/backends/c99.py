@@ -1,6 +1,6 @@
 """Native backend: a MonitorSpec as hard real-time C99 (``monitor.c`` + ``monitor.h``).
 
-Interface (CONTRACT.md, Copilot-compatible): the inputs are ``extern`` globals
+Interface (docs/reference/c-interface.md, Copilot-compatible): the inputs are ``extern`` globals
 defined by the host; ``step()`` (``<prefix>_step``) evaluates every
 requirement once and calls ``handler<ID>()`` where its formula is false;
 ``monitor_reset()`` (``<prefix>_reset``) resets everything and
