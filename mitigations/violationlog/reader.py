@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import gzip
 import json
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -134,3 +135,31 @@ def iter_records(path: str, err: Any = None) -> Iterator[dict[str, Any]]:
             print(f"{path}:{i}: warning: not a log record, skipped", file=err)
             continue
         yield rec
+
+
+def records_since(path: str | Path, offset: int) -> tuple[list[dict[str, Any]], int]:
+    """The records appended after byte ``offset``, and the offset to read from next time.
+
+    For following a log while the daemon writes it: a last line without its newline
+    is still being written and is left for the next call; a missing file has no
+    records yet; a file shorter than ``offset`` was rotated and is read from its start.
+    Lines that are not records (an interrupted write) are skipped.
+    """
+    try:
+        with open(path, "rb") as f:
+            if os.fstat(f.fileno()).st_size < offset:
+                offset = 0
+            f.seek(offset)
+            data = f.read()
+    except FileNotFoundError:
+        return [], offset
+    complete = data.rfind(b"\n") + 1
+    out = []
+    for line in data[:complete].split(b"\n"):
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(rec, dict) and "event" in rec:
+            out.append(rec)
+    return out, offset + complete
