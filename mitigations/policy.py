@@ -25,7 +25,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from supervisor.config.load import PolicyConfig
+from mitigations.settings import PolicyConfig
 
 MS = 1_000_000
 

@@ -7,19 +7,27 @@ can print one status line each instead of stopping at the first.
 
 from __future__ import annotations
 
+import difflib
+import json
 import random
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mitigations.rosmsg import check_field
+from mitigations.actions.ssh import preflight
+from mitigations.rosmsg import build_message, check_field, message_class
+from mitigations.settings import PublishSettings, SshSettings
+from monitors.backends.build import build_library
+from monitors.backends.c99 import write_c
+from monitors.backends.copilot import compile_copilot
+from monitors.backends.load import load_monitor
 from monitors.errors import UserError
 from monitors.frontend.formalize import Formalization, formalize
 from monitors.frontend.parse import Requirement, parse_requirement
 from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula, variables
-from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, expand_defines
+from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_name, expand_defines
 from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
-from supervisor.config.load import Config, RequirementEntry, Variable
+from supervisor.config import Config, RequirementEntry, Variable, load_config
 
 
 @dataclass
@@ -124,8 +132,6 @@ def compile_requirement(
 
 
 def _suggest_var(name: str, env: dict[str, str]) -> str | None:
-    import difflib
-
     close = difflib.get_close_matches(name, list(env), n=1)
     return f"did you mean '{close[0]}'?" if close else "declare it under 'variables:'"
 
@@ -230,17 +236,15 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
     errors: list[UserError] = []
     warnings: list[str] = []
     for m in cfg.mitigations.values():
-        if m.kind == "publish" and ros:
-            from mitigations.rosmsg import build_message, message_class
-
-            try:
-                build_message(message_class(str(m.params["msg"])), m.params.get("value"), "value")
-            except UserError as e:
-                e.message = f"mitigation '{m.name}': {e.message}"
-                errors.append(_located(e, cfg.path, m.line))
-        if m.kind == "publish":
-            topic = str(m.params["topic"])
-            readers = [v.name for v in cfg.inputs if v.topic == topic]
+        s = m.settings
+        if isinstance(s, PublishSettings):
+            if ros:
+                try:
+                    build_message(message_class(s.msg), s.value, "value")
+                except UserError as e:
+                    e.message = f"mitigation '{m.name}': {e.message}"
+                    errors.append(_located(e, cfg.path, m.line))
+            readers = [v.name for v in cfg.inputs if v.topic == s.topic]
             for name in readers:
                 trigger = (
                     " (the step trigger: each action adds a tick)"
@@ -248,14 +252,12 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
                     else ""
                 )
                 warnings.append(
-                    f"{cfg.path}:{m.line}: mitigation '{m.name}' publishes on {topic}, which is "
+                    f"{cfg.path}:{m.line}: mitigation '{m.name}' publishes on {s.topic}, which is "
                     f"also input '{name}'{trigger}: the supervisor reads its own command as the "
                     "robot's state; prefer a command topic the robot echoes on its own topic"
                 )
-        if m.kind == "ssh":
-            from mitigations.actions.ssh import SshAction
-
-            for problem in SshAction(m.name, m.params).check():
+        if isinstance(s, SshSettings):
+            for problem in preflight(s):
                 warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
     return errors, warnings
 
@@ -269,26 +271,15 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
 
 
 def project_for(path: str | Path, *, ros: bool = True) -> Project:
-    from supervisor.config.load import load_config
-
     return build_project(load_config(path), ros=ros)
 
 
 def compile_project(project: Project, out_dir: Path, *, backend: str = "native") -> dict:
     """Write the C sources, build the library, load it once (proves it links), and
     write manifest.json.  Returns the manifest."""
-    import json
-
-    from monitors.backends.build import build_library
-    from monitors.backends.c99 import write_c
-    from monitors.backends.load import load_monitor
-    from monitors.ir.spec import c_name
-
     spec = project.spec()
     out_dir.mkdir(parents=True, exist_ok=True)
     if backend == "copilot":
-        from monitors.backends.copilot import compile_copilot
-
         c_files = compile_copilot(spec, out_dir)
         sources = [f for f in c_files if f.suffix == ".c"]
         lib = build_library(spec, sources, out_dir, out_dir, reset=False, reset_each=False)

@@ -12,11 +12,19 @@ import pytest
 
 from mitigations.actions.base import Outcome
 from mitigations.actions.command import CommandAction
+from mitigations.settings import CommandSettings, SettingsError, parse_settings
+
+
+def command_action(params: dict) -> CommandAction:
+    """A CommandAction from ``command:`` settings as the config loader makes them."""
+    settings = parse_settings("command", params)
+    assert isinstance(settings, CommandSettings)
+    return CommandAction("cmd", settings)
 
 
 def run(params: dict, cancel: threading.Event | None = None) -> tuple[Outcome, list[Outcome]]:
     seen: list[Outcome] = []
-    out = CommandAction("cmd", params).run(cancel or threading.Event(), seen.append)
+    out = command_action(params).run(cancel or threading.Event(), seen.append)
     return out, seen
 
 
@@ -136,7 +144,7 @@ def test_a_failing_on_attempt_does_not_stop_the_action(tmp_path: Path) -> None:
     def broken(_: Outcome) -> None:
         raise OSError("log disk full")
 
-    out = CommandAction("cmd", {"argv": ["touch", str(marker)]}).run(threading.Event(), broken)
+    out = command_action({"argv": ["touch", str(marker)]}).run(threading.Event(), broken)
     assert out.ok and marker.exists()
     assert out.detail["on_attempt_errors"] == ["OSError: log disk full"]
 
@@ -152,6 +160,6 @@ def test_a_failing_on_attempt_does_not_stop_the_action(tmp_path: Path) -> None:
         {"argv": ["true"], "env": ["A=1"]},
     ],
 )
-def test_bad_params_are_rejected_at_construction(bad: dict) -> None:
-    with pytest.raises(ValueError):
-        CommandAction("cmd", bad)
+def test_bad_settings_are_rejected(bad: dict) -> None:
+    with pytest.raises(SettingsError):
+        parse_settings("command", bad)

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from monitors.errors import UserError
-from supervisor.config.load import load_config, load_fret_export, load_ogma_variables
+from supervisor.config import load_config, load_fret_export, load_ogma_variables
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"

@@ -11,11 +11,11 @@ from typing import Any
 import pytest
 
 from mitigations.policy import Note, RequirementPolicy
+from mitigations.settings import Confirm, Escalation, PolicyConfig
 from mitigations.supervision import Supervision
 from monitors.backends.load import compile_spec
 from monitors.ir.formula import parse_formula
 from monitors.ir.spec import MonitorSpec, RequirementSpec, VarDecl
-from supervisor.config.load import Confirm, Escalation, PolicyConfig
 from supervisor.daemon.runtime import InputSpec, Runtime, StepResult
 
 MS = 1_000_000
@@ -272,7 +272,7 @@ mitigations:
 )
 def test_policy_config(tmp_path: Path, policy: str, expected: str) -> None:
     from monitors.errors import UserError
-    from supervisor.config.load import load_config
+    from supervisor.config import load_config
 
     path = tmp_path / "c.yaml"
     path.write_text(POLICY_CONFIG.replace("POLICY", policy))

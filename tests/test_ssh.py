@@ -14,7 +14,8 @@ import pytest
 from sshd import Sshd, free_port, keygen, known_hosts_line
 
 from mitigations.actions.base import Outcome, backoff_delay
-from mitigations.actions.ssh import SshAction
+from mitigations.actions.ssh import SshAction, preflight
+from mitigations.settings import SettingsError, SshSettings, parse_settings
 
 
 class Recorder:
@@ -29,6 +30,17 @@ class Recorder:
         self.times.append(time.monotonic())
 
 
+def settings(params: dict) -> SshSettings:
+    """``ssh:`` settings as the config loader makes them (validated)."""
+    s = parse_settings("ssh", params)
+    assert isinstance(s, SshSettings)
+    return s
+
+
+def ssh_action(name: str, params: dict) -> SshAction:
+    return SshAction(name, settings(params))
+
+
 def run(action: SshAction, cancel: threading.Event | None = None) -> tuple[Outcome, Recorder]:
     rec = Recorder()
     out = action.run(cancel or threading.Event(), rec)
@@ -37,8 +49,9 @@ def run(action: SshAction, cancel: threading.Event | None = None) -> tuple[Outco
 
 def test_command_runs_on_the_server_and_reports_exit_status(sshd: Sshd, tmp_path: Path) -> None:
     marker = tmp_path / "touched"
-    action = SshAction("power_off", sshd.params(f"touch {shlex.quote(str(marker))}"))
-    assert action.check() == []
+    params = sshd.params(f"touch {shlex.quote(str(marker))}")
+    assert preflight(settings(params)) == []
+    action = ssh_action("power_off", params)
     t0 = time.monotonic()
     out, rec = run(action)
     elapsed = time.monotonic() - t0
@@ -53,7 +66,7 @@ def test_command_runs_on_the_server_and_reports_exit_status(sshd: Sshd, tmp_path
 
 
 def test_nonzero_exit_status_fails_with_status_and_stderr_not_retried(sshd: Sshd) -> None:
-    action = SshAction("p", sshd.params("echo 'disk on fire' >&2; exit 3", retries=3))
+    action = ssh_action("p", sshd.params("echo 'disk on fire' >&2; exit 3", retries=3))
     out, rec = run(action)
     assert not out.ok
     assert out.detail["exit_status"] == 3
@@ -70,7 +83,7 @@ def test_wrong_host_key_is_refused_and_not_retried(sshd: Sshd, tmp_path: Path) -
     known = tmp_path / "known_hosts_wrong"
     known.write_text(known_hosts_line("127.0.0.1", sshd.port, impostor))
     marker = tmp_path / "must_not_exist"
-    action = SshAction(
+    action = ssh_action(
         "p", sshd.params(f"touch {marker}", known_hosts=str(known), retries=3, backoff_s=0.01)
     )
     out, rec = run(action)
@@ -88,8 +101,9 @@ def test_empty_known_hosts_is_refused(sshd: Sshd, tmp_path: Path) -> None:
     known = tmp_path / "known_hosts_empty"
     known.write_text("")
     marker = tmp_path / "must_not_exist"
-    action = SshAction("p", sshd.params(f"touch {marker}", known_hosts=str(known), retries=3))
-    assert any("has no key for" in p for p in action.check())
+    params = sshd.params(f"touch {marker}", known_hosts=str(known), retries=3)
+    assert any("has no key for" in p for p in preflight(settings(params)))
+    action = ssh_action("p", params)
     out, rec = run(action)
     assert not out.ok
     assert f"host key for [127.0.0.1]:{sshd.port} not in {known} (refused" in out.error
@@ -102,14 +116,14 @@ def test_host_key_under_another_port_does_not_vouch(sshd: Sshd, tmp_path: Path) 
     # The right key, filed under plain 127.0.0.1 (port 22): OpenSSH and we look up [host]:port.
     known = tmp_path / "known_hosts_port22"
     known.write_text(known_hosts_line("127.0.0.1", 22, Path(f"{sshd.host_key}.pub").read_text()))
-    out, _ = run(SshAction("p", sshd.params("true", known_hosts=str(known))))
+    out, _ = run(ssh_action("p", sshd.params("true", known_hosts=str(known))))
     assert not out.ok and "not in" in out.error
 
 
 def test_sshd_not_running_is_retried_with_growing_backoff(tmp_path: Path, sshd: Sshd) -> None:
     port = free_port()  # nothing listens here
     backoff = 0.1
-    action = SshAction(
+    action = ssh_action(
         "p", {**sshd.params("true"), "port": port, "retries": 4, "backoff_s": backoff}
     )
     t0 = time.monotonic()
@@ -134,7 +148,7 @@ def test_backoff_is_capped() -> None:
 
 def test_cancel_stops_the_retry_loop(sshd: Sshd) -> None:
     # 10 attempts at 1, 2, 4, 5, 5, ... s apart would take over half a minute.
-    action = SshAction(
+    action = ssh_action(
         "p", {**sshd.params("true"), "port": free_port(), "retries": 10, "backoff_s": 1.0}
     )
     cancel = threading.Event()
@@ -154,7 +168,7 @@ def test_cancelled_before_start_still_reports(sshd: Sshd, tmp_path: Path) -> Non
     marker = tmp_path / "must_not_exist"
     cancel = threading.Event()
     cancel.set()
-    out, rec = run(SshAction("p", sshd.params(f"touch {marker}")), cancel)
+    out, rec = run(ssh_action("p", sshd.params(f"touch {marker}")), cancel)
     assert not out.ok and "cancelled" in out.error
     assert rec.outcomes == [out]
     assert not marker.exists()
@@ -166,7 +180,7 @@ def test_silent_server_times_out_in_handshake_and_is_retried(sshd: Sshd) -> None
         silent.bind(("127.0.0.1", 0))
         silent.listen(8)
         port = silent.getsockname()[1]
-        action = SshAction(
+        action = ssh_action(
             "p",
             {
                 **sshd.params("true"),
@@ -188,8 +202,11 @@ def test_unknown_user_key_fails_authentication(sshd: Sshd, tmp_path: Path) -> No
     stranger = tmp_path / "stranger_key"
     keygen(stranger)
     marker = tmp_path / "must_not_exist"
-    action = SshAction("p", sshd.params(f"touch {marker}", key=str(stranger), retries=3))
-    assert action.check() == []  # a fine key; only the server can say it is not authorized
+    params = sshd.params(f"touch {marker}", key=str(stranger), retries=3)
+    assert (
+        preflight(settings(params)) == []
+    )  # a fine key; only the server can say it is not authorized
+    action = ssh_action("p", params)
     out, rec = run(action)
     assert not out.ok
     assert f"authentication failed (key {stranger}" in out.error
@@ -198,7 +215,7 @@ def test_unknown_user_key_fails_authentication(sshd: Sshd, tmp_path: Path) -> No
 
 
 def test_command_timeout(sshd: Sshd) -> None:
-    action = SshAction("p", sshd.params("sleep 30", command_timeout_s=1, retries=3))
+    action = ssh_action("p", sshd.params("sleep 30", command_timeout_s=1, retries=3))
     t0 = time.monotonic()
     out, rec = run(action)
     elapsed = time.monotonic() - t0
@@ -211,7 +228,7 @@ def test_command_timeout(sshd: Sshd) -> None:
 def test_chatty_command_output_is_drained_and_tail_kept(sshd: Sshd) -> None:
     # 4 MB is more than paramiko's 2 MB receive window: unread, the command would stall.
     cmd = "head -c 4000000 /dev/zero | tr '\\0' x; echo; echo the-end >&2; exit 0"
-    out, _ = run(SshAction("p", sshd.params(cmd, command_timeout_s=10)))
+    out, _ = run(ssh_action("p", sshd.params(cmd, command_timeout_s=10)))
     assert out.ok, out.error
     assert out.detail["stderr"] == "the-end\n"
     assert len(out.detail["stdout"]) == 500
@@ -222,7 +239,7 @@ def test_forced_command_in_authorized_keys(sshd: Sshd, tmp_path: Path) -> None:
     forced, asked = tmp_path / "forced", tmp_path / "asked"
     pub = Path(f"{sshd.user_key}.pub").read_text().strip()
     sshd.authorized_keys.write_text(f'restrict,command="touch {forced}" {pub}\n')
-    out, _ = run(SshAction("p", sshd.params(f"touch {asked}")))
+    out, _ = run(ssh_action("p", sshd.params(f"touch {asked}")))
     assert out.ok, out.error
     assert forced.exists() and not asked.exists()
 
@@ -233,12 +250,11 @@ def test_check_reports_file_problems_without_connecting(tmp_path: Path) -> None:
     known = tmp_path / "known_hosts"
     known.write_text(known_hosts_line("robot", 2222, Path(f"{key}.pub").read_text()))
     base = {"host": "robot", "port": 2222, "user": "u", "command": "true"}
-    good = SshAction("p", {**base, "key": str(key), "known_hosts": str(known)})
-    assert good.check() == []
+    assert preflight(settings({**base, "key": str(key), "known_hosts": str(known)})) == []
 
     def problems(**changes: object) -> str:
         params = {**base, "key": str(key), "known_hosts": str(known), **changes}
-        found = SshAction("p", params).check()
+        found = preflight(settings(params))
         assert len(found) == 1, found
         return found[0]
 
@@ -260,7 +276,7 @@ def test_check_reports_file_problems_without_connecting(tmp_path: Path) -> None:
 
 
 def test_run_never_raises_on_a_broken_key(sshd: Sshd, tmp_path: Path) -> None:
-    out, rec = run(SshAction("p", sshd.params("true", key=str(tmp_path / "missing"))))
+    out, rec = run(ssh_action("p", sshd.params("true", key=str(tmp_path / "missing"))))
     assert not out.ok and "cannot read key" in out.error
     assert len(rec.outcomes) == 1
 
@@ -268,7 +284,8 @@ def test_run_never_raises_on_a_broken_key(sshd: Sshd, tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "bad", [{"port": 0}, {"port": "22"}, {"retries": 0}, {"connect_timeout_s": -1}]
 )
-def test_bad_params_are_rejected_at_construction(bad: dict) -> None:
+def test_bad_settings_are_rejected(bad: dict) -> None:
     params = {"host": "h", "user": "u", "key": "k", "known_hosts": "kh", "command": "true"}
-    with pytest.raises(ValueError):
-        SshAction("p", {**params, **bad})
+    with pytest.raises(SettingsError) as e:
+        parse_settings("ssh", {**params, **bad})
+    assert e.value.setting == next(iter(bad))

@@ -24,10 +24,11 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
 from mitigations.actions.base import Outcome, one_line, run_with_retries
+from mitigations.settings import CommandSettings
 
 TAIL_CHARS = 500  # of stderr/stdout kept in an outcome's detail
 BASE_ENV = {
@@ -43,34 +44,13 @@ def _tail(data: bytes | None) -> str:
 class CommandAction:
     kind = "command"
 
-    def __init__(self, name: str, params: Mapping[str, Any]) -> None:
+    def __init__(self, name: str, settings: CommandSettings) -> None:
         self.name = name
-        argv = params["argv"]
-        if (
-            not isinstance(argv, list | tuple)
-            or not argv
-            or not all(isinstance(a, str) for a in argv)
-        ):
-            raise ValueError(
-                f"command setting 'argv' must be a non-empty list of strings, not {argv!r}"
-            )
-        self.argv: list[str] = list(argv)
-        timeout = params.get("timeout_s", 10)
-        if isinstance(timeout, bool) or not isinstance(timeout, int | float) or timeout <= 0:
-            raise ValueError(f"command setting 'timeout_s' must be a number > 0, not {timeout!r}")
-        self.timeout_s = float(timeout)
-        env = params.get("env") or {}
-        if not isinstance(env, Mapping):
-            raise ValueError(f"command setting 'env' must be a mapping, not {env!r}")
-        self.env: dict[str, str] = {**BASE_ENV, **{str(k): str(v) for k, v in env.items()}}
-        retries = params.get("retries", 1)
-        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 1:
-            raise ValueError(f"command setting 'retries' must be an integer >= 1, not {retries!r}")
-        self.retries: int = retries
-        backoff = params.get("backoff_s", 0.5)
-        if isinstance(backoff, bool) or not isinstance(backoff, int | float) or backoff < 0:
-            raise ValueError(f"command setting 'backoff_s' must be a number >= 0, not {backoff!r}")
-        self.backoff_s = float(backoff)
+        self.argv: list[str] = list(settings.argv)
+        self.timeout_s = settings.timeout_s
+        self.env: dict[str, str] = {**BASE_ENV, **settings.env}
+        self.retries = settings.retries
+        self.backoff_s = settings.backoff_s
         self.where = f"command {self.argv[0]}"
 
     def __repr__(self) -> str:

@@ -6,15 +6,15 @@ import threading
 from collections.abc import Callable
 
 from mitigations.actions.base import Outcome
-from supervisor.config.load import Mitigation
+from mitigations.settings import LogSettings
 
 
 class RecordAction:
     kind = "log"
 
-    def __init__(self, mitigation: Mitigation) -> None:
-        self.name = mitigation.name
-        self.message = str(mitigation.params.get("message", ""))
+    def __init__(self, name: str, settings: LogSettings) -> None:
+        self.name = name
+        self.message = settings.message
 
     def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
         out = Outcome(ok=True, detail={"message": self.message} if self.message else {})

@@ -17,7 +17,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from mitigations.actions.base import Outcome
 from mitigations.rosmsg import build_message, message_class
-from supervisor.config.load import Mitigation
+from mitigations.settings import PublishSettings
 
 QOS = {
     # name: (reliability, durability)
@@ -27,8 +27,8 @@ QOS = {
 }
 
 
-def qos_profile(name: str | None) -> QoSProfile:
-    reliability, durability = QOS[name or "latched"]
+def qos_profile(name: str) -> QoSProfile:
+    reliability, durability = QOS[name]
     return QoSProfile(depth=1, reliability=reliability, durability=durability)
 
 
@@ -37,19 +37,18 @@ class PublishAction:
     inline = True  # microseconds: the engine runs it in the loop, no thread handoff
 
     def __init__(
-        self, node: Node, mitigation: Mitigation, reuse: PublishAction | None = None
+        self, node: Node, name: str, settings: PublishSettings, reuse: PublishAction | None = None
     ) -> None:
         """``reuse``: an action on the same topic, type and QoS (from before a
         config reload) whose publisher is kept, so what it latched stays latched."""
-        p = mitigation.params
-        self.name = mitigation.name
-        self.topic = str(p["topic"])
-        klass = message_class(str(p["msg"]))
-        self.message: Any = build_message(klass, p.get("value"), f"mitigation '{self.name}' value")
+        self.name = name
+        self.topic = settings.topic
+        klass = message_class(settings.msg)
+        self.message: Any = build_message(klass, settings.value, f"mitigation '{name}' value")
         if reuse is not None:
             self.publisher = reuse.publisher
         else:
-            self.publisher = node.create_publisher(klass, self.topic, qos_profile(p.get("qos")))
+            self.publisher = node.create_publisher(klass, self.topic, qos_profile(settings.qos))
 
     def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
         try:

@@ -77,12 +77,13 @@ import socket
 import stat
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from typing import Any
 
 import paramiko
 
 from mitigations.actions.base import Outcome, one_line, run_with_retries
+from mitigations.settings import SshSettings
 
 TAIL_CHARS = 500  # of stderr/stdout kept in an outcome's detail
 _KEEP_BYTES = 4096  # raw bytes kept per stream while reading (enough for TAIL_CHARS of UTF-8)
@@ -119,84 +120,77 @@ class _Fail(Exception):
         self.detail = detail or {}
 
 
-def _number(params: Mapping[str, Any], key: str, default: float, minimum: float) -> float:
-    value = params.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, int | float) or value < minimum:
-        raise ValueError(f"ssh setting '{key}' must be a number >= {minimum}, not {value!r}")
-    return float(value)
-
-
 def _tail(buf: bytes | bytearray) -> str:
     return buf.decode("utf-8", errors="replace")[-TAIL_CHARS:]
+
+
+def _where(s: SshSettings) -> str:
+    host = f"[{s.host}]" if ":" in s.host else s.host  # IPv6 literal
+    return f"ssh {s.user}@{host}:{s.port}"
+
+
+def _host_key_name(s: SshSettings) -> str:
+    """The name paramiko (and OpenSSH) look the host key up under."""
+    return s.host if s.port == 22 else f"[{s.host}]:{s.port}"
+
+
+def _key_error(key: str, e: Exception) -> str:
+    if isinstance(e, OSError):
+        return f"cannot read key {key}: {e.strerror or e}"
+    # cryptography's wording differs by version and key format; both mention one of these.
+    if isinstance(e, TypeError) and any(w in str(e).lower() for w in ("password", "encrypted")):
+        return f"key {key} has a passphrase; the daemon needs a key without one"
+    return f"key {key} is not a usable private key ({type(e).__name__}: {one_line(e, 200)})"
+
+
+def preflight(s: SshSettings) -> list[str]:
+    """Problems found without connecting: the key and known_hosts files (``check``)."""
+    where, problems = _where(s), []
+    try:
+        mode = os.stat(s.key).st_mode
+        paramiko.PKey.from_path(s.key)
+    except Exception as e:  # noqa: BLE001 - any failure to read or load is the finding
+        problems.append(f"{where}: {_key_error(s.key, e)}")
+    else:
+        if mode & (stat.S_IRWXG | stat.S_IRWXO):
+            # ssh(1) itself refuses such a key; the secret should be the daemon's alone.
+            problems.append(
+                f"{where}: key {s.key} is accessible by group/others "
+                f"(mode {stat.S_IMODE(mode):04o}); chmod 600 it"
+            )
+    try:
+        keys = paramiko.HostKeys(s.known_hosts)
+    except OSError as e:
+        problems.append(f"{where}: known_hosts {s.known_hosts}: {e.strerror or e}")
+    else:
+        if keys.lookup(_host_key_name(s)) is None:
+            problems.append(
+                f"{where}: known_hosts {s.known_hosts} has no key for "
+                f"{_host_key_name(s)} (every connection would be refused)"
+            )
+    return problems
 
 
 class SshAction:
     kind = "ssh"
 
-    def __init__(self, name: str, params: Mapping[str, Any]) -> None:
+    def __init__(self, name: str, settings: SshSettings) -> None:
         self.name = name
-        self.host = str(params["host"])
-        port = params.get("port", 22)
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 < port < 65536:
-            raise ValueError(f"ssh setting 'port' must be an integer 1..65535, not {port!r}")
-        self.port: int = port
-        self.user = str(params["user"])
-        self.key = os.fspath(params["key"])
-        self.known_hosts = os.fspath(params["known_hosts"])
-        self.command = str(params["command"])
-        self.connect_timeout_s = _number(params, "connect_timeout_s", 5, 0.001)
-        self.command_timeout_s = _number(params, "command_timeout_s", 10, 0.001)
-        retries = params.get("retries", 3)
-        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 1:
-            raise ValueError(f"ssh setting 'retries' must be an integer >= 1, not {retries!r}")
-        self.retries: int = retries
-        self.backoff_s = _number(params, "backoff_s", 0.5, 0)
-        host = f"[{self.host}]" if ":" in self.host else self.host  # IPv6 literal
-        self.where = f"ssh {self.user}@{host}:{self.port}"
-        # The name paramiko (and OpenSSH) look the host key up under.
-        self.host_key_name = self.host if self.port == 22 else f"[{self.host}]:{self.port}"
+        self.host = settings.host
+        self.port = settings.port
+        self.user = settings.user
+        self.key = settings.key
+        self.known_hosts = settings.known_hosts
+        self.command = settings.command
+        self.connect_timeout_s = settings.connect_timeout_s
+        self.command_timeout_s = settings.command_timeout_s
+        self.retries = settings.retries
+        self.backoff_s = settings.backoff_s
+        self.where = _where(settings)
+        self.host_key_name = _host_key_name(settings)
 
     def __repr__(self) -> str:
         return f"SshAction({self.name!r}, {self.where!r}, {self.command!r})"
-
-    # -- checks without connecting ------------------------------------------------------
-
-    def check(self) -> list[str]:
-        """Problems found without connecting: key and known_hosts files."""
-        problems: list[str] = []
-        try:
-            mode = os.stat(self.key).st_mode
-            paramiko.PKey.from_path(self.key)
-        except Exception as e:  # noqa: BLE001 - any failure to read or load is the finding
-            problems.append(f"{self.where}: {self._key_error(e)}")
-        else:
-            if mode & (stat.S_IRWXG | stat.S_IRWXO):
-                # ssh(1) itself refuses such a key; the secret should be the daemon's alone.
-                problems.append(
-                    f"{self.where}: key {self.key} is accessible by group/others "
-                    f"(mode {stat.S_IMODE(mode):04o}); chmod 600 it"
-                )
-        try:
-            keys = paramiko.HostKeys(self.known_hosts)
-        except OSError as e:
-            problems.append(f"{self.where}: known_hosts {self.known_hosts}: {e.strerror or e}")
-        else:
-            if keys.lookup(self.host_key_name) is None:
-                problems.append(
-                    f"{self.where}: known_hosts {self.known_hosts} has no key for "
-                    f"{self.host_key_name} (every connection would be refused)"
-                )
-        return problems
-
-    def _key_error(self, e: Exception) -> str:
-        if isinstance(e, OSError):
-            return f"cannot read key {self.key}: {e.strerror or e}"
-        # cryptography's wording differs by version and key format; both mention one of these.
-        if isinstance(e, TypeError) and any(w in str(e).lower() for w in ("password", "encrypted")):
-            return f"key {self.key} has a passphrase; the daemon needs a key without one"
-        return (
-            f"key {self.key} is not a usable private key ({type(e).__name__}: {one_line(e, 200)})"
-        )
 
     # -- running -------------------------------------------------------------------------
 
@@ -220,7 +214,7 @@ class SshAction:
         try:
             pkey = paramiko.PKey.from_path(self.key)
         except Exception as e:  # noqa: BLE001 - any failure to load the key means: no attempt
-            raise _Fail(self._key_error(e), retryable=False) from e
+            raise _Fail(_key_error(self.key, e), retryable=False) from e
         client = paramiko.SSHClient()
         try:
             try:

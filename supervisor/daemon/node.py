@@ -6,7 +6,7 @@ in :mod:`supervisor.daemon.runtime`, the per-requirement mitigation policy in
 
 Receiving: rclpy's default executor receives only about 4k msg/s on the
 7 srobot topics on the reference machine, a loop over rclpy's wait set with
-``take_message`` about 24k msg/s (issue 3, "Benchmark").  :class:`SupervisorNode`
+``take_message`` about 24k msg/s (``safety-supervisor bench``).  :class:`SupervisorNode`
 therefore creates its subscriptions with rclpy (so they exist in the graph and
 are destroyed with the node) but never spins an executor: :meth:`run` waits on
 one ``_rclpy.WaitSet`` holding every subscription, the reset service and a
@@ -52,7 +52,9 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from mitigations.actions.base import Action, Outcome
+from mitigations.actions import PublisherKey, build_action
+from mitigations.actions.base import Outcome
+from mitigations.actions.publish import PublishAction
 from mitigations.engine import Engine, Request
 from mitigations.policy import Note, RequirementPolicy
 from mitigations.rosmsg import get_field, message_class
@@ -60,7 +62,7 @@ from mitigations.supervision import Supervision
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from monitors.ir.formula import to_fret
-from supervisor.config.load import Config, Mitigation, Variable
+from supervisor.config import Config, Variable
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.runtime import InputEvent, InputSpec, Runtime, StepResult
@@ -248,7 +250,8 @@ class SupervisorNode:
         self._trigger = Trigger
         self.reset_service = self.node.create_service(Trigger, RESET_SERVICE, _never)
         self._wake = self.node.create_guard_condition(_never)
-        self._publish_actions: dict[tuple[str, str, str], Action] = {}
+        # Kept across reloads: what a publisher latched stays latched.
+        self._publish_actions: dict[PublisherKey, PublishAction] = {}
         self.engine = self._make_engine(cfg)
         self.supervision = Supervision(session.runtime, session.policies, self)
 
@@ -278,32 +281,11 @@ class SupervisorNode:
         self._subs = subs
 
     def _make_engine(self, cfg: Config) -> Engine:
-        actions: dict[str, Action] = {}
-        for name, m in cfg.mitigations.items():
-            actions[name] = self._action(m)
+        actions = {
+            name: build_action(m, self.node, self._publish_actions)
+            for name, m in cfg.mitigations.items()
+        }
         return Engine(actions, self.log, on_done=self._on_done)
-
-    def _action(self, m: Mitigation) -> Action:
-        if m.kind == "publish":
-            from mitigations.actions.publish import PublishAction
-
-            key = (str(m.params["topic"]), str(m.params["msg"]), str(m.params.get("qos")))
-            existing = self._publish_actions.get(key)
-            # Keep the publisher (and the halt it latched) across reloads.
-            action = PublishAction(self.node, m, existing)  # type: ignore[arg-type]
-            self._publish_actions[key] = action
-            return action
-        if m.kind == "ssh":
-            from mitigations.actions.ssh import SshAction
-
-            return SshAction(m.name, m.params)
-        if m.kind == "command":
-            from mitigations.actions.command import CommandAction
-
-            return CommandAction(m.name, m.params)
-        from mitigations.actions.log import RecordAction
-
-        return RecordAction(m)
 
     def _on_done(self, request: Request, action: str, outcome: Outcome) -> None:
         # Engine worker thread: hand the outcome to the loop (policies are the loop's).
@@ -487,7 +469,8 @@ class SupervisorNode:
             "stale": rt.stale_inputs(),
             "policy_state": policy_state,
         }
-        # On disk (fsynced) before any action of this step is submitted (CONTRACT.md).
+        # On disk (fsynced) before any action of this step is submitted: a record
+        # of every violation exists even if an action hangs the machine.
         self.log.violation(**record)
         self.violations += 1
         # The JSON copy for /safety_supervisor/violations goes out after this

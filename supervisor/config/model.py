@@ -1,0 +1,103 @@
+"""A loaded config: plain dataclasses, validated by the section modules beside this one.
+
+The mitigation and policy settings are :mod:`mitigations.settings`' (the actions
+and policies run them); this module holds what only the supervisor reads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from mitigations.settings import Mitigation, PolicyConfig
+from monitors.errors import UserError
+from monitors.ir.formula import Formula
+from supervisor.names import NODE_NAME
+
+
+@dataclass
+class StepConfig:
+    policy: str = "periodic"
+    trigger: str | None = None
+    period_ms: float | None = None
+    stale_after_ms: float | None = None
+    max_skew_ms: float | None = None
+    prefix: str = ""
+    line: int | None = None
+
+
+@dataclass
+class RosConfig:
+    """The supervisor's own ROS interfaces (``ros:``)."""
+
+    node_name: str = NODE_NAME
+    heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
+    diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
+
+
+@dataclass
+class Variable:
+    name: str
+    type: str
+    role: str
+    line: int | None
+    topic: str | None = None
+    msg: str | None = None
+    field: str = "data"
+    define: Formula | None = None
+    define_text: str | None = None
+    qos: str = "auto"
+    depth: int = 10
+    initial: Any = None
+    stale_after_ms: float | None = None
+    range: tuple[float, float] | None = None
+
+
+@dataclass
+class RequirementEntry:
+    id: str
+    text: str
+    file: str
+    line: int | None  # line of the text (for error positions)
+    col: int
+    rationale: str = ""
+    on_violation: list[str] = field(default_factory=list)
+    policy: dict[str, Any] = field(default_factory=dict)
+    assumption: bool = False
+    fret_ptltl: str | None = None  # from a FRET export: FRET's own formula, cross-checked
+    id_line: int | None = None
+    on_violation_line: int | None = None
+    policy_config: PolicyConfig = field(default_factory=PolicyConfig)
+    policy_line: int | None = None
+
+
+@dataclass
+class Config:
+    path: str
+    sha256: str
+    component: str
+    step: StepConfig
+    variables: dict[str, Variable]
+    requirements: list[RequirementEntry]
+    mitigations: dict[str, Mitigation]
+    log_path: str | None
+    recent: int
+    on_stale: list[str]
+    analysis: dict[str, Any]
+    ros: RosConfig = field(default_factory=RosConfig)
+
+    @property
+    def inputs(self) -> list[Variable]:
+        """Variables read from topics, in declaration order."""
+        return [v for v in self.variables.values() if v.define is None]
+
+    @property
+    def defines(self) -> list[Variable]:
+        return [v for v in self.variables.values() if v.define is not None]
+
+    def requirement(self, rid: str) -> RequirementEntry:
+        for r in self.requirements:
+            if r.id == rid:
+                return r
+        known = ", ".join(r.id for r in self.requirements)
+        raise UserError(f"no requirement '{rid}' (requirements: {known})", file=self.path)

@@ -1,0 +1,241 @@
+"""The ``requirements:``, ``requirements_from:`` and ``requirement_defaults:`` sections.
+
+Requirement texts are only collected here; the pipeline parses and formalizes
+them.  Each requirement's ``policy:`` is checked here too, since it names the
+config's mitigations and variables (the settings themselves are
+:mod:`mitigations.settings`').
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from mitigations.settings import POLICY_KEYS, Confirm, Escalation, Mitigation, PolicyConfig
+from monitors.errors import UserError
+from supervisor.config.fields import (
+    as_linedict,
+    as_mapping,
+    check_keys,
+    error_at,
+    file_names,
+    mitigation_names,
+    number,
+    relative_to,
+    suggest,
+    typed_value,
+)
+from supervisor.config.fret import load_fret_export
+from supervisor.config.model import RequirementEntry, Variable
+from supervisor.config.yamlload import LineDict, LineList
+
+REQ_KEYS = {"id", "text", "rationale", "on_violation", "policy", "assumption", "on_pending"}
+DEFAULTS_KEYS = {"on_violation", "policy", "on_pending"}
+
+
+def load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
+    defaults = as_mapping(
+        doc.get("requirement_defaults") or LineDict(),
+        doc,
+        "requirement_defaults",
+        "requirement_defaults",
+    )
+    if defaults:
+        check_keys(defaults, DEFAULTS_KEYS, "requirement_defaults")
+    reqs: list[RequirementEntry] = []
+    by_id: dict[str, RequirementEntry] = {}
+    for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
+        imported, _internal, _other = load_fret_export(relative_to(path, entry_path))
+        for r in imported:
+            if r.id in by_id:
+                raise error_at(
+                    f"duplicate requirement id '{r.id}' in {entry_path}", doc, "requirements_from"
+                )
+            r.on_violation = mitigation_names(
+                defaults.get("on_violation"), defaults, "on_violation"
+            )
+            r.policy = dict(defaults.get("policy") or {})
+            r.id_line = doc.key_line("requirements_from")
+            reqs.append(r)
+            by_id[r.id] = r
+    raw = doc.get("requirements")
+    if raw is None:
+        if not reqs:
+            raise error_at(
+                "no requirements: add 'requirements:' or 'requirements_from:'", doc, None
+            )
+        return reqs
+    if not isinstance(raw, list):
+        raise error_at("'requirements' must be a list of {id, text, ...}", doc, "requirements")
+    for i, item in enumerate(raw):
+        item_line = raw.item_line(i) if isinstance(raw, LineList) else None
+        if not isinstance(item, dict):
+            raise UserError(
+                "each requirement must be a mapping with id and text",
+                file=str(path),
+                line=item_line,
+            )
+        check_keys(item, REQ_KEYS, "a requirement")
+        rid = item.get("id")
+        if not rid or not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(rid)):
+            raise error_at(
+                f"requirement id '{rid}' must be a C identifier (letters, digits, '_')",
+                item,
+                "id" if rid else None,
+            )
+        rid = str(rid)
+        text = item.get("text")
+        existing = by_id.get(rid)
+        if existing is not None and existing.line is not None:
+            raise error_at(
+                f"duplicate requirement id '{rid}' (first at line {existing.id_line})", item, "id"
+            )
+        if existing is None and not text:
+            raise error_at(
+                f"requirement '{rid}' has no text", item, "id", "add text: <FRETISH sentence>"
+            )
+        entry = existing or RequirementEntry(id=rid, text="", file=str(path), line=None, col=1)
+        if text:
+            entry.text = str(text)
+            entry.line = getattr(text, "line", item.key_line("text"))
+            entry.col = getattr(text, "col", 1)
+            entry.file = str(path)
+            entry.fret_ptltl = None if existing is None else entry.fret_ptltl
+        entry.id_line = item.key_line("id")
+        entry.rationale = str(item.get("rationale") or "")
+        entry.on_violation_line = (
+            item.key_line("on_violation") if "on_violation" in item else entry.id_line
+        )
+        if "on_violation" in item or existing is None:
+            entry.on_violation = mitigation_names(
+                item.get("on_violation", defaults.get("on_violation")), item, "on_violation"
+            )
+        pol = item.get("policy", defaults.get("policy"))
+        if pol is not None:
+            pol = as_mapping(pol, item, "policy", "policy")
+            check_keys(pol, POLICY_KEYS, f"policy of '{rid}'")
+            entry.policy = pol
+            entry.policy_line = pol.line if isinstance(pol, LineDict) else item.key_line("policy")
+        if "assumption" in item:
+            entry.assumption = str(item["assumption"]).lower() == "true"
+        else:
+            entry.assumption = entry.assumption or "assumption" in rid.lower()
+        if existing is None:
+            reqs.append(entry)
+            by_id[rid] = entry
+    return reqs
+
+
+def check_on_violation(
+    requirements: list[RequirementEntry], mitigations: dict[str, Mitigation]
+) -> None:
+    """Every mitigation a requirement names is defined."""
+    for r in requirements:
+        for name in r.on_violation:
+            if name not in mitigations:
+                raise UserError(
+                    f"requirement '{r.id}' names undefined mitigation '{name}'",
+                    file=r.file,
+                    line=r.on_violation_line or r.id_line or r.line,
+                    hint=suggest(name, mitigations),
+                )
+
+
+def policy_config(
+    r: RequirementEntry,
+    mitigations: dict[str, Mitigation],
+    variables: dict[str, Variable],
+    file: str,
+) -> PolicyConfig:
+    raw = r.policy
+    if not raw:
+        return PolicyConfig()
+    pol = raw if isinstance(raw, LineDict) else as_linedict(raw, None, r.policy_line or r.id_line)
+    pol.file = pol.file or r.file
+    what = f"policy of '{r.id}'"
+    out: dict[str, Any] = {}
+    if "debounce_steps" in pol:
+        v = pol["debounce_steps"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise error_at(
+                f"{what}: debounce_steps must be a whole number >= 1", pol, "debounce_steps"
+            )
+        out["debounce_steps"] = v
+    for key in ("debounce_ms", "cooldown_ms"):
+        if key in pol:
+            out[key] = number(pol, key, what, positive=False)
+            if out[key] < 0:
+                raise error_at(f"{what}: {key} must not be negative", pol, key)
+    if "repeat_ms" in pol:
+        out["repeat_ms"] = number(pol, "repeat_ms", what)
+    if "latch" in pol:
+        if not isinstance(pol["latch"], bool):
+            raise error_at(f"{what}: latch must be true or false", pol, "latch")
+        out["latch"] = pol["latch"]
+    if "reset" in pol:
+        v = pol["reset"]
+        if isinstance(v, dict) and set(v) == {"after_ms"}:
+            out["reset"] = "after_ms"
+            out["reset_after_ms"] = number(as_linedict(v, pol), "after_ms", f"{what}.reset")
+        elif v in ("never", "after_mitigation"):
+            out["reset"] = v
+        else:
+            raise error_at(
+                f"{what}: reset must be never, after_mitigation or {{after_ms: N}}, got '{v}'",
+                pol,
+                "reset",
+            )
+    if out.get("latch"):
+        if out.get("reset") == "never":
+            raise error_at(
+                f"{what}: latch with reset: never cannot be released",
+                pol,
+                "reset",
+                "a latched requirement is judged afresh after its mitigation so an operator "
+                "reset can see that it holds again; drop 'reset' or use after_mitigation",
+            )
+        out.setdefault("reset", "after_mitigation")
+    if "escalate" in pol:
+        esc = as_linedict(pol["escalate"], pol)
+        if not isinstance(pol["escalate"], dict) or set(esc) != {"after_ms", "actions"}:
+            raise error_at(
+                f"{what}: escalate needs exactly after_ms and actions",
+                pol,
+                "escalate",
+                "e.g. escalate: {after_ms: 500, actions: [power_off]}",
+            )
+        actions = mitigation_names(esc["actions"], esc, "actions")
+        for name in actions:
+            if name not in mitigations:
+                raise error_at(
+                    f"{what}: escalate names undefined mitigation '{name}'",
+                    pol,
+                    "escalate",
+                    suggest(name, mitigations),
+                )
+        out["escalate"] = Escalation(
+            float(number(esc, "after_ms", f"{what}.escalate", positive=False) or 0.0),
+            tuple(actions),
+        )
+    if "confirm" in pol:
+        c = as_linedict(pol["confirm"], pol)
+        if not isinstance(pol["confirm"], dict) or set(c) != {"variable", "equals", "within_ms"}:
+            raise error_at(
+                f"{what}: confirm needs exactly variable, equals and within_ms",
+                pol,
+                "confirm",
+                "e.g. confirm: {variable: halt, equals: true, within_ms: 200}",
+            )
+        name = str(c["variable"])
+        var = variables.get(name)
+        if var is None or var.define is not None:
+            raise error_at(
+                f"{what}: confirm variable '{name}' is not a topic variable",
+                pol,
+                "confirm",
+                suggest(name, variables),
+            )
+        equals = typed_value(c["equals"], var.type, c, "equals", name)
+        out["confirm"] = Confirm(name, equals, float(number(c, "within_ms", f"{what}.confirm")))
+    return PolicyConfig(**out)

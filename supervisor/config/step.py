@@ -1,0 +1,58 @@
+"""The ``step:`` section: when the monitor is stepped (see supervisor.daemon.runtime)."""
+
+from __future__ import annotations
+
+import re
+
+from supervisor.config.fields import as_mapping, check_keys, error_at, number, suggest
+from supervisor.config.model import StepConfig, Variable
+from supervisor.config.yamlload import LineDict
+
+STEP_POLICIES = ("periodic", "on_message", "on_trigger", "synchronized")
+STEP_KEYS = {"policy", "trigger", "period_ms", "stale_after_ms", "max_skew_ms", "prefix", "recent"}
+
+
+def load_step(doc: LineDict) -> StepConfig:
+    raw = doc.get("step")
+    if raw is None:
+        return StepConfig()
+    s = as_mapping(raw, doc, "step", "step")
+    check_keys(s, STEP_KEYS, "step")
+    policy = str(s.get("policy", "periodic"))
+    if policy not in STEP_POLICIES:
+        raise error_at(
+            f"unknown step policy '{policy}'", s, "policy", "one of: " + ", ".join(STEP_POLICIES)
+        )
+    step = StepConfig(
+        policy=policy,
+        trigger=str(s["trigger"]) if s.get("trigger") else None,
+        period_ms=number(s, "period_ms", "step"),
+        stale_after_ms=number(s, "stale_after_ms", "step"),
+        max_skew_ms=number(s, "max_skew_ms", "step"),
+        prefix=str(s.get("prefix") or ""),
+        line=s.line,
+    )
+    if policy == "periodic" and step.period_ms is None:
+        raise error_at("step.policy periodic needs step.period_ms", s, "policy")
+    if step.prefix and not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", step.prefix):
+        raise error_at(f"step.prefix '{step.prefix}' is not a C identifier", s, "prefix")
+    return step
+
+
+def check_trigger(step: StepConfig, variables: dict[str, Variable], doc: LineDict) -> None:
+    """``on_trigger`` needs a trigger, and the trigger must be a topic variable."""
+    if step.policy != "on_trigger":
+        return
+    if not step.trigger:
+        raise error_at(
+            "step.policy on_trigger needs step.trigger: the variable whose message ends a tick",
+            doc,
+            "step",
+        )
+    if step.trigger not in variables or variables[step.trigger].define is not None:
+        raise error_at(
+            f"step.trigger '{step.trigger}' is not a topic variable",
+            doc,
+            "step",
+            suggest(step.trigger, variables),
+        )

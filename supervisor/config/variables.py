@@ -1,0 +1,170 @@
+"""The ``variables:`` and ``variables_from:`` sections: inputs (a topic field each) and defines."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+from monitors.errors import UserError
+from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula
+from monitors.ir.spec import TYPE_ALIASES
+from supervisor.config.fields import (
+    as_mapping,
+    check_keys,
+    error_at,
+    file_names,
+    number,
+    relative_to,
+    typed_value,
+)
+from supervisor.config.model import Variable
+from supervisor.config.ogma import load_ogma_variables
+from supervisor.config.yamlload import LineDict
+
+ROLES = ("input", "output", "internal")
+QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
+# FRET's reserved words plus our formula keywords: a variable may not be called so.
+RESERVED = frozenset(
+    "O H S Y Z X F G U V T A E abs max min mode next FTP TRUE FALSE xor mod inf".split()
+)
+NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
+VAR_KEYS = {
+    "type",
+    "topic",
+    "msg",
+    "field",
+    "define",
+    "qos",
+    "depth",
+    "initial",
+    "stale_after_ms",
+    "role",
+    "range",
+}
+
+
+def check_name(name: str, where: Any, key: str | None = None) -> None:
+    if not NAME_RE.match(name):
+        raise error_at(
+            f"'{name}' is not a usable variable name",
+            where,
+            key,
+            "use letters, digits, '_' and '.'",
+        )
+    if name in RESERVED:
+        raise error_at(
+            f"'{name}' is a reserved word in FRETISH and cannot name a variable",
+            where,
+            key,
+            f"rename it, e.g. '{name}_'",
+        )
+
+
+def parse_define(text: str, file: str, line: int | None) -> Formula:
+    # FRET's variable mapper writes constants as 'constant 7' (thesis Fig. 29).
+    cleaned = re.sub(r"\bconstant\s+", "", str(text))
+    try:
+        return parse_formula(cleaned)
+    except FormulaSyntaxError as e:
+        raise UserError(f"cannot parse define '{text}': {e}", file=file, line=line) from None
+
+
+def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
+    out: dict[str, Variable] = {}
+    for entry_path in file_names(doc.get("variables_from"), doc, "variables_from"):
+        for v in load_ogma_variables(relative_to(path, entry_path)):
+            check_name(v["name"], doc, "variables_from")
+            out[v["name"]] = Variable(
+                name=v["name"],
+                type=v["type"],
+                role="input",
+                line=doc.key_line("variables_from"),
+                topic=v["topic"],
+                msg=v["msg"],
+                field=v["field"],
+            )
+    raw = doc.get("variables")
+    if raw is None:
+        return out
+    vs = as_mapping(raw, doc, "variables", "variables")
+    for name, spec in vs.items():
+        line = vs.key_line(name)
+        check_name(name, vs, name)
+        if spec is None:
+            spec = LineDict()
+        spec = as_mapping(spec, vs, f"variable '{name}'", name)
+        check_keys(spec, VAR_KEYS, f"variable '{name}'")
+        base = out.get(name)  # a YAML entry may refine one imported from OGMA
+        tname = spec.get("type", base.type if base else None)
+        if tname is None:
+            raise error_at(f"variable '{name}' needs a type (bool, int64 or double)", vs, name)
+        vtype = TYPE_ALIASES.get(str(tname))
+        if vtype is None:
+            raise error_at(
+                f"variable '{name}' has unknown type '{tname}'",
+                spec,
+                "type",
+                "use bool, int64 or double",
+            )
+        define_text = spec.get("define")
+        role = str(spec.get("role") or ("internal" if define_text is not None else "input"))
+        if role not in ROLES:
+            raise error_at(
+                f"variable '{name}': role must be one of {', '.join(ROLES)}", spec, "role"
+            )
+        var = Variable(name=name, type=vtype, role=role, line=line)
+        if define_text is not None:
+            if spec.get("topic") or spec.get("msg"):
+                raise error_at(
+                    f"variable '{name}' has both define and topic: an internal variable is computed, not subscribed",
+                    spec,
+                    "define",
+                )
+            var.define_text = str(define_text)
+            var.define = parse_define(str(define_text), vs.file, spec.key_line("define"))
+        else:
+            var.topic = str(spec.get("topic") or (base.topic if base else "") or "") or None
+            var.msg = str(spec.get("msg") or (base.msg if base else "") or "") or None
+            var.field = str(spec.get("field") or (base.field if base else "data"))
+            if not var.topic:
+                raise error_at(
+                    f"variable '{name}' has no topic (and no define)",
+                    vs,
+                    name,
+                    "add topic: /name and msg: pkg/msg/Type, or define: <expression>",
+                )
+            if not var.topic.startswith("/"):
+                raise error_at(
+                    f"variable '{name}': topic '{var.topic}' must be absolute (start with '/')",
+                    spec,
+                    "topic",
+                )
+            if not var.msg:
+                raise error_at(
+                    f"variable '{name}' needs msg: the ROS 2 message type of {var.topic}", vs, name
+                )
+        var.qos = str(spec.get("qos", "auto"))
+        if var.qos not in QOS_PRESETS:
+            raise error_at(
+                f"variable '{name}': unknown qos '{var.qos}'",
+                spec,
+                "qos",
+                "one of: " + ", ".join(QOS_PRESETS),
+            )
+        depth = spec.get("depth", 10)
+        if not str(depth).isdigit() or int(depth) < 1:
+            raise error_at(
+                f"variable '{name}': depth must be a positive whole number", spec, "depth"
+            )
+        var.depth = int(depth)
+        var.stale_after_ms = number(spec, "stale_after_ms", f"variable '{name}'")
+        if "initial" in spec:
+            var.initial = typed_value(spec["initial"], vtype, spec, "initial", name)
+        if "range" in spec:
+            rng = spec["range"]
+            if not isinstance(rng, list) or len(rng) != 2:
+                raise error_at(f"variable '{name}': range must be [min, max]", spec, "range")
+            var.range = (float(rng[0]), float(rng[1]))
+        out[name] = var
+    return out
