@@ -12,31 +12,52 @@ visited: at 20k steps/s the common case (nothing violated) costs one check.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 from mitigations.policy import Act, Effect, Note, Report, RequirementPolicy, ResetMonitor
-from supervisor.daemon.runtime import Runtime, StepResult
+
+
+class Step(Protocol):
+    """One monitor step: which requirements it flagged, and the inputs it saw."""
+
+    @property
+    def tick(self) -> int: ...
+    @property
+    def t_ns(self) -> int: ...
+    @property
+    def violated(self) -> Sequence[int]: ...  # requirement indices
+    @property
+    def inputs(self) -> Mapping[str, Any]: ...
+
+
+class Stepper(Protocol):
+    """What supervision needs of the runtime that steps the monitor (the daemon's
+    Runtime has it): the latest values, and resetting the monitor's requirements."""
+
+    def snapshot(self) -> dict[str, Any]: ...
+    def reset_requirement(self, index: int) -> None: ...
+    def reset_all(self) -> None: ...
 
 
 class Sink(Protocol):
     """Where effects go (the daemon: log, engine, ROS; tests: a list)."""
 
-    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None: ...
+    def report(self, index: int, result: Step, policy_state: dict[str, Any]) -> None: ...
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None: ...
     def reset(self, index: int, reason: str) -> None: ...
     def note(self, index: int, note: Note, t_ns: int) -> None: ...
 
 
 class Supervision:
-    def __init__(self, runtime: Runtime, policies: Sequence[RequirementPolicy], sink: Sink) -> None:
+    def __init__(self, runtime: Stepper, policies: Sequence[RequirementPolicy], sink: Sink) -> None:
         self.runtime = runtime
         self.policies = list(policies)
         self.sink = sink
         self.active: set[int] = set()  # requirements whose policy has live state
         self.reports = 0
 
-    def after_step(self, result: StepResult | None) -> None:
+    def after_step(self, result: Step | None) -> None:
         if result is None or not (result.violated or self.active):
             return
         violated = set(result.violated)
@@ -72,13 +93,13 @@ class Supervision:
                 self.sink.reset(i, "operator reset: latch released")
             if ok:
                 self.active.discard(i)
-        self.runtime.monitor.reset()
+        self.runtime.reset_all()
         return refused
 
     def latched(self) -> list[int]:
         return sorted(i for i in self.active if self.policies[i].latched)
 
-    def _apply(self, i: int, effects: list[Effect], result: StepResult | None, t_ns: int) -> None:
+    def _apply(self, i: int, effects: list[Effect], result: Step | None, t_ns: int) -> None:
         for eff in effects:
             if isinstance(eff, Report):
                 assert result is not None

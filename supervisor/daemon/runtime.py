@@ -284,6 +284,10 @@ class Runtime:
         self.tick += 1
         return result
 
+    def reset_all(self) -> None:
+        """Judge every requirement afresh from the next tick (operator reset)."""
+        self.monitor.reset()
+
     def reset_requirement(self, index: int) -> None:
         """Judge requirement ``index`` afresh from the next tick (replaces the
         thesis's node relaunch; no tick is skipped)."""
