@@ -24,7 +24,7 @@ from monitors.verify.analysis import (
     analyse,
 )
 from monitors.verify.interpret import Value
-from supervisor.config.load import Config
+from supervisor.config import Config
 from supervisor.pipeline import Project
 
 ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
