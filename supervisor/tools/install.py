@@ -6,9 +6,11 @@ What it does, in order (each step is printed before it runs):
 2. ``/etc/safety-supervisor`` with the config (copied only if absent: an
    existing config is never overwritten) and an environment file template;
 3. a venv under the prefix (``/opt/safety-supervisor/venv``) and
-   ``pip install SOURCE`` into it;
-4. the unit and the logrotate snippet from ``packaging/``, with the prefix and
-   the user substituted;
+   ``pip install SOURCE`` into it: ``--source``, else the checkout this runs
+   from, else what pip installed the running package from (the same wheel, or
+   the same version from the package index);
+4. the unit and the logrotate snippet shipped in :mod:`supervisor.data`, with
+   the prefix and the user substituted;
 5. ``systemctl daemon-reload``.
 
 The plan is data (a list of :class:`Step`), computed once from the arguments
@@ -22,6 +24,7 @@ Standard library only (plus PyYAML, a dependency anyway), so it stays quick.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import pwd
 import re
@@ -31,18 +34,20 @@ import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
+from urllib.parse import unquote, urlparse
 
+import supervisor
 from monitors.errors import UserError
+from supervisor import data
 
 NAME = "safety-supervisor"
 PROG = "install-service"
-UNIT_NAME = f"{NAME}.service"
-UNIT_TEMPLATE = Path("packaging/systemd") / UNIT_NAME
-LOGROTATE_TEMPLATE = Path("packaging/logrotate") / NAME
+UNIT_NAME = data.UNIT_NAME
 DEFAULT_PREFIX = "/opt/safety-supervisor"
-DEFAULT_CONFIG = Path("config/srobot.yaml")
+DEFAULT_CONFIG = "srobot.yaml"  # a shipped example (supervisor.data)
 CONFIG_DIR = Path("/etc/safety-supervisor")
 # The unit names this file; whatever --config was, it is installed under this name.
 INSTALLED_CONFIG = CONFIG_DIR / "supervisor.yaml"
@@ -50,7 +55,16 @@ ENVIRONMENT_FILE = CONFIG_DIR / "environment"
 STATE_DIR = "/var/lib/safety-supervisor"  # the unit's StateDirectory=, the user's home
 # ProtectHome=yes hides these from the service: nothing it runs may live there.
 HIDDEN_BY_PROTECT_HOME = ("/home", "/root", "/run/user")
-SOURCE_ROOT = Path(__file__).resolve().parents[2]
+# The package's data inside a checkout (where --source DIR points).
+DATA_IN_TREE = Path("supervisor/data")
+
+
+def _running_checkout() -> Path | None:
+    """The source tree the running package is imported from, if it is one (an
+    editable install or PYTHONPATH), not an installed copy in site-packages."""
+    root = Path(supervisor.__file__).resolve().parents[1]
+    return root if (root / "pyproject.toml").is_file() else None
+
 
 ENVIRONMENT_TEMPLATE = """\
 # Environment of safety-supervisor.service (KEY=value lines; read at each start).
@@ -181,27 +195,106 @@ def choose_python(requested: str | None) -> tuple[Path, str | None]:
     return system, f"venv from {system} ({running.resolve()} is hidden by ProtectHome=yes)"
 
 
-def _source(args: argparse.Namespace) -> Path:
-    src = Path(args.source).resolve() if args.source else SOURCE_ROOT
-    if src.is_file() and src.suffix == ".whl":
-        return src
+@dataclass(frozen=True)
+class Source:
+    """What the venv gets: ``pip`` is the argument of ``pip install``, ``what``
+    says it in the plan, ``tree`` is the checkout it is, if it is one (the unit,
+    the logrotate snippet and the default config then come from it, so they
+    match the code installed)."""
+
+    pip: str
+    what: str
+    tree: Path | None = None
+
+
+_SOURCE_HINT = "give --source DIR (a checkout), --source FILE.whl or an sdist"
+
+
+def _is_archive(path: Path) -> bool:
+    return path.is_file() and (path.suffix == ".whl" or path.name.endswith(".tar.gz"))
+
+
+def _given_source(arg: str) -> Source:
+    src = Path(arg).resolve()
+    if _is_archive(src):
+        return Source(str(src), str(src))
     if not (src / "pyproject.toml").is_file():
         raise UserError(
             f"{src} is not a safety-supervisor source tree (no pyproject.toml)",
             file=PROG,
-            hint="give --source DIR (a checkout) or --source FILE.whl",
+            hint=_SOURCE_HINT,
         )
-    return src
+    return Source(str(src), str(src), src)
 
 
-def _template(name: Path, source: Path) -> tuple[Path, str]:
-    for root in (source, SOURCE_ROOT):
-        path = root / name
-        if root.is_dir() and path.is_file():
-            return path, path.read_text(encoding="utf-8")
+def _installed_source() -> Source:
+    """What pip installed the running package from (PEP 610's direct_url.json):
+    the service gets the same build.  Without that record it came from an index,
+    so the index gives the same version again."""
+    try:
+        dist = metadata.distribution(NAME)
+    except metadata.PackageNotFoundError:
+        dist = None
+    here = Path(supervisor.__file__).resolve()
+    if dist is None or Path(str(dist.locate_file("supervisor/__init__.py"))).resolve() != here:
+        raise UserError(
+            f"cannot tell where the running safety-supervisor ({here.parent}) was installed from",
+            file=PROG,
+            hint=_SOURCE_HINT,
+        )
+    try:
+        direct = json.loads(dist.read_text("direct_url.json") or "null")
+    except json.JSONDecodeError:
+        direct = None
+    if not isinstance(direct, dict) or not isinstance(direct.get("url"), str):
+        pin = f"{NAME}=={dist.version}"
+        return Source(pin, f"the package index ({pin}, the version running here)")
+    url: str = direct["url"]
+    vcs = direct.get("vcs_info")
+    if isinstance(vcs, dict):
+        ref = (
+            f"{vcs.get('vcs', 'git')}+{url}@{vcs.get('commit_id') or vcs.get('requested_revision')}"
+        )
+        return Source(f"{NAME} @ {ref}", ref)
+    parsed = urlparse(url)
+    if parsed.scheme != "file":
+        return Source(f"{NAME} @ {url}", url)
+    path = Path(unquote(parsed.path))
+    if _is_archive(path):
+        return Source(str(path), f"{path}, which the running package was installed from")
+    if (path / "pyproject.toml").is_file():
+        return Source(str(path), f"{path}, which the running package was installed from", path)
     raise UserError(
-        f"cannot find {name}", file=PROG, hint="run from a source checkout or give --source DIR"
+        f"the running safety-supervisor was installed from {path}, which is gone",
+        file=PROG,
+        hint=_SOURCE_HINT,
     )
+
+
+def _source(args: argparse.Namespace) -> Source:
+    if args.source:
+        return _given_source(args.source)
+    tree = _running_checkout()
+    return Source(str(tree), str(tree), tree) if tree else _installed_source()
+
+
+def _shipped(source: Source, packaged: Path) -> Path:
+    """A shipped file (``packaged``, from :mod:`supervisor.data`), taken from the
+    checkout being installed when there is one, else from the running package."""
+    if source.tree is not None:
+        # Every shipped file is supervisor/data/<kind>/<name>.
+        in_tree = source.tree / DATA_IN_TREE / packaged.parent.name / packaged.name
+        if in_tree.is_file():
+            return in_tree
+    return packaged
+
+
+def _template(source: Source, path: Path) -> tuple[Path, str]:
+    path = _shipped(source, path)
+    try:
+        return path, path.read_text(encoding="utf-8")
+    except OSError as e:
+        raise UserError(f"cannot read {path}: {e.strerror or e}", file=PROG) from e
 
 
 def _config_extras(config: Path) -> tuple[list[Path], list[str]]:
@@ -251,18 +344,14 @@ def make_plan(args: argparse.Namespace) -> Plan:
             hint=f"use e.g. {DEFAULT_PREFIX}",
         )
     source = _source(args)
-    config = (
-        Path(args.config)
-        if args.config
-        else ((source if source.is_dir() else SOURCE_ROOT) / DEFAULT_CONFIG)
-    )
+    config = Path(args.config) if args.config else _shipped(source, data.example(DEFAULT_CONFIG))
     try:
         config_bytes = config.read_bytes()
     except OSError as e:
         raise UserError(f"cannot read config: {e.strerror or e}", file=str(config)) from e
     python, python_note = choose_python(args.python)
-    unit_src, unit_text = _template(UNIT_TEMPLATE, source)
-    rot_src, rot_text = _template(LOGROTATE_TEMPLATE, source)
+    unit_src, unit_text = _template(source, data.systemd_unit())
+    rot_src, rot_text = _template(source, data.logrotate_snippet())
     venv = prefix / "venv"
     exe = venv / "bin" / NAME
     unit_dir, rot_dir = Path(args.unit_dir), Path(args.logrotate_dir)
@@ -315,7 +404,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
         src = config.parent / rel
         dst = CONFIG_DIR / rel
         try:
-            data = src.read_bytes()
+            imported = src.read_bytes()
         except OSError as e:
             raise UserError(
                 f"cannot read {src} (imported by the config): {e.strerror or e}", file=str(config)
@@ -324,7 +413,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
             Step(
                 f"install {rel}, which the config imports",
                 write=dst,
-                content=data,
+                content=imported,
                 origin=str(src),
                 skip="exists, not overwritten" if dst.exists() else None,
             )
@@ -346,8 +435,8 @@ def make_plan(args: argparse.Namespace) -> Plan:
     )
     steps.append(
         Step(
-            f"install safety-supervisor into the venv from {source}",
-            argv=(str(venv / "bin" / "python"), "-m", "pip", "install", "--upgrade", str(source)),
+            f"install safety-supervisor into the venv from {source.what}",
+            argv=(str(venv / "bin" / "python"), "-m", "pip", "install", "--upgrade", source.pip),
         )
     )
     unit = render_unit(unit_text, prefix=str(prefix), user=user).encode()
@@ -485,7 +574,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--config",
         default=None,
         metavar="FILE",
-        help=f"config to install as {INSTALLED_CONFIG} if absent (default: {DEFAULT_CONFIG})",
+        help=f"config to install as {INSTALLED_CONFIG} if absent (default: the shipped "
+        f"{DEFAULT_CONFIG} example)",
     )
     p.add_argument("--user", default=NAME, help="the service's system user and group")
     p.add_argument("--unit-dir", default="/etc/systemd/system", metavar="DIR")
@@ -493,8 +583,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--source",
         default=None,
-        metavar="DIR",
-        help="what to pip install: a source checkout or a wheel (default: this checkout)",
+        metavar="DIR|FILE",
+        help="what to pip install: a source checkout, a wheel or an sdist (default: this "
+        "checkout, else what the running package was installed from)",
     )
     p.add_argument(
         "--python",
