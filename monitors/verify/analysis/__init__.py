@@ -39,7 +39,13 @@ The modules, one job each: ``requirements`` (what is analysed), ``results``
 ``vacuity``, ``redundancy``, ``examples`` (example traces for the report), and
 ``run`` (``analyse``, all of them in order)."""
 
-from monitors.verify.analysis.requirements import Req, VarInfo, activation, default_k
+from monitors.verify.analysis.requirements import (
+    Req,
+    VarInfo,
+    activation,
+    default_k,
+    range_formula,
+)
 from monitors.verify.analysis.results import SEVERITIES, Analysis, Example, Finding, Trace
 from monitors.verify.analysis.run import DEFAULT_TIMEOUT_S, analyse
 
@@ -55,4 +61,5 @@ __all__ = [
     "activation",
     "analyse",
     "default_k",
+    "range_formula",
 ]
