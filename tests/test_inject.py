@@ -1,4 +1,4 @@
-"""``inject``: computed violation injection (issue 6, item 3).
+"""``inject``: computed violation injection.
 
 The traces are judged here again with the reference interpreter, independently
 of the command's own re-check, and injected into a real supervisor over DDS.
@@ -22,8 +22,10 @@ from rosutil import ROOT, ROS_ENV, SROBOT, Daemon, variant
 
 from monitors.verify.interpret import verdicts
 from supervisor.analysis_report import project_requirements
+from supervisor.cli import main as cli_main
 from supervisor.pipeline import project_for
-from supervisor.tools.inject import run as inject
+from supervisor.tools.inject.plan import Planner
+from supervisor.tools.inject.target import WARMUP
 
 SROBOT_IDS = [
     "classifier_assumption",
@@ -137,7 +139,7 @@ def dry_all(srobot: Any) -> tuple[dict[str, dict[str, Any]], str, float]:
     out = io.StringIO()
     t = time.perf_counter()
     with contextlib.redirect_stdout(out):
-        rc = inject.main([str(SROBOT), "--all", "--dry-run"])
+        rc = cli_main(["inject", str(SROBOT), "--all", "--dry-run"])
     seconds = time.perf_counter() - t
     assert rc == 0, out.getvalue()
     return parse_blocks(out.getvalue(), srobot[2]), out.getvalue(), seconds
@@ -265,11 +267,11 @@ def test_policies_judged_on_what_the_supervisor_steps_on(tmp_path: Path, policy:
     """The timed requirement over the states each step policy makes of the trace
     (warm-up, half-updated states for on_message, held ticks for periodic)."""
     project = project_for(small_config(tmp_path, policy))
-    planner = inject.Planner(project)
+    planner = Planner(project)
     reqs = planner.reqs
     for rid in reqs:
         inj = planner.plan(rid)
-        for warm in (1, inject.WARMUP):
+        for warm in (1, WARMUP):
             states, labels = planner.observed(inj.trace, warm, planner.saturation)
             last = len(labels) - 1 - labels[::-1].index(inj.k - 1)
             for other, req in reqs.items():
