@@ -20,8 +20,8 @@ from pathlib import Path
 from monitors.errors import UserError
 from supervisor.tools.bench.run import add_parser as add_bench_parser
 from supervisor.tools.bench.run import cmd_bench
-from supervisor.tools.demo.run import add_parser as add_demo_parser
-from supervisor.tools.demo.run import cmd_demo
+from supervisor.tools.demo.command import add_parser as add_demo_parser
+from supervisor.tools.demo.command import cmd_demo
 from supervisor.tools.inject.command import add_parser as add_inject_parser
 from supervisor.tools.inject.command import cmd_inject
 from supervisor.tools.install import add_parser as add_install_parser

@@ -1,8 +1,8 @@
 """``safety-supervisor demo`` end to end: real processes, real DDS, no mocks.
 
-The demo runs as ``python -m supervisor.tools.demo.run`` (the same ``cmd_demo`` as the
-CLI's ``demo`` command) with ``--log`` in the test's directory, so the
-summary it prints can be checked against the violation log it leaves.
+The demo runs as ``python -m supervisor demo`` with ``--log`` in the test's
+directory, so the summary it prints can be checked against the violation log
+it leaves.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Any
 
 import pytest
 
+pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -198,7 +199,7 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
     import yaml
 
     from supervisor.config.load import load_config
-    from supervisor.tools.demo.run import SHIPPED_CONFIG, demo_config
+    from supervisor.tools.demo.config import SHIPPED_CONFIG, demo_config
 
     log = tmp_path / "v.jsonl"
     path = demo_config(SHIPPED_CONFIG, tmp_path, log)
@@ -216,13 +217,13 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
     assert len(cfg.requirements) == 13
     # The stand-in really runs, without a shell and with the command action's bare environment.
     argv = cfg.mitigations["power_off"].params["argv"]
-    env = {"PATH": "/usr/bin:/bin", **cfg.mitigations["power_off"].params["env"]}
+    env = {"PATH": "/usr/bin:/bin", **cfg.mitigations["power_off"].params.get("env", {})}
     subprocess.run(argv, env=env, cwd="/", check=True, capture_output=True, timeout=30)
     assert len(list(tmp_path.glob("poweroff-*.marker"))) == 1
 
 
 def test_explain_in_words() -> None:
-    from supervisor.tools.demo.run import explain
+    from supervisor.tools.demo.state import explain
 
     uv_on = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, halt=True, slowdown=False, turnoffUVC=False)  # fmt: skip
     assert explain("operationalstate_3", uv_on) == "UV on in state 3"

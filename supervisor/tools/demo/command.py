@@ -1,0 +1,154 @@
+"""``safety-supervisor demo``: the thesis's field test (sec. 5.3.2) on this machine.
+
+A simulated perception feed and safety controller (:mod:`supervisor.tools.demo.robot`)
+and the supervisor on a copy of the shipped ``srobot.yaml``
+(:mod:`supervisor.tools.demo.config`), each in its own process on a private ROS
+domain (:mod:`supervisor.tools.demo.session`); what happens is shown live
+(:mod:`supervisor.tools.demo.view`).  On the end of ``--duration``, Ctrl-C,
+SIGTERM or an error the processes are stopped in order; then the summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import shutil
+import signal
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from supervisor.tools.children import ros_env
+from supervisor.tools.demo.config import SHIPPED_CONFIG, demo_config
+from supervisor.tools.demo.errors import DemoError
+from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
+from supervisor.tools.demo.state import DemoState
+from supervisor.tools.demo.view import screen, summary
+
+DEFAULT_FAULT_RATE = 0.01  # the thesis's 1 % (sec. 5.3.2)
+
+
+def _err(text: str) -> None:
+    print(f"safety-supervisor demo: {text}", file=sys.stderr, flush=True)
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from e
+    if not v > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, not {text}")
+    return v
+
+
+def _rate(text: str) -> float:
+    v = _positive(text)
+    # The config's stale_after_ms is 500: a slower feed would be reported stale.
+    if not 5 <= v <= 100:
+        raise argparse.ArgumentTypeError(f"must be between 5 and 100 Hz, not {text}")
+    return v
+
+
+def _fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from e
+    if not 0 <= v <= 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, not {text}")
+    return v
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="a simulated sRobot and the supervisor on this machine: violations caught and mitigated",
+        description=(
+            "Starts a simulated perception feed (a person walking through the red/yellow/"
+            "green zones), the sRobot safety controller with the thesis's UV-light fault, "
+            "and the supervisor on config/srobot.yaml, each in its own process on a private "
+            "ROS domain; shows what happens live and ends with a summary."
+        ),
+    )
+    p.add_argument("--duration", type=_positive, default=30.0, help="seconds (default 30)")
+    p.add_argument(
+        "--fault-rate",
+        type=_fraction,
+        default=DEFAULT_FAULT_RATE,
+        help="chance per update in state 3 that the UV light sticks on, as in the thesis (default 0.01)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=None, help="the walk and the faults (default: random)"
+    )
+    p.add_argument("--rate-hz", type=_rate, default=10.0, help="perception rate (default 10)")
+    p.add_argument(
+        "--log", default=None, metavar="PATH", help="violation log (default: a temp dir)"
+    )
+    p.add_argument(
+        "--no-live", action="store_true", help="one status line per second instead of a live view"
+    )
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    if not SHIPPED_CONFIG.exists():
+        _err(
+            f"{SHIPPED_CONFIG} not found (an incomplete installation: reinstall safety-supervisor)"
+        )
+        return 1
+    workdir = Path(tempfile.mkdtemp(prefix="safety-supervisor-demo-"))
+    log = Path(args.log).resolve() if args.log else workdir / "violations.jsonl"
+    seed = args.seed if args.seed is not None else random.SystemRandom().randrange(1_000_000)
+    out = sys.stdout
+    live = out.isatty() and not args.no_live
+    interrupted = False
+    run: Run | None = None
+    failed: str | None = None
+    walked = 0.0
+
+    def on_term(_sig: int, _frame: Any) -> None:
+        raise KeyboardInterrupt  # SIGTERM: the same orderly stop as Ctrl-C
+
+    old_term = signal.signal(signal.SIGTERM, on_term)
+    try:
+        try:
+            log.parent.mkdir(parents=True, exist_ok=True)
+            domain = pick_domain()
+            env = ros_env(domain, log_dir=workdir / "ros-log")  # ROS's own logs: not ~/.ros
+            st = DemoState(args.duration, args.fault_rate, seed, domain, log)
+            config = demo_config(SHIPPED_CONFIG, workdir, log)
+            run = Run(args, workdir, st, Notify(workdir / "notify.sock"), LogTail(log), out, live)
+            run.start(config, env)
+            run.loop()
+        except KeyboardInterrupt:
+            interrupted = True
+        except DemoError as e:
+            failed = str(e)
+        except OSError as e:
+            failed = f"{e.strerror or e}" + (f": {e.filename}" if e.filename else "")
+        finally:
+            # A second Ctrl-C must not leave a process behind half-way through stopping.
+            old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            try:
+                if run is not None:
+                    walked = min(run.st.elapsed(), args.duration)
+                    run.stop()
+                    run.notify.close()
+            finally:
+                signal.signal(signal.SIGINT, old_int)
+    finally:
+        signal.signal(signal.SIGTERM, old_term)
+    if run is not None and live:
+        out.write("\x1b[H\x1b[2J" + screen(run.st, final=True) + "\n\n")
+    elif run is not None:
+        run.print_events(settle=0)
+    if failed is not None or run is None:
+        _err(f"{failed} (process output in {workdir})")
+        return 1
+    out.write(summary(run.st, walked, interrupted) + "\n")
+    out.flush()
+    if args.log is not None:  # the log is elsewhere: nothing left worth keeping
+        shutil.rmtree(workdir, ignore_errors=True)
+    return 130 if interrupted else 0
