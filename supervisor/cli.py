@@ -18,8 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from monitors.errors import UserError
-from supervisor.tools.bench.run import add_parser as add_bench_parser
-from supervisor.tools.bench.run import cmd_bench
+from supervisor.tools.bench.command import add_parser as add_bench_parser
+from supervisor.tools.bench.command import cmd_bench
 from supervisor.tools.demo.command import add_parser as add_demo_parser
 from supervisor.tools.demo.command import cmd_demo
 from supervisor.tools.inject.command import add_parser as add_inject_parser

@@ -1,0 +1,131 @@
+"""``safety-supervisor bench``: the thesis's overhead and latency experiments.
+
+Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
+
+1. Throughput and overhead (thesis sec. 5.1.1, eq. 1:
+   Overhead = (P_standalone - P_monitor) / P_monitor x 100 %, P = messages
+   received per second).  Per offered rate, one publisher process spreads the
+   rate evenly over the config's input topics (a nominal state that satisfies
+   every requirement, the step trigger last in each round); in the same run
+   the daemon and a plain rclpy wait-set subscriber (optionally also rclpy's
+   default executor) receive the same stream.  The daemon's counts come from
+   its ``stop`` record, its drain is watched on ``/diagnostics``.
+2. Latency: the violating message's trigger published -> the halt
+   received by another process, over many trials, measured in that one
+   process with ``time.monotonic_ns``; first against a bare rclpy echo (the
+   DDS round trip alone), then against the daemon, whose violation record is
+   fsynced before the halt goes out.  Each trial: the nominal state, the
+   violating values, then the trigger alone; before each part the driver
+   waits for a handshake on the responder's reset service (served by its
+   loop after the messages published before it) and, for the daemon, for the
+   reset and mitigation records of the previous trial, so every trial starts
+   from an idle responder in a holding state.  The daemon's log adds where
+   its time goes (trigger -> violation record, detection -> halt published).
+
+Every process runs on this machine with localhost-only discovery and a random
+ROS_DOMAIN_ID outside the test suite's range; all of them are killed (process
+groups, and PR_SET_PDEATHSIG should this process die) on exit, Ctrl-C and errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from supervisor import data
+from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.bench.experiments import run
+from supervisor.tools.bench.report import format_results
+
+DEFAULT_CONFIG = data.example("srobot.yaml")
+DEFAULT_RATES = "5000,10000,12500,15000,17500,20000"
+
+
+def _rates(text: str) -> list[float]:
+    try:
+        rates = [float(r) for r in text.split(",") if r.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of rates: {text}") from None
+    if not rates or any(r <= 0 for r in rates):
+        raise argparse.ArgumentTypeError("rates must be positive messages per second")
+    return rates
+
+
+def _positive(kind: type) -> Callable[[str], Any]:
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a number: {text}") from None
+        if value <= 0:
+            raise argparse.ArgumentTypeError(f"must be positive: {text}")
+        return value
+
+    return parse
+
+
+def _add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="default: config/srobot.yaml")
+    p.add_argument(
+        "--rates",
+        type=_rates,
+        default=_rates(DEFAULT_RATES),
+        metavar="R,R,...",
+        help=f"total offered msg/s over all topics (default {DEFAULT_RATES})",
+    )
+    p.add_argument("--seconds", type=_positive(float), default=5.0, help="per rate (default 5)")
+    p.add_argument(
+        "--latency-trials", type=_positive(int), default=1000, metavar="N", help="default 1000"
+    )
+    p.add_argument("--skip-throughput", action="store_true")
+    p.add_argument("--skip-latency", action="store_true")
+    p.add_argument(
+        "--naive",
+        action="store_true",
+        help="also measure rclpy's default SingleThreadedExecutor (busy: takes a CPU)",
+    )
+    p.add_argument("--domain-id", type=int, default=None, help="default: random in 215..232")
+    p.add_argument("--json", action="store_true", help="one JSON document instead of tables")
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "bench", help="the thesis's overhead and latency experiment, with and without the daemon"
+    )
+    _add_arguments(p)
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    restore = None
+    if threading.current_thread() is threading.main_thread():
+        # SIGTERM unwinds like Ctrl-C, so the finally blocks kill the children.
+        restore = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        results = run(args, progress=None if args.json else _progress)
+    except BenchError as e:
+        print(f"safety-supervisor bench: {e}", file=sys.stderr, flush=True)
+        return 1
+    except KeyboardInterrupt:
+        print("safety-supervisor bench: interrupted", file=sys.stderr, flush=True)
+        return 130
+    finally:
+        if restore is not None:
+            signal.signal(signal.SIGTERM, restore)
+    if args.json:
+        print(json.dumps(results, indent=2), flush=True)
+    else:
+        print(format_results(results), flush=True)
+    return 0
+
+
+def _raise_interrupt(_signum: int, _frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _progress(text: str) -> None:
+    print(f"  ... {text}", file=sys.stderr, flush=True)

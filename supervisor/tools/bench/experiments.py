@@ -1,0 +1,54 @@
+"""The bench's run: the config's plan, the chosen experiments in one session, and
+the machine they ran on."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.bench.latency import latency
+from supervisor.tools.bench.plan import Plan
+from supervisor.tools.bench.session import session
+from supervisor.tools.bench.throughput import throughput
+
+
+def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    say = progress or (lambda _text: None)
+    config = Path(args.config)
+    plan = Plan(config)
+    if not args.skip_latency:
+        problem = plan.latency_problem()
+        if problem:
+            raise BenchError(f"{config}: {problem} (use --skip-latency)")
+    results: dict[str, Any] = {
+        "config": str(config),
+        "topics": [t["topic"] for t in plan.topics],
+        "trigger": plan.trigger,
+        "cpus": os.cpu_count(),
+        "loadavg_before": _loadavg(),
+        "python": sys.version.split()[0],
+        "rmw": os.environ.get("RMW_IMPLEMENTATION") or "default (rmw_fastrtps_cpp)",
+    }
+    with session(args.domain_id) as s:
+        results["domain_id"] = s.domain_id
+        if not args.skip_throughput:
+            results["throughput"] = []
+            for rate in args.rates:
+                say(f"throughput at {rate:g} msg/s for {args.seconds:g} s")
+                results["throughput"].append(throughput(s, plan, rate, args.seconds, args.naive))
+        if not args.skip_latency:
+            results["latency"] = latency(s, plan, args.latency_trials, say)
+    results["loadavg_after"] = _loadavg()
+    return results
+
+
+def _loadavg() -> str:
+    try:
+        return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+    except OSError:
+        return "?"

@@ -1,0 +1,188 @@
+"""The latency experiment: violating trigger published -> halt received, against a
+bare rclpy echo and against the daemon, and where the daemon's time goes."""
+
+from __future__ import annotations
+
+import calendar
+import json
+import os
+import statistics
+import time
+from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from supervisor.tools.bench.plan import (
+    LATENCY_REQUIREMENT,
+    SROBOT_NOMINAL_CHECK,
+    SROBOT_VIOLATING,
+    Plan,
+)
+from supervisor.tools.bench.session import Session
+
+THESIS_MEAN_MS = 33.0  # thesis: OGMA/Copilot node, violation -> halt, average
+TESSLA_MEAN_MS = 15.0  # thesis: TeSSLa-ROS-Bridge, average
+
+
+def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> dict[str, Any]:
+    work = s.tmp / "latency"
+    work.mkdir()
+    spec = json.dumps(plan.topics)
+    halt_topic, halt_msg = plan.halt
+    warmup = 10
+    common = ["--spec", spec, "--trigger", plan.trigger, "--halt-topic", halt_topic]
+    common += ["--halt-msg", halt_msg]
+    driver_args = [
+        *common,
+        "--nominal",
+        json.dumps(plan.nominal),  # halt false: each trial starts from a holding state
+        "--violating",
+        json.dumps(SROBOT_VIOLATING),
+        "--trials",
+        str(trials),
+        "--warmup",
+        str(warmup),
+    ]
+    budget = 120 + trials * 0.2
+    out: dict[str, Any] = {"trials": trials, "warmup": warmup}
+
+    say(f"latency: bare rclpy echo, {trials} trials")
+    echo = s.child(
+        "echo",
+        "echo",
+        *common,
+        "--when",
+        f"classifier={SROBOT_VIOLATING['classifier']}",
+        workdir=work / "echo",
+    )
+    driver = s.child("driver", "driver", *driver_args, workdir=work / "echo")
+    try:
+        echo.wait_event("started", 60, (echo, driver))
+        result = driver.wait_event("result", budget, (echo, driver))
+    finally:
+        driver.kill()
+        echo.kill()
+    out["echo"] = _latency_stats(result)
+
+    say(f"latency: daemon, {trials} trials")
+    dwork = work / "daemon"
+    dwork.mkdir()
+    config = plan.write_config(dwork / "config.yaml", dwork / "violations.jsonl", latency=True)
+    daemon = s.daemon(config, dwork)
+    try:
+        daemon.wait_ready(60)
+        log_args = ["--log", str(daemon.log), "--requirement", LATENCY_REQUIREMENT]
+        driver = s.child("driver", "driver", *driver_args, *log_args, workdir=dwork)
+        try:
+            result = driver.wait_event("result", budget, (daemon, driver))
+        finally:
+            driver.kill()
+        daemon.stop_cleanly()
+        records = daemon.records()
+    finally:
+        daemon.kill()
+    out["daemon"] = _latency_stats(result)
+    out["daemon"].update(_daemon_internals(records, warmup, result))
+    out["fsync"] = _fsync_times(s.tmp, out["daemon"].get("violation_record_bytes") or 2048)
+    out["thesis_mean_ms"] = THESIS_MEAN_MS
+    out["tessla_mean_ms"] = TESSLA_MEAN_MS
+    return out
+
+
+def _percentiles(values_ms: list[float]) -> dict[str, float | None]:
+    if not values_ms:
+        return {k: None for k in ("p50", "p90", "p99", "max", "mean")}
+    v = sorted(values_ms)
+
+    def pct(p: int) -> float:
+        # nearest rank: the smallest value with at least p % of the samples at or below it
+        return v[max(0, min(len(v) - 1, -(-len(v) * p // 100) - 1))]
+
+    return {
+        "p50": pct(50),
+        "p90": pct(90),
+        "p99": pct(99),
+        "max": v[-1],
+        "mean": statistics.fmean(v),
+    }
+
+
+def _latency_stats(result: dict[str, Any]) -> dict[str, Any]:
+    ms = [ns / 1e6 for ns in result["latencies_ns"]]
+    return {
+        "n": len(ms),
+        "missed": result["missed"],
+        "stray_halts": result["strays"],
+        "sync_timeouts": result.get("sync_timeouts", 0),
+        **_percentiles(ms),
+    }
+
+
+def _daemon_internals(
+    records: list[dict[str, Any]], warmup: int, result: dict[str, Any]
+) -> dict[str, Any]:
+    """From the daemon's log: detection -> halt published (the mitigation
+    record's latency_ms, fsync of the violation record included), and trigger
+    published -> violation record rendered (wall clocks of one machine)."""
+    violations = [r for r in records if r.get("event") == "violation"]
+    mitigations = [
+        r
+        for r in records
+        if r.get("event") == "mitigation"
+        and r.get("requirement") == LATENCY_REQUIREMENT
+        and r.get("stage") == "violation"
+    ]
+    internal = [float(r["latency_ms"]) for r in mitigations[warmup:]]
+    sizes = [len(json.dumps(r, separators=(",", ":"))) + 1 for r in violations]
+    mine = [r for r in violations if r.get("requirement") == LATENCY_REQUIREMENT]
+    # A trial starts from a holding state when the tick before its violation
+    # was the nominal state the driver published (classifier 0, halt false).
+    not_holding = 0
+    for r in mine[warmup:]:
+        recent = r.get("recent") or []
+        before = recent[-2] if len(recent) >= 2 else {}
+        if any(before.get(k) != v for k, v in SROBOT_NOMINAL_CHECK.items()):
+            not_holding += 1
+    # Each trial's record: the first after its trigger went out (strays aside).
+    to_record: list[float] = []
+    stamps = [_epoch_ns(r["ts"]) for r in mine]
+    j = 0
+    for wall in result.get("published_wall_ns") or []:
+        while j < len(stamps) and stamps[j] < wall:
+            j += 1
+        if j < len(stamps):
+            to_record.append((stamps[j] - wall) / 1e6)
+            j += 1
+    return {
+        "violation_records": len(violations),
+        "trigger_to_record_ms": _percentiles(to_record),
+        "other_violations": len(violations) - len(mine),
+        "not_from_holding_state": not_holding,
+        "detect_to_publish_ms": _percentiles(internal),
+        "violation_record_bytes": int(statistics.median(sizes)) if sizes else None,
+    }
+
+
+def _epoch_ns(ts: str) -> int:
+    """The log's ``ts`` (ISO 8601 UTC, microseconds) as ns since the epoch."""
+    dt = datetime.strptime(ts, "%Y-%m-%dT%H:%M:%S.%fZ").replace(tzinfo=UTC)
+    return (calendar.timegm(dt.timetuple()) * 1_000_000 + dt.microsecond) * 1000
+
+
+def _fsync_times(where: Path, size: int, n: int = 200) -> dict[str, Any]:
+    """write + fsync of a violation-record-sized append, on the log's file system."""
+    path = where / "fsync-probe.jsonl"
+    line = b"x" * (size - 1) + b"\n"
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o640)
+    times = []
+    try:
+        for _ in range(n):
+            t = time.perf_counter_ns()
+            os.write(fd, line)
+            os.fsync(fd)
+            times.append((time.perf_counter_ns() - t) / 1e6)
+    finally:
+        os.close(fd)
+        path.unlink()
+    return {"bytes": size, "n": n, **_percentiles(times)}

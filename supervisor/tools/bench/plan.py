@@ -1,0 +1,113 @@
+"""What the bench publishes, read from the config, and the configs the daemon runs."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from supervisor.tools.bench.errors import BenchError
+
+DEPTH = 1000  # every bench subscription and publisher: reliable, volatile, depth 1000
+
+# The thesis's sRobot: a nominal state satisfying every requirement, and the
+# violating state of the latency experiment (state_req103: a trained worker in
+# the red zone, OpState not 3) with the step trigger turnoffUVC false.
+SROBOT_NOMINAL = {"classifier": 0, "distance_to_target": 50, "OpState": 0}
+SROBOT_VIOLATING = {
+    "classifier": 1,
+    "distance_to_target": 2,
+    "OpState": 2,
+    "alert": True,
+    "slowdown": True,
+    "halt": False,
+    "turnoffUVC": False,
+}
+SROBOT_NOMINAL_CHECK = {"classifier": 0, "halt": False}
+LATENCY_REQUIREMENT = "state_req103"
+HALT_MITIGATION = "stop_robot"
+
+
+class Plan:
+    """What the config says the bench publishes, and the configs the daemon runs."""
+
+    def __init__(self, config: Path) -> None:
+        from monitors.errors import UserError
+        from supervisor.config.load import load_config
+
+        try:
+            self.cfg = load_config(config)
+        except UserError as e:
+            raise BenchError(str(e)) from None
+        self.path = config
+        cfg = self.cfg
+        inputs = list(cfg.inputs)
+        if not inputs:
+            raise BenchError(f"{config}: no input variables with topics")
+        trigger = cfg.step.trigger if cfg.step.policy == "on_trigger" else None
+        # The trigger is published last in each round: it ends a tick.
+        inputs.sort(key=lambda v: v.name == trigger)
+        self.trigger = trigger or inputs[-1].name
+        self.topics = [
+            {"name": v.name, "topic": v.topic, "msg": v.msg, "field": v.field} for v in inputs
+        ]
+        self.nominal = {v.name: _nominal(v) for v in inputs}
+        self.daemon_node = cfg.ros.node_name
+
+    def latency_problem(self) -> str | None:
+        """Why this config cannot run the latency experiment, or None."""
+        names = {t["name"] for t in self.topics}
+        missing = sorted(set(SROBOT_VIOLATING) - names)
+        if missing:
+            return f"the latency experiment needs the sRobot inputs (missing: {', '.join(missing)})"
+        if self.trigger != "turnoffUVC":
+            return "the latency experiment needs step.policy on_trigger with trigger turnoffUVC"
+        if not any(r.id == LATENCY_REQUIREMENT for r in self.cfg.requirements):
+            return f"the latency experiment needs requirement {LATENCY_REQUIREMENT}"
+        m = self.cfg.mitigations.get(HALT_MITIGATION)
+        if m is None or m.kind != "publish":
+            return f"the latency experiment needs a publish mitigation '{HALT_MITIGATION}'"
+        return None
+
+    @property
+    def halt(self) -> tuple[str, str]:
+        p = self.cfg.mitigations[HALT_MITIGATION].params
+        return str(p["topic"]), str(p["msg"])
+
+    def write_config(self, out: Path, log: Path, *, latency: bool) -> Path:
+        """A copy of the config for the daemon: inputs reliable with depth 1000 (the
+        baselines' QoS), no on_stale (a stale halt would add messages nobody sent),
+        the log in our temp dir; for latency, state_req103 acts at every violation."""
+        import yaml
+
+        doc = yaml.safe_load(self.path.read_text())
+        base = self.path.resolve().parent
+        for key in ("requirements_from", "variables_from"):
+            if isinstance(doc.get(key), str) and not os.path.isabs(doc[key]):
+                doc[key] = str(base / doc[key])
+        for spec in (doc.get("variables") or {}).values():
+            if isinstance(spec, dict) and "topic" in spec:
+                spec["qos"], spec["depth"] = "reliable", DEPTH
+        doc.pop("on_stale", None)
+        doc.setdefault("logging", {})["violations"] = str(log)
+        if latency:
+            reqs = doc.setdefault("requirements", [])
+            entry = next((r for r in reqs if r.get("id") == LATENCY_REQUIREMENT), None)
+            if entry is None:  # imported (requirements_from): refine it by id
+                entry = {"id": LATENCY_REQUIREMENT}
+                reqs.append(entry)
+            entry["on_violation"] = [HALT_MITIGATION]
+            entry["policy"] = {"debounce_steps": 1, "reset": "after_mitigation"}
+        out.write_text(yaml.safe_dump(doc, sort_keys=False))
+        return out
+
+
+def _nominal(v: Any) -> Any:
+    if v.name in SROBOT_NOMINAL:
+        return SROBOT_NOMINAL[v.name]
+    if v.type == "bool":
+        return False
+    zero: Any = 0.0 if v.type == "double" else 0
+    if v.range is not None and not (v.range[0] <= zero <= v.range[1]):
+        return v.range[0]
+    return zero

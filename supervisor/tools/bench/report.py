@@ -1,0 +1,129 @@
+"""The bench's results as tables for people."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from supervisor.tools.bench.latency import TESSLA_MEAN_MS, THESIS_MEAN_MS
+from supervisor.tools.bench.plan import DEPTH
+
+
+def _f(x: float | None, fmt: str = ".2f") -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def format_results(r: dict[str, Any]) -> str:
+    lines = [
+        f"safety-supervisor bench: {r['config']} ({len(r['topics'])} topics, trigger {r['trigger']})",
+        f"machine: {r['cpus']} CPUs, load average {r['loadavg_before']} before, "
+        f"{r['loadavg_after']} after; Python {r['python']}; RMW {r['rmw']}; "
+        f"ROS_DOMAIN_ID={r.get('domain_id')}, localhost discovery",
+    ]
+    if "throughput" in r:
+        lines += ["", *_format_throughput(r["throughput"])]
+    if "latency" in r:
+        lines += ["", *_format_latency(r["latency"])]
+    return "\n".join(lines)
+
+
+def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
+    lines = [
+        "Throughput and overhead (thesis sec. 5.1.1, eq. 1: "
+        "(P_standalone - P_monitor) / P_monitor x 100 %)",
+        f"one publisher process, reliable + volatile, depth {DEPTH}, same stream to every receiver",
+    ]
+    for row in rows:
+        per = next(iter(row["sent_per_topic"].values()))
+        lines += [
+            "",
+            f"offered {row['offered']:g} msg/s: sent {row['sent']} ({per}/topic) in "
+            f"{row['seconds']:.2f} s = {row['achieved']:.0f} msg/s achieved"
+            + ("" if row["drained"] else "  [receivers still busy after 30 s]"),
+            f"  {'receiver':<16} {'received':>9} {'loss %':>7} {'msg/s':>8} {'CPU s':>6} "
+            f"{'CPU us/msg':>10}",
+        ]
+        for name, rc in row["receivers"].items():
+            lines.append(
+                f"  {name:<16} {rc['received']:>9} {rc['loss_pct']:>7.2f} "
+                f"{rc['msg_per_s']:>8.0f} {rc['cpu_s']:>6.2f} {_f(rc['cpu_us_per_msg'], '.1f'):>10}"
+            )
+        lines.append(
+            f"  overhead (eq. 1) vs {row['fastest_baseline']}: {_f(row['overhead_pct'])} %"
+            + (
+                f"; daemon reported {row['daemon_violations']} violations (expected 0)"
+                if row["daemon_violations"]
+                else ""
+            )
+        )
+    base = {k for row in rows for k in row["receivers"] if k != "daemon"}
+    lines += ["", "summary"]
+    head = f"  {'offered':>8} {'achieved':>8} {'daemon loss %':>13}"
+    for b in sorted(base):
+        head += f" {b + ' loss %':>21}"
+    head += f" {'overhead %':>10} {'daemon us/msg':>13} {'wait-set us/msg':>15}"
+    lines.append(head)
+    for row in rows:
+        rc = row["receivers"]
+        line = f"  {row['offered']:>8g} {row['achieved']:>8.0f} {rc['daemon']['loss_pct']:>13.2f}"
+        for b in sorted(base):
+            line += f" {_f(rc[b]['loss_pct'] if b in rc else None):>21}"
+        ws = rc.get("rclpy wait-set", {}).get("cpu_us_per_msg")
+        line += (
+            f" {_f(row['overhead_pct']):>10} {_f(rc['daemon']['cpu_us_per_msg'], '.1f'):>13}"
+            f" {_f(ws, '.1f'):>15}"
+        )
+        lines.append(line)
+    return lines
+
+
+def _format_latency(lat: dict[str, Any]) -> list[str]:
+    lines = [
+        "Latency: violating trigger published -> halt received, in one process "
+        f"(time.monotonic_ns); {lat['trials']} trials after {lat['warmup']} warm-up",
+        f"  {'responder':<22} {'n':>5} {'p50 ms':>7} {'p90 ms':>7} {'p99 ms':>7} {'max ms':>7} "
+        f"{'mean ms':>7} {'missed':>6}",
+    ]
+    for label, key in (("bare rclpy echo", "echo"), ("safety-supervisor", "daemon")):
+        st = lat[key]
+        lines.append(
+            f"  {label:<22} {st['n']:>5} {_f(st['p50'], '.3f'):>7} {_f(st['p90'], '.3f'):>7} "
+            f"{_f(st['p99'], '.3f'):>7} {_f(st['max'], '.3f'):>7} {_f(st['mean'], '.3f'):>7} "
+            f"{st['missed']:>6}"
+        )
+    d = lat["daemon"]
+    inner = d["detect_to_publish_ms"]
+    rec = d["trigger_to_record_ms"]
+    lines += [
+        f"  daemon, trigger published -> violation record stamped (before its fsync): p50 "
+        f"{_f(rec['p50'], '.3f')} ms, p99 {_f(rec['p99'], '.3f')} ms, max {_f(rec['max'], '.3f')} ms",
+        f"  daemon, detection -> halt published (its mitigation records): p50 "
+        f"{_f(inner['p50'], '.3f')} ms, p99 {_f(inner['p99'], '.3f')} ms, "
+        f"max {_f(inner['max'], '.3f')} ms",
+    ]
+    fs = lat["fsync"]
+    lines.append(
+        f"  fsync of a {fs['bytes']}-byte append on the log's file system ({fs['n']} samples): "
+        f"p50 {_f(fs['p50'], '.3f')} ms, p99 {_f(fs['p99'], '.3f')} ms, "
+        f"max {_f(fs['max'], '.3f')} ms"
+    )
+    if (
+        d["other_violations"]
+        or d["stray_halts"]
+        or lat["echo"]["stray_halts"]
+        or d["not_from_holding_state"]
+        or d["sync_timeouts"]
+        or lat["echo"]["sync_timeouts"]
+    ):
+        lines.append(
+            f"  note: {d['other_violations']} violations of other requirements, "
+            f"{d['not_from_holding_state']} trials not stepped from the nominal state, stray "
+            f"halts {lat['echo']['stray_halts']} (echo) / {d['stray_halts']} (daemon) while "
+            f"settling, handshake timeouts {lat['echo']['sync_timeouts']} / {d['sync_timeouts']}"
+        )
+    mean = d["mean"]
+    cmp = "" if mean is None else f" ({THESIS_MEAN_MS / mean:.0f}x faster than the thesis's mean)"
+    lines.append(
+        f"  thesis: {THESIS_MEAN_MS:g} ms mean (OGMA/Copilot node), TeSSLa-ROS-Bridge "
+        f"{TESSLA_MEAN_MS:g} ms mean; here: {_f(mean, '.3f')} ms mean{cmp}"
+    )
+    return lines

@@ -1,0 +1,174 @@
+"""The bench's processes: a temp dir, one ROS environment, and every child started
+(:mod:`supervisor.tools.children`), all killed when the session ends.
+
+The helpers (``python -m supervisor.tools.bench.procs ROLE``) talk to the bench in
+JSON lines on stdout (``{"event": ...}``); the daemon through its notify socket
+and its violation log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import random
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from mitigations.violationlog.reader import records_since
+from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.children import Child, NotifySocket, daemon_argv, ros_env
+
+# tests/rosutil.py draws ROS_DOMAIN_ID from 1..200; 215..232 is disjoint from it
+# and, unlike 102..214, clear of Linux's ephemeral port range.
+DOMAIN_IDS = (215, 232)
+
+
+def cpu_seconds(pid: int) -> float:
+    """utime + stime of every thread of ``pid`` (DDS threads included)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return float("nan")
+    fields = stat[stat.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class Helper(Child):
+    """A child whose JSON lines are events: ``{"event": KIND, ...}``; ``error`` ends the bench."""
+
+    def check(self) -> None:
+        """Raise BenchError if the child reported an error or died."""
+        for _t, ev in self.objects():
+            if ev.get("event") == "error":
+                raise BenchError(f"{self.name}: {ev.get('error')}")
+        if not self.alive():
+            why = self.last_stderr()
+            raise BenchError(
+                f"{self.name} exited ({self.returncode})" + (f": {why}" if why else "")
+            )
+
+    def events(self, kind: str) -> list[dict[str, Any]]:
+        return [ev for _t, ev in self.objects() if ev.get("event") == kind]
+
+    def latest(self, kind: str) -> tuple[float, dict[str, Any]] | None:
+        for t, ev in reversed(self.objects()):
+            if ev.get("event") == kind:
+                return t, ev
+        return None
+
+    def wait_event(
+        self, kind: str, timeout: float, others: tuple[Helper, ...] = ()
+    ) -> dict[str, Any]:
+        """The first event ``kind``; BenchError if this child (or one of
+        ``others``) fails first or ``timeout`` passes."""
+        deadline = time.monotonic() + timeout
+        while True:
+            seen = self.objects()
+            for _t, ev in seen:
+                if ev.get("event") == kind:
+                    return ev
+            self.wait_output(len(seen), 0.1)
+            for c in (self, *others):
+                c.check()
+            if time.monotonic() > deadline:
+                raise BenchError(f"{self.name}: no '{kind}' within {timeout:g} s")
+
+
+class Daemon(Helper):
+    """``safety-supervisor run CONFIG`` with its log, build dir and a bound
+    NOTIFY_SOCKET in ``workdir``."""
+
+    def __init__(self, config: Path, workdir: Path, env: dict[str, str]) -> None:
+        workdir.mkdir(parents=True, exist_ok=True)
+        self.log = workdir / "violations.jsonl"
+        self.notify = NotifySocket(workdir / "notify.sock")
+        super().__init__(
+            "daemon",
+            daemon_argv(config, self.log, workdir / "build"),
+            env={**env, **self.notify.env()},
+            cwd=workdir,
+            stderr=workdir / "daemon.stderr",
+        )
+
+    def wait_ready(self, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise BenchError(f"daemon: not ready within {timeout:g} s: {self.last_stderr()}")
+            self.check()
+            data = self.notify.recv(min(left, 0.2))
+            if data is not None and "READY=1" in data.splitlines():
+                return
+
+    def stop_cleanly(self, timeout: float = 10.0) -> None:
+        """SIGTERM and wait: the daemon writes its ``stop`` record."""
+        self.terminate()
+        if not self.wait(timeout):
+            raise BenchError(f"daemon did not stop within {timeout:g} s")
+        if self.returncode != 0:
+            raise BenchError(f"daemon exited ({self.returncode}): {self.last_stderr()}")
+
+    def records(self) -> list[dict[str, Any]]:
+        return records_since(self.log, 0)[0]
+
+    def stop_record(self) -> dict[str, Any]:
+        for r in reversed(self.records()):
+            if r.get("event") == "supervisor" and r.get("what") == "stop":
+                return r
+        raise BenchError(f"daemon wrote no stop record in {self.log}")
+
+    def kill(self) -> None:
+        super().kill()
+        self.notify.close()
+
+
+class Session:
+    """The temp dir, the ROS environment and every process started (for cleanup)."""
+
+    def __init__(self, domain_id: int | None) -> None:
+        self.tmp = Path(tempfile.mkdtemp(prefix="safety-supervisor-bench-"))
+        self.domain_id = domain_id if domain_id is not None else random.randint(*DOMAIN_IDS)
+        (self.tmp / "ros-log").mkdir()
+        self.env = ros_env(self.domain_id, log_dir=self.tmp / "ros-log")
+        self.children: list[Child] = []
+
+    def child(self, label: str, role: str, *args: str, workdir: Path) -> Helper:
+        """``python -m supervisor.tools.bench.procs ROLE ARGS``."""
+        workdir.mkdir(parents=True, exist_ok=True)
+        c = Helper(
+            label,
+            [sys.executable, "-m", "supervisor.tools.bench.procs", role, *args],
+            env=self.env,
+            cwd=workdir,
+            stderr=workdir / f"{role}.stderr",
+            stdin=True,
+            json_stdout=True,
+        )
+        self.children.append(c)
+        return c
+
+    def daemon(self, config: Path, workdir: Path) -> Daemon:
+        d = Daemon(config, workdir, self.env)
+        self.children.append(d)
+        return d
+
+    def close(self) -> None:
+        for c in self.children:
+            c.kill()
+        self.children = []
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def session(domain_id: int | None) -> Iterator[Session]:
+    s = Session(domain_id)
+    try:
+        yield s
+    finally:
+        s.close()
