@@ -9,9 +9,6 @@ import os
 import random
 import re
 import signal
-import socket
-import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -20,10 +17,13 @@ from typing import Any
 
 from std_msgs.msg import Bool, Int64
 
+from supervisor import data
+from supervisor.tools.children import Child, NotifySocket, daemon_argv, ros_env, ros_vars
+
 ROOT = Path(__file__).resolve().parent.parent
 DOMAIN_ID = random.randint(1, 200)
-ROS_ENV = {"ROS_DOMAIN_ID": str(DOMAIN_ID), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-SROBOT = ROOT / "config" / "srobot.yaml"
+ROS_ENV = ros_vars(DOMAIN_ID)
+SROBOT = data.example("srobot.yaml")
 
 
 def wait_until(
@@ -41,7 +41,8 @@ def wait_until(
 
 
 class Daemon:
-    """``safety-supervisor run CONFIG`` with NOTIFY_SOCKET bound here."""
+    """``safety-supervisor run CONFIG`` started as the tools start it
+    (:mod:`supervisor.tools.children`), with NOTIFY_SOCKET bound here."""
 
     def __init__(
         self,
@@ -52,32 +53,18 @@ class Daemon:
         args: list[str] | None = None,
     ) -> None:
         self.log = tmp / "v.jsonl"
+        self.notify = NotifySocket(tmp / "notify.sock")
+        self.spawn(
+            tmp,
+            daemon_argv(config, self.log, tmp / "build", *(args or [])),
+            {**ros_env(DOMAIN_ID), **self.notify.env(), **(env or {})},
+            cwd=ROOT,
+        )
+
+    def spawn(self, tmp: Path, argv: list[str], env: dict[str, str], *, cwd: Path) -> None:
         self.stderr = tmp / "daemon.stderr"
-        sock_path = tmp / "notify.sock"
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(str(sock_path))
-        full_env = {**os.environ, **ROS_ENV, "NOTIFY_SOCKET": str(sock_path), **(env or {})}
-        if "WATCHDOG_USEC" not in (env or {}):
-            full_env.pop("WATCHDOG_USEC", None)
-        with self.stderr.open("w") as err:
-            self.proc = subprocess.Popen(
-                [
-                    sys.executable,
-                    "-m",
-                    "supervisor",
-                    "run",
-                    str(config),
-                    "--log",
-                    str(self.log),
-                    "--build-dir",
-                    str(tmp / "build"),
-                    *(args or []),
-                ],
-                cwd=ROOT,
-                env=full_env,
-                stdout=subprocess.DEVNULL,
-                stderr=err,
-            )
+        self.child = Child("daemon", argv, env=env, cwd=cwd, stderr=self.stderr)
+        self.proc = self.child.proc
         # (monotonic time received, datagram)
         self.notifications: list[tuple[float, str]] = []
 
@@ -104,13 +91,10 @@ class Daemon:
                 return time.monotonic() - t0
 
     def recv(self, timeout: float) -> str | None:
-        self.sock.settimeout(timeout)
-        try:
-            data = self.sock.recv(4096).decode()
-        except TimeoutError:
-            return None
-        self.notifications.append((time.monotonic(), data))
-        return data
+        datagram = self.notify.recv(timeout)
+        if datagram is not None:
+            self.notifications.append((time.monotonic(), datagram))
+        return datagram
 
     def collect(self, seconds: float) -> list[tuple[float, str]]:
         """All datagrams received during the next ``seconds``."""
@@ -146,10 +130,8 @@ class Daemon:
         assert self.proc.returncode == 0, self.explain()
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=5)
-        self.sock.close()
+        self.child.kill()
+        self.notify.close()
 
 
 @contextmanager

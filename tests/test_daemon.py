@@ -1,4 +1,4 @@
-"""The daemon end to end: real DDS, real processes (issue 3, first test).
+"""The daemon end to end: real DDS, real processes.
 
 ``safety-supervisor run`` is started as a subprocess with NOTIFY_SOCKET pointing
 at a socket bound here; this process publishes a state violating state_req103

@@ -27,11 +27,9 @@ TS_RE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}Z$")
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(REPO))
     return subprocess.run(
         [sys.executable, "-m", "supervisor", *args],
         cwd=REPO,
-        env=env,
         capture_output=True,
         text=True,
         timeout=120,
@@ -246,7 +244,6 @@ def test_fsync_comes_after_the_write_and_before_violation_returns(tmp_path: Path
             child,
         ],
         cwd=REPO,
-        env=dict(os.environ, PYTHONPATH=str(REPO)),
         capture_output=True,
         text=True,
         timeout=120,

@@ -16,7 +16,6 @@ import re
 import shlex
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -26,6 +25,7 @@ from pathlib import Path
 import pytest
 
 from supervisor.tools import install
+from supervisor.tools.children import NotifySocket, ros_env, ros_vars
 from supervisor.tools.install import render_logrotate, render_unit, unit_directives
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -176,23 +176,15 @@ class UnitDaemon(Daemon):
         (start,) = unit_directives(unit, "ExecStart")
         argv = shlex.split(start)
         self.log = Path(argv[argv.index("--log") + 1])
-        self.stderr = tmp / "daemon.stderr"
-        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.sock.bind(str(tmp / "notify.sock"))
+        self.notify = NotifySocket(tmp / "notify.sock")
         env = {
-            **os.environ,
+            **ros_env(domain_id),
             **_unit_env(unit),
-            "NOTIFY_SOCKET": str(tmp / "notify.sock"),
-            "ROS_DOMAIN_ID": str(domain_id),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+            **self.notify.env(),
+            **ros_vars(domain_id),
         }
-        env.pop("WATCHDOG_USEC", None)
         (cwd,) = unit_directives(unit, "WorkingDirectory")
-        with self.stderr.open("w") as err:
-            self.proc = subprocess.Popen(
-                argv, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=err
-            )
-        self.notifications: list[str] = []
+        self.spawn(tmp, argv, env, cwd=Path(cwd))
 
 
 @pytest.fixture
