@@ -144,7 +144,7 @@ def parse_mitigation(name: str, entry: Mapping[str, Any], line: int | None = Non
     if kind != "log" and not isinstance(raw, Mapping):
         raise SettingsError(f"mitigation '{name}': {kind} needs a mapping of settings", kind)
     params = dict(raw) if isinstance(raw, Mapping) else {"message": str(raw)}
-    check_settings(name, kind, params, kind)
+    _check_settings(name, kind, params, kind)
     allowed = SETTING_KEYS[kind][1]
     for k in ("retries", "timeout_s"):
         if k in entry:
@@ -158,16 +158,18 @@ def parse_settings(kind: str, params: Mapping[str, Any], name: str = "") -> Sett
     """A kind's settings mapping -> its typed settings (validated)."""
     if kind not in SETTING_KEYS:
         raise SettingsError(f"unknown mitigation kind '{kind}'", hint=", ".join(MITIGATION_KINDS))
-    check_settings(name, kind, params, kind)
+    _check_settings(name, kind, params, kind)
     return _typed(kind, params)
 
 
-def check_settings(name: str, kind: str, params: Mapping[str, Any], key: str | None) -> None:
+def _check_settings(name: str, kind: str, params: Mapping[str, Any], key: str | None) -> None:
     """Required, allowed, types and ranges of ``kind``'s settings; errors name ``key``."""
     required, allowed = SETTING_KEYS[kind]
     missing = sorted(required - set(params))
     if missing:
-        raise SettingsError(f"mitigation '{name}' ({kind}) needs '{missing[0]}'", key)
+        raise SettingsError(
+            f"mitigation '{name}' ({kind}) needs '{missing[0]}'", key, setting=missing[0]
+        )
     unknown = sorted(set(params) - allowed)
     if unknown:
         raise SettingsError(
