@@ -198,7 +198,7 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
 ) -> None:
     import yaml
 
-    from supervisor.config.load import load_config
+    from supervisor.config import load_config
     from supervisor.tools.demo.config import SHIPPED_CONFIG, demo_config
 
     log = tmp_path / "v.jsonl"

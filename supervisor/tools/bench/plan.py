@@ -33,7 +33,7 @@ class Plan:
 
     def __init__(self, config: Path) -> None:
         from monitors.errors import UserError
-        from supervisor.config.load import load_config
+        from supervisor.config import load_config
 
         try:
             self.cfg = load_config(config)
