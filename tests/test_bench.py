@@ -17,6 +17,7 @@ from typing import Any
 
 import pytest
 
+pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -140,6 +140,7 @@ def z3_values(f: Formula, trace: list[dict], encoder: Encoder) -> list[object]:
 # ------------------------------------------------------------------ properties
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(f=bool_f(4), seed=st.integers(0, 2**32), n=st.integers(1, 14))
 def test_encoding_agrees_with_interpreter_at_every_tick(f, seed, n):
@@ -147,6 +148,7 @@ def test_encoding_agrees_with_interpreter_at_every_tick(f, seed, n):
     assert evaluate_z3(f, trace, TYPES) == verdicts(f, trace), (str(f), trace)
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(f=bool_f(3), seed=st.integers(0, 2**32), n=st.integers(1, 6))
 def test_every_subterm_value_agrees_bit_for_bit(f, seed, n):
@@ -160,6 +162,7 @@ def test_every_subterm_value_agrees_bit_for_bit(f, seed, n):
         assert all(same_value(a, b) for a, b in zip(got, want, strict=True)), (str(g), got, want)
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(f=bool_f(3, reals=False, cheap=True), n=st.integers(1, 6))
 def test_models_read_back_as_traces_the_interpreter_agrees_with(f, n):

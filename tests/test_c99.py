@@ -136,6 +136,7 @@ def assert_same(
 # ------------------------------------------------------------------ property tests
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(
     formulas=st.lists(bool_f(4), min_size=10, max_size=16),
@@ -173,6 +174,7 @@ def test_compiled_monitor_matches_interpreter(
     assert_same(run(mon, spec, trace[k:]), want, spec, trace[k:], f"after resetting R{v}")
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     formulas=st.lists(bool_f(3, max_bound=150), min_size=8, max_size=12),

@@ -233,6 +233,7 @@ def test_batch_covers_every_operator() -> None:
     assert want <= got, want - got
 
 
+@pytest.mark.ghc
 @pytest.mark.parametrize("seed", range(6))
 def test_copilot_matches_interpreter_and_native(batch: tuple, seed: int) -> None:
     spec, mon, native = batch
@@ -244,6 +245,7 @@ def test_copilot_matches_interpreter_and_native(batch: tuple, seed: int) -> None
     assert_same(got, run(native, spec, trace), spec, trace, "vs native")
 
 
+@pytest.mark.ghc
 def test_reset_loads_a_fresh_copilot_monitor(batch: tuple) -> None:
     spec, mon, _ = batch
     trace = make_trace(99, 120)
@@ -311,6 +313,7 @@ def srobot(copilot: None, tmp_path_factory: pytest.TempPathFactory) -> tuple:
     return spec, build_copilot_monitor(spec, tmp_path_factory.mktemp("srobot"))
 
 
+@pytest.mark.ghc
 @pytest.mark.skipif(not SROBOT_EXPORT.exists(), reason="sRobot FRET export not present")
 def test_srobot_requirements_match_interpreter(srobot: tuple) -> None:
     spec, mon = srobot
@@ -323,6 +326,7 @@ def test_srobot_requirements_match_interpreter(srobot: tuple) -> None:
         assert_same(run(mon, spec, trace), want, spec, trace, f"sRobot seed {seed}")
 
 
+@pytest.mark.ghc
 @pytest.mark.skipif(not SROBOT_EXPORT.exists(), reason="sRobot FRET export not present")
 def test_two_copilot_monitors_in_one_process(srobot: tuple, tmp_path: Path) -> None:
     # the second one keeps Copilot's default step name 'step' (glibc has a 'step')
@@ -342,6 +346,7 @@ def test_two_copilot_monitors_in_one_process(srobot: tuple, tmp_path: Path) -> N
         assert_same(flags, oracle(spec, trace), spec, trace, "interleaved")
 
 
+@pytest.mark.ghc
 def test_runghc_and_compiled_ghc_give_the_same_c(copilot: None, tmp_path: Path) -> None:
     spec = make_spec([parse_formula("b0 T[1,2] (i0 > d0)")], prefix="same")
     a = run_copilot(spec, tmp_path / "a", runner="runghc")
@@ -356,6 +361,7 @@ def test_runghc_and_compiled_ghc_give_the_same_c(copilot: None, tmp_path: Path) 
 # ------------------------------------------------------------------ errors
 
 
+@pytest.mark.ghc
 def test_haskell_errors_become_one_readable_line(copilot: None, tmp_path: Path) -> None:
     source = "module Main (main) where\nmain :: IO ()\nmain = putStrLn (1 + True)\n"
     with pytest.raises(UserError) as err:
@@ -364,6 +370,7 @@ def test_haskell_errors_become_one_readable_line(copilot: None, tmp_path: Path) 
     assert "\n" not in text and "line 3:" in text and "generated Copilot spec" in text
 
 
+@pytest.mark.ghc
 def test_input_named_like_a_libc_function_gets_a_hint(copilot: None, tmp_path: Path) -> None:
     spec = MonitorSpec(
         "x", (VarDecl("log", "double"),), (RequirementSpec("A", parse_formula("log > 1.5")),)
@@ -386,6 +393,7 @@ def test_missing_ghc_says_how_to_install(tmp_path: Path, monkeypatch: pytest.Mon
     assert "apt-get install ghc libghc-copilot-dev" in INSTALL_HINT
 
 
+@pytest.mark.ghc
 def test_missing_copilot_library_says_how_to_install(
     copilot: None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -397,6 +405,7 @@ def test_missing_copilot_library_says_how_to_install(
         compile_copilot(make_spec([parse_formula("b0")]), tmp_path / "out")
 
 
+@pytest.mark.ghc
 def test_cli_compile_with_copilot_backend(copilot: None, tmp_path: Path) -> None:
     import subprocess
     import sys

@@ -18,6 +18,7 @@ from typing import Any
 
 import pytest
 
+pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
 from rclpy.node import Node  # noqa: E402

@@ -159,6 +159,7 @@ def example_traces(ex: dict, *fs: Formula) -> list[list[dict]]:
 VALID = {"expr_cond_18"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ex", OK, ids=[d["id"] for d in OK])
 def test_agrees_with_fret(ex):
     req = parse_requirement(ex["fretish"])
@@ -288,6 +289,7 @@ def test_monotone_once_false_stays_false(combo, rows):
 NON_MONOTONE = [g for g in GRID if not formalize(grid_req(*g)).monotone]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("combo", NON_MONOTONE, ids=["-".join(g) for g in NON_MONOTONE])
 def test_non_monotone_has_a_false_then_true_trace(combo):
     fz = formalize(grid_req(*combo))
@@ -330,6 +332,7 @@ def test_describe_mentions_ticks_and_units():
 MONOTONE = [g for g in GRID if formalize(grid_req(*g)).monotone]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("combo", MONOTONE, ids=["-".join(g) for g in MONOTONE])
 def test_monotone_sweep(combo):
     """Every combination flagged monotone, on sticky random traces that open

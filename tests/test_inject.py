@@ -148,6 +148,7 @@ def dry_all(srobot: Any) -> tuple[dict[str, dict[str, Any]], str, float]:
 # ------------------------------------------------------------------ dry runs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rid", SROBOT_IDS)
 def test_dry_run_violates_only_the_requirement(rid: str, srobot: Any, dry_all: Any) -> None:
     reqs, infos, _ = srobot
@@ -183,6 +184,7 @@ def test_dry_run_violates_only_the_requirement(rid: str, srobot: Any, dry_all: A
         assert f"violates {rid} and nothing else" in blocks[rid]["line"]
 
 
+@pytest.mark.slow
 def test_dry_run_all_is_quick(dry_all: Any) -> None:
     _, text, seconds = dry_all
     assert "dry run: nothing published (13 trace(s)" in text
@@ -226,6 +228,7 @@ def test_req_and_all_together_is_a_usage_error() -> None:
     assert run(str(SROBOT), "state_req103", "--all", "--dry-run").returncode == 2
 
 
+@pytest.mark.ros
 def test_no_supervisor_listening(tmp_path: Path) -> None:
     env = {"ROS_DOMAIN_ID": str(random.randint(201, 230)), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}  # fmt: skip
     p = run(str(SROBOT), "state_req103", "--wait-s", "1", env=env)
@@ -287,6 +290,7 @@ def test_policies_judged_on_what_the_supervisor_steps_on(tmp_path: Path, policy:
 # ------------------------------------------------------------------ real DDS
 
 
+@pytest.mark.ros
 def test_inject_all_into_a_running_supervisor(tmp_path: Path, srobot: Any) -> None:
     """Each of the 13 requirements, injected over DDS into the daemon (record-only
     mitigations, so its actions do not feed back), is logged exactly once, at the

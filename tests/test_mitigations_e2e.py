@@ -22,6 +22,7 @@ from typing import Any
 
 import pytest
 
+pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
@@ -154,6 +155,7 @@ def with_ssh(config: Path, params: dict[str, Any]) -> Path:
     return config
 
 
+@pytest.mark.sshd
 def test_ssh_shutdown_runs_on_the_robot(tmp_path: Path, robot_node: Any, sshd: Any) -> None:
     marker = tmp_path / "powered-off"
     config = variant(tmp_path, req103("{reset: after_mitigation}", "[power_off]"))
@@ -174,6 +176,7 @@ def test_ssh_shutdown_runs_on_the_robot(tmp_path: Path, robot_node: Any, sshd: A
         d.close()
 
 
+@pytest.mark.sshd
 def test_wrong_host_key_refused_and_escalation_continues(
     tmp_path: Path, robot_node: Any, sshd: Any
 ) -> None:
@@ -218,6 +221,7 @@ def test_wrong_host_key_refused_and_escalation_continues(
         d.close()
 
 
+@pytest.mark.sshd
 def test_sshd_down_retries_while_monitoring_goes_on(
     tmp_path: Path, robot_node: Any, sshd: Any
 ) -> None:

@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 
+pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
 from rosutil import SROBOT, ros_node, wait_matched  # noqa: E402

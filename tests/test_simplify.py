@@ -1,5 +1,6 @@
 """The simplifier never changes a formula's verdicts (judged by the interpreter)."""
 
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -26,6 +27,7 @@ def _extend(children):
     )
 
 
+@pytest.mark.slow
 @settings(max_examples=400)
 @given(st.recursive(leaves, _extend, max_leaves=10), st.data())
 def test_simplify_preserves_verdicts(f, data):

@@ -47,6 +47,7 @@ def run(action: SshAction, cancel: threading.Event | None = None) -> tuple[Outco
     return out, rec
 
 
+@pytest.mark.sshd
 def test_command_runs_on_the_server_and_reports_exit_status(sshd: Sshd, tmp_path: Path) -> None:
     marker = tmp_path / "touched"
     params = sshd.params(f"touch {shlex.quote(str(marker))}")
@@ -65,6 +66,7 @@ def test_command_runs_on_the_server_and_reports_exit_status(sshd: Sshd, tmp_path
     print(f"ssh round trip (connect, auth, command, exit status): {elapsed * 1000:.0f} ms")
 
 
+@pytest.mark.sshd
 def test_nonzero_exit_status_fails_with_status_and_stderr_not_retried(sshd: Sshd) -> None:
     action = ssh_action("p", sshd.params("echo 'disk on fire' >&2; exit 3", retries=3))
     out, rec = run(action)
@@ -78,6 +80,7 @@ def test_nonzero_exit_status_fails_with_status_and_stderr_not_retried(sshd: Sshd
     assert [o.attempt for o in rec.outcomes] == [1]
 
 
+@pytest.mark.sshd
 def test_wrong_host_key_is_refused_and_not_retried(sshd: Sshd, tmp_path: Path) -> None:
     impostor = keygen(tmp_path / "other_host_key")
     known = tmp_path / "known_hosts_wrong"
@@ -97,6 +100,7 @@ def test_wrong_host_key_is_refused_and_not_retried(sshd: Sshd, tmp_path: Path) -
     assert known.read_text() == known_hosts_line("127.0.0.1", sshd.port, impostor)
 
 
+@pytest.mark.sshd
 def test_empty_known_hosts_is_refused(sshd: Sshd, tmp_path: Path) -> None:
     known = tmp_path / "known_hosts_empty"
     known.write_text("")
@@ -112,6 +116,7 @@ def test_empty_known_hosts_is_refused(sshd: Sshd, tmp_path: Path) -> None:
     assert known.read_text() == ""  # never auto-added
 
 
+@pytest.mark.sshd
 def test_host_key_under_another_port_does_not_vouch(sshd: Sshd, tmp_path: Path) -> None:
     # The right key, filed under plain 127.0.0.1 (port 22): OpenSSH and we look up [host]:port.
     known = tmp_path / "known_hosts_port22"
@@ -120,6 +125,7 @@ def test_host_key_under_another_port_does_not_vouch(sshd: Sshd, tmp_path: Path) 
     assert not out.ok and "not in" in out.error
 
 
+@pytest.mark.sshd
 def test_sshd_not_running_is_retried_with_growing_backoff(tmp_path: Path, sshd: Sshd) -> None:
     port = free_port()  # nothing listens here
     backoff = 0.1
@@ -146,6 +152,7 @@ def test_backoff_is_capped() -> None:
     assert [backoff_delay(0.5, n) for n in range(1, 7)] == [0.5, 1.0, 2.0, 4.0, 5.0, 5.0]
 
 
+@pytest.mark.sshd
 def test_cancel_stops_the_retry_loop(sshd: Sshd) -> None:
     # 10 attempts at 1, 2, 4, 5, 5, ... s apart would take over half a minute.
     action = ssh_action(
@@ -164,6 +171,7 @@ def test_cancel_stops_the_retry_loop(sshd: Sshd) -> None:
     assert elapsed < 0.3 + 0.5
 
 
+@pytest.mark.sshd
 def test_cancelled_before_start_still_reports(sshd: Sshd, tmp_path: Path) -> None:
     marker = tmp_path / "must_not_exist"
     cancel = threading.Event()
@@ -174,6 +182,7 @@ def test_cancelled_before_start_still_reports(sshd: Sshd, tmp_path: Path) -> Non
     assert not marker.exists()
 
 
+@pytest.mark.sshd
 def test_silent_server_times_out_in_handshake_and_is_retried(sshd: Sshd) -> None:
     # Accepts TCP connections and never says a word: the banner timeout must fire.
     with socket.socket() as silent:
@@ -198,6 +207,7 @@ def test_silent_server_times_out_in_handshake_and_is_retried(sshd: Sshd) -> None
     assert 2 * 0.5 + 0.05 <= elapsed < 5
 
 
+@pytest.mark.sshd
 def test_unknown_user_key_fails_authentication(sshd: Sshd, tmp_path: Path) -> None:
     stranger = tmp_path / "stranger_key"
     keygen(stranger)
@@ -214,6 +224,7 @@ def test_unknown_user_key_fails_authentication(sshd: Sshd, tmp_path: Path) -> No
     assert not marker.exists()
 
 
+@pytest.mark.sshd
 def test_command_timeout(sshd: Sshd) -> None:
     action = ssh_action("p", sshd.params("sleep 30", command_timeout_s=1, retries=3))
     t0 = time.monotonic()
@@ -225,6 +236,7 @@ def test_command_timeout(sshd: Sshd) -> None:
     assert 1.0 <= elapsed < 5.0
 
 
+@pytest.mark.sshd
 def test_chatty_command_output_is_drained_and_tail_kept(sshd: Sshd) -> None:
     # 4 MB is more than paramiko's 2 MB receive window: unread, the command would stall.
     cmd = "head -c 4000000 /dev/zero | tr '\\0' x; echo; echo the-end >&2; exit 0"
@@ -234,6 +246,7 @@ def test_chatty_command_output_is_drained_and_tail_kept(sshd: Sshd) -> None:
     assert len(out.detail["stdout"]) == 500
 
 
+@pytest.mark.sshd
 def test_forced_command_in_authorized_keys(sshd: Sshd, tmp_path: Path) -> None:
     """The documented robot-side setup: whatever the client asks, the forced command runs."""
     forced, asked = tmp_path / "forced", tmp_path / "asked"
@@ -275,6 +288,7 @@ def test_check_reports_file_problems_without_connecting(tmp_path: Path) -> None:
     assert "passphrase" in problems(key=str(locked))
 
 
+@pytest.mark.sshd
 def test_run_never_raises_on_a_broken_key(sshd: Sshd, tmp_path: Path) -> None:
     out, rec = run(ssh_action("p", sshd.params("true", key=str(tmp_path / "missing"))))
     assert not out.ok and "cannot read key" in out.error
