@@ -22,6 +22,8 @@ from supervisor.tools.bench.command import add_parser as add_bench_parser
 from supervisor.tools.bench.command import cmd_bench
 from supervisor.tools.demo.command import add_parser as add_demo_parser
 from supervisor.tools.demo.command import cmd_demo
+from supervisor.tools.init import add_parser as add_init_parser
+from supervisor.tools.init import cmd_init
 from supervisor.tools.inject.command import add_parser as add_inject_parser
 from supervisor.tools.inject.command import cmd_inject
 from supervisor.tools.install import add_parser as add_install_parser
@@ -214,6 +216,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 # ------------------------------------------------------------------ main
 
 COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
+    "init": cmd_init,
     "formalize": cmd_formalize,
     "explain": cmd_explain,
     "check": cmd_check,
@@ -236,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Runtime-verification safety supervisor for ROS 2 robots.",
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    add_init_parser(sub)
 
     f = sub.add_parser("formalize", help="FRETISH sentences to past-time formulas (FRET syntax)")
     f.add_argument("text", nargs="*", help="sentences; one per line on stdin when none are given")

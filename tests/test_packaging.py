@@ -1,4 +1,4 @@
-"""The systemd unit, the logrotate snippet and ``install-service`` (issue 5, items 2-3).
+"""The systemd unit, the logrotate snippet, ``install-service`` and ``init``.
 
 The unit is checked by systemd's own tools (``systemd-analyze verify`` and
 ``security``), and its command lines are run here, outside systemd: ExecStart
@@ -9,6 +9,7 @@ what is tested is what ``install-service`` writes.
 
 from __future__ import annotations
 
+import json
 import os
 import pwd
 import random
@@ -24,6 +25,8 @@ from pathlib import Path
 
 import pytest
 
+import supervisor
+from supervisor import data
 from supervisor.tools import install
 from supervisor.tools.children import NotifySocket, ros_env, ros_vars
 from supervisor.tools.install import render_logrotate, render_unit, unit_directives
@@ -197,6 +200,7 @@ def unit_daemon(tmp_path: Path, site: dict[str, Path]) -> Iterator[tuple[UnitDae
         d.close()
 
 
+@pytest.mark.ros
 def test_exec_start_runs_the_daemon(unit_daemon: tuple[UnitDaemon, int]) -> None:
     """ExecStart as systemd would run it, with the unit's environment: READY=1,
     it hears the robot and logs a violation, STOPPING=1 and exit 0 on SIGTERM."""
@@ -465,3 +469,151 @@ def test_execute_runs_writes_and_skips(tmp_path: Path, capsys: pytest.CaptureFix
     failing = install.Plan([install.Step("fail", argv=("false",))], [], [])
     with pytest.raises(install.UserError, match="fail: false exited 1"):
         install.execute(failing)
+
+
+# ------------------------------------------------------------------ install-service from a wheel
+
+
+class _Dist:
+    """What importlib.metadata says about an installed safety-supervisor: its
+    version and PEP 610's direct_url.json (None: it came from an index)."""
+
+    version = "0.1.0"
+
+    def __init__(self, direct_url: dict | None) -> None:
+        self.direct_url = direct_url
+
+    def locate_file(self, path: str) -> Path:
+        return Path(supervisor.__file__).resolve().parents[1] / path
+
+    def read_text(self, name: str) -> str | None:
+        if name == "direct_url.json" and self.direct_url is not None:
+            return json.dumps(self.direct_url)
+        return None
+
+
+def _installed_plan(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, direct_url: dict | None
+) -> install.Plan:
+    """The plan when the running package is an installed copy, not a checkout."""
+    monkeypatch.setattr(install, "_running_checkout", lambda: None)
+    monkeypatch.setattr(install.metadata, "distribution", lambda name: _Dist(direct_url))
+    return install.make_plan(_args(tmp_path))
+
+
+def _pip_step(plan: install.Plan) -> install.Step:
+    (step,) = [s for s in plan.steps if s.argv and s.argv[1:4] == ("-m", "pip", "install")]
+    return step
+
+
+def test_plan_from_a_wheel_install_installs_the_same_wheel(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    wheel = tmp_path / "safety_supervisor-0.1.0-py3-none-any.whl"
+    wheel.write_bytes(b"PK")
+    url = {"url": wheel.as_uri(), "archive_info": {}}
+    plan = _installed_plan(tmp_path, monkeypatch, url)
+    step = _pip_step(plan)
+    assert step.argv is not None and step.argv[-1] == str(wheel)
+    assert f"from {wheel}, which the running package was installed from" in step.description
+    # The unit, logrotate snippet and config are the running package's own.
+    origins = {s.write: s.origin for s in plan.steps if s.write is not None}
+    assert origins[tmp_path / "units/safety-supervisor.service"] == str(data.systemd_unit())
+    assert origins[install.INSTALLED_CONFIG] == str(data.example("srobot.yaml"))
+
+
+def test_plan_from_an_index_install_pins_the_running_version(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    step = _pip_step(_installed_plan(tmp_path, monkeypatch, None))
+    assert step.argv is not None and step.argv[-1] == "safety-supervisor==0.1.0"
+    assert "package index (safety-supervisor==0.1.0" in step.description
+
+
+def test_plan_from_a_vcs_install_pins_the_commit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    url = {"url": "https://example.org/ss.git", "vcs_info": {"vcs": "git", "commit_id": "abc123"}}
+    step = _pip_step(_installed_plan(tmp_path, monkeypatch, url))
+    assert step.argv is not None
+    assert step.argv[-1] == "safety-supervisor @ git+https://example.org/ss.git@abc123"
+
+
+def test_plan_from_a_vanished_wheel_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    gone = tmp_path / "gone" / "safety_supervisor-0.1.0-py3-none-any.whl"
+    monkeypatch.setattr(install, "_running_checkout", lambda: None)
+    monkeypatch.setattr(
+        install.metadata, "distribution", lambda name: _Dist({"url": gone.as_uri()})
+    )
+    assert install.main(["--dry-run", "--python", str(_fake_python(tmp_path))]) == 1
+    err = capsys.readouterr().err
+    assert f"installed from {gone}, which is gone" in err and "--source" in err
+    assert err.count("\n") == 1
+
+
+def test_plan_with_a_wheel_as_source(tmp_path: Path) -> None:
+    wheel = tmp_path / "safety_supervisor-0.1.0-py3-none-any.whl"
+    wheel.write_bytes(b"PK")
+    step = _pip_step(install.make_plan(_args(tmp_path, "--source", str(wheel))))
+    assert step.argv is not None and step.argv[-1] == str(wheel)
+
+
+# ------------------------------------------------------------------ init
+
+
+def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "supervisor", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_init_writes_configs_that_pass_check(tmp_path: Path) -> None:
+    r = _cli("init", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["srobot.yaml", "template.yaml"]
+    assert (tmp_path / "srobot.yaml").read_text() == (ROOT / "config/srobot.yaml").read_text()
+    assert "wrote srobot.yaml" in r.stdout and "wrote template.yaml" in r.stdout
+    assert r.stdout.splitlines()[-1].endswith("safety-supervisor check template.yaml")
+    for name in ("srobot.yaml", "template.yaml"):
+        c = _cli("check", name, cwd=tmp_path)
+        assert c.returncode == 0, c.stdout + c.stderr
+        assert f"{name}: " in c.stdout and "requirements ok" in c.stdout
+
+
+def test_init_never_overwrites_without_force(tmp_path: Path) -> None:
+    target = tmp_path / "robot"
+    target.mkdir()
+    (target / "template.yaml").write_text("mine\n")
+    r = _cli("init", "robot", cwd=tmp_path)
+    assert r.returncode == 1 and r.stdout == ""
+    assert (
+        r.stderr == "robot/template.yaml: exists, not overwritten (hint: --force overwrites it)\n"
+    )
+    assert not (target / "srobot.yaml").exists()  # nothing written when one file exists
+    assert (target / "template.yaml").read_text() == "mine\n"
+    r = _cli("init", "--force", "robot", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (target / "template.yaml").read_text() != "mine\n"
+    assert "robot/srobot.yaml" in r.stdout
+
+
+def test_template_has_a_comment_for_every_key() -> None:
+    """Each key of the template is commented where it first appears (on its
+    line or just above); later entries repeat keys without comments."""
+    lines = (ROOT / "config/template.yaml").read_text().splitlines()
+    commented: dict[str, bool] = {}
+    for i, line in enumerate(lines):
+        m = re.match(r"^\s*#?(?:- )?([A-Za-z_]+):(?:\s|$)", line)
+        if m is None or line.lstrip().startswith("# "):
+            continue
+        above = lines[i - 1].lstrip() if i else ""
+        ok = " # " in line or above.startswith("# ")
+        commented[m.group(1)] = commented.get(m.group(1), False) or ok
+    assert len(commented) > 40
+    assert not [k for k, ok in commented.items() if not ok]
