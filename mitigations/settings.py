@@ -101,7 +101,6 @@ Settings = PublishSettings | SshSettings | CommandSettings | LogSettings
 class Mitigation:
     name: str
     kind: str  # one of MITIGATION_KINDS
-    params: dict[str, Any]  # the settings as written (with retries/timeout_s beside the kind)
     line: int | None
     settings: Settings
 
@@ -151,7 +150,7 @@ def parse_mitigation(name: str, entry: Mapping[str, Any], line: int | None = Non
             if k in allowed:
                 _check_types(name, kind, {k: entry[k]}, k)
             params[k] = entry[k]  # kept as written even where the kind ignores it
-    return Mitigation(name, kind, params, line, _typed(kind, params))
+    return Mitigation(name, kind, line, _typed(kind, params))
 
 
 def parse_settings(kind: str, params: Mapping[str, Any], name: str = "") -> Settings:

@@ -1,6 +1,6 @@
 """Command line: ``safety-supervisor COMMAND`` (also ``python -m supervisor``).
 
-Exit codes (CONTRACT.md): 0 success; 1 the input was understood and something
+Exit codes (docs/reference/commands.md): 0 success; 1 the input was understood and something
 is wrong with it; 2 usage error.  User errors print as ``FILE:LINE: message``;
 an unexpected internal error prints one line naming it (plus where to report),
 never a raw traceback unless SAFETY_SUPERVISOR_DEBUG=1.
@@ -81,7 +81,7 @@ def cmd_formalize(args: argparse.Namespace) -> int:
 def cmd_explain(args: argparse.Namespace) -> int:
     from monitors.frontend.formalize import describe
     from monitors.ir.formula import to_fret, variables
-    from supervisor.config.load import load_config
+    from supervisor.config import load_config
     from supervisor.pipeline import build_project
 
     project = build_project(load_config(args.config), ros=False)
@@ -156,7 +156,7 @@ def _print_project(project: object) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from supervisor.config.load import load_config
+    from supervisor.config import load_config
     from supervisor.pipeline import build_project, compile_project
 
     t0 = time.perf_counter()
@@ -189,7 +189,7 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_compile(args: argparse.Namespace) -> int:
-    from supervisor.config.load import load_config
+    from supervisor.config import load_config
     from supervisor.pipeline import build_project, compile_project
 
     project = build_project(load_config(args.config))

@@ -216,8 +216,9 @@ def test_demo_config_differs_from_the_shipped_one_only_in_log_and_power_off(
     assert cfg.mitigations["power_off"].kind == "command"
     assert len(cfg.requirements) == 13
     # The stand-in really runs, without a shell and with the command action's bare environment.
-    argv = cfg.mitigations["power_off"].params["argv"]
-    env = {"PATH": "/usr/bin:/bin", **cfg.mitigations["power_off"].params.get("env", {})}
+    settings = cfg.mitigations["power_off"].settings
+    argv = list(settings.argv)
+    env = {"PATH": "/usr/bin:/bin", **settings.env}
     subprocess.run(argv, env=env, cwd="/", check=True, capture_output=True, timeout=30)
     assert len(list(tmp_path.glob("poweroff-*.marker"))) == 1
 

@@ -21,9 +21,10 @@ from std_msgs.msg import Bool, Int64  # noqa: E402
 
 from mitigations.violationlog.writer import ViolationLog  # noqa: E402
 from monitors.backends.load import compile_spec  # noqa: E402
-from supervisor.daemon.node import SupervisorNode, build_session  # noqa: E402
+from supervisor.daemon.node import SupervisorNode  # noqa: E402
 from supervisor.daemon.notify import Notifier  # noqa: E402
 from supervisor.daemon.process import init_ros  # noqa: E402
+from supervisor.daemon.session import build_session  # noqa: E402
 from supervisor.pipeline import project_for  # noqa: E402
 
 

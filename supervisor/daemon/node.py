@@ -37,42 +37,39 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from rclpy.context import Context
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import (
-    DurabilityPolicy,
     QoSCompatibility,
     QoSProfile,
-    ReliabilityPolicy,
     qos_check_compatible,
-    qos_profile_sensor_data,
 )
 
 from mitigations.actions import PublisherKey, build_action
 from mitigations.actions.base import Outcome
 from mitigations.actions.publish import PublishAction
 from mitigations.engine import Engine, Request
-from mitigations.policy import Note, RequirementPolicy
+from mitigations.policy import Note
 from mitigations.rosmsg import get_field, message_class
 from mitigations.supervision import Supervision
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
-from monitors.ir.formula import to_fret
 from supervisor.config import Config, Variable
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.notify import Notifier
-from supervisor.daemon.runtime import InputEvent, InputSpec, Runtime, StepResult
+from supervisor.daemon.qos import graph_type_name, matching_qos, qos_for
+from supervisor.daemon.runtime import InputEvent, Runtime, StepResult
+from supervisor.daemon.session import Session
 from supervisor.names import (
     DIAGNOSTICS_TOPIC,
     HEARTBEAT_TOPIC,
     RESET_SERVICE,
     VIOLATIONS_TOPIC,
 )
-from supervisor.pipeline import CompiledRequirement, Project
 
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STALE_CHECK_MAX_NS = 50_000_000
@@ -88,50 +85,6 @@ def warn(text: str) -> None:
         pass
 
 
-def qos_for(node: Node, var: Variable) -> tuple[QoSProfile, str | None]:
-    """The subscription QoS of ``var`` and, for ``auto``, a warning when the
-    topic has no publisher yet (then: reliable, volatile)."""
-    depth = var.depth
-    if var.qos == "reliable":
-        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE), None
-    if var.qos == "best_effort":
-        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.BEST_EFFORT), None
-    if var.qos == "sensor_data":
-        p = QoSProfile(
-            depth=depth,
-            reliability=qos_profile_sensor_data.reliability,
-            durability=qos_profile_sensor_data.durability,
-            history=qos_profile_sensor_data.history,
-        )
-        return p, None
-    assert var.topic is not None
-    pubs = node.get_publishers_info_by_topic(var.topic)
-    if not pubs:
-        return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE), (
-            f"input '{var.name}': no publisher on {var.topic} yet; subscribing reliable "
-            "(set qos: in the config to choose)"
-        )
-    return _matching_qos(depth, [p.qos_profile for p in pubs]), None
-
-
-def _matching_qos(depth: int, offered: list[QoSProfile]) -> QoSProfile:
-    # A reliable reader does not match a best-effort writer; a transient-local
-    # reader does not match a volatile writer: take the weakest offered.
-    best_effort = any(q.reliability == ReliabilityPolicy.BEST_EFFORT for q in offered)
-    transient = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
-    return QoSProfile(
-        depth=depth,
-        reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
-        durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE,
-    )
-
-
-def _type_name(msg: str) -> str:
-    """``std_msgs/msg/Int64`` as the graph reports it."""
-    parts = msg.split("/")
-    return msg if len(parts) == 3 else f"{parts[0]}/msg/{parts[-1]}"
-
-
 @dataclass
 class _Sub:
     name: str
@@ -141,69 +94,6 @@ class _Sub:
     auto_qos: bool
     problem: str | None = None  # last graph problem reported (wrong type, QoS)
     publishers: int | None = None
-
-
-@dataclass
-class Session:
-    """What a config reload replaces, built off the loop and swapped in at once."""
-
-    project: Project
-    runtime: Runtime
-    requirements: list[CompiledRequirement] = field(default_factory=list)
-    formulas: list[str] = field(default_factory=list)
-    policies: list[RequirementPolicy] = field(default_factory=list)
-    cleanup: Callable[[], None] | None = None  # e.g. remove the build directory
-
-    @property
-    def config(self) -> Config:
-        return self.project.config
-
-
-def build_runtime(project: Project, monitor: Any) -> Runtime:
-    cfg = project.config
-    step = cfg.step
-    specs = [
-        InputSpec(
-            v.name,
-            v.type,
-            initial=v.initial,
-            stale_after_ns=int(v.stale_after_ms * 1e6) if v.stale_after_ms else None,
-        )
-        for v in cfg.inputs
-    ]
-    return Runtime(
-        inputs=specs,
-        monitor=monitor,
-        policy=step.policy,
-        trigger=step.trigger,
-        period_ns=int(step.period_ms * 1e6) if step.period_ms else None,
-        max_skew_ns=int(step.max_skew_ms * 1e6) if step.max_skew_ms else None,
-        recent_len=cfg.recent,
-    )
-
-
-def build_session(
-    project: Project, monitor: Any, cleanup: Callable[[], None] | None = None
-) -> Session:
-    cfg = project.config
-    reqs = [r for r in project.requirements if r.ok]  # monitor order
-    publish = {n for n, m in cfg.mitigations.items() if m.kind == "publish"}
-    policies = [
-        RequirementPolicy(
-            r.entry.policy_config,
-            tuple(r.entry.on_violation),
-            tuple(a for a in r.entry.on_violation if a in publish),
-        )
-        for r in reqs
-    ]
-    return Session(
-        project,
-        build_runtime(project, monitor),
-        reqs,
-        [to_fret(r.formula) for r in reqs],
-        policies,
-        cleanup,
-    )
 
 
 class SupervisorNode:
@@ -591,7 +481,7 @@ class SupervisorNode:
             pubs = [p for p in pubs if (p.node_name, p.node_namespace) != me]
             mine = s.sub.qos_profile if hasattr(s.sub, "qos_profile") else None
             problem = None
-            expected = _type_name(s.var.msg or "")
+            expected = graph_type_name(s.var.msg or "")
             wrong = [p for p in pubs if p.topic_type != expected]
             right = [p for p in pubs if p.topic_type == expected]
             if not pubs:
@@ -625,7 +515,7 @@ class SupervisorNode:
                 s.problem = problem
 
     def _resubscribe(self, s: _Sub, offered: list[QoSProfile]) -> None:
-        qos = _matching_qos(s.var.depth, offered)
+        qos = matching_qos(s.var.depth, offered)
         self.log.supervisor(
             "input_qos_changed",
             input=s.name,

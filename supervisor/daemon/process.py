@@ -26,8 +26,9 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
-from supervisor.daemon.node import Session, SupervisorNode, build_session
+from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
+from supervisor.daemon.session import Session, build_session
 from supervisor.pipeline import project_for
 
 

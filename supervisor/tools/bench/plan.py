@@ -6,6 +6,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from mitigations.settings import PublishSettings
 from supervisor.tools.bench.errors import BenchError
 
 DEPTH = 1000  # every bench subscription and publisher: reliable, volatile, depth 1000
@@ -71,8 +72,9 @@ class Plan:
 
     @property
     def halt(self) -> tuple[str, str]:
-        p = self.cfg.mitigations[HALT_MITIGATION].params
-        return str(p["topic"]), str(p["msg"])
+        s = self.cfg.mitigations[HALT_MITIGATION].settings
+        assert isinstance(s, PublishSettings)  # checked by latency_problem()
+        return s.topic, s.msg
 
     def write_config(self, out: Path, log: Path, *, latency: bool) -> Path:
         """A copy of the config for the daemon: inputs reliable with depth 1000 (the

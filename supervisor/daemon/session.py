@@ -1,0 +1,80 @@
+"""A monitoring session: the project, its runtime and policies, as one swappable unit.
+
+Built off the receive loop (at start and on reload) and swapped in between two
+iterations, so a reload never leaves the loop with half a configuration.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from mitigations.policy import RequirementPolicy
+from monitors.ir.formula import to_fret
+from supervisor.config import Config
+from supervisor.daemon.runtime import InputSpec, Runtime
+from supervisor.pipeline import CompiledRequirement, Project
+
+
+@dataclass
+class Session:
+    """What a config reload replaces, built off the loop and swapped in at once."""
+
+    project: Project
+    runtime: Runtime
+    requirements: list[CompiledRequirement] = field(default_factory=list)
+    formulas: list[str] = field(default_factory=list)
+    policies: list[RequirementPolicy] = field(default_factory=list)
+    cleanup: Callable[[], None] | None = None  # e.g. remove the build directory
+
+    @property
+    def config(self) -> Config:
+        return self.project.config
+
+
+def build_runtime(project: Project, monitor: Any) -> Runtime:
+    cfg = project.config
+    step = cfg.step
+    specs = [
+        InputSpec(
+            v.name,
+            v.type,
+            initial=v.initial,
+            stale_after_ns=int(v.stale_after_ms * 1e6) if v.stale_after_ms else None,
+        )
+        for v in cfg.inputs
+    ]
+    return Runtime(
+        inputs=specs,
+        monitor=monitor,
+        policy=step.policy,
+        trigger=step.trigger,
+        period_ns=int(step.period_ms * 1e6) if step.period_ms else None,
+        max_skew_ns=int(step.max_skew_ms * 1e6) if step.max_skew_ms else None,
+        recent_len=cfg.recent,
+    )
+
+
+def build_session(
+    project: Project, monitor: Any, cleanup: Callable[[], None] | None = None
+) -> Session:
+    cfg = project.config
+    reqs = [r for r in project.requirements if r.ok]  # monitor order
+    publish = {n for n, m in cfg.mitigations.items() if m.kind == "publish"}
+    policies = [
+        RequirementPolicy(
+            r.entry.policy_config,
+            tuple(r.entry.on_violation),
+            tuple(a for a in r.entry.on_violation if a in publish),
+        )
+        for r in reqs
+    ]
+    return Session(
+        project,
+        build_runtime(project, monitor),
+        reqs,
+        [to_fret(r.formula) for r in reqs],
+        policies,
+        cleanup,
+    )
