@@ -55,3 +55,29 @@ def test_code_refers_to_the_repository_docs_not_to_issues() -> None:
         if pattern.search(line)
     ]
     assert not hits, "\n".join(hits)
+
+
+def _table_paths(doc: Path) -> set[str]:
+    """Paths named in the first column of a Markdown table (`a/`, `b.py`, `c/`, `d.py`)."""
+    paths = set()
+    for line in doc.read_text(encoding="utf-8").splitlines():
+        if line.startswith("| `"):
+            first = line.split("|")[1]
+            paths.update(p.rstrip("/") for p in re.findall(r"`([^`]+)`", first))
+    return paths
+
+
+def test_architecture_tables_match_the_tree() -> None:
+    packages = {
+        str(p.parent.relative_to(ROOT))
+        for top in PACKAGES
+        for p in (ROOT / top).rglob("__init__.py")
+        if len(p.parent.relative_to(ROOT).parts) <= 3
+    }
+    for doc in (ROOT / "README.md", ROOT / "docs" / "ARCHITECTURE.md"):
+        named = _table_paths(doc)
+        missing = sorted(p for p in named if p.split("/")[0] in PACKAGES and not (ROOT / p).exists())
+        assert not missing, f"{doc.name} names paths that do not exist: {missing}"
+    named = _table_paths(ROOT / "docs" / "ARCHITECTURE.md")
+    unnamed = sorted(p for p in packages if p not in named)
+    assert not unnamed, f"docs/ARCHITECTURE.md does not describe: {unnamed}"

@@ -95,3 +95,29 @@ def run_with_retries(
     if callback_errors:
         out = replace(out, detail={**out.detail, "on_attempt_errors": callback_errors})
     return out
+
+
+class RetryingAction:
+    """An action whose ``run`` is :func:`run_with_retries` over its own ``attempt``.
+
+    Subclasses set ``retries`` (total attempts), ``backoff_s`` and ``where`` (the
+    prefix of their error messages) and implement ``attempt``.
+    """
+
+    retries: int
+    backoff_s: float
+    where: str
+
+    def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
+        return run_with_retries(
+            self.attempt,
+            attempts=self.retries,
+            backoff_s=self.backoff_s,
+            cancel=cancel,
+            on_attempt=on_attempt,
+            where=self.where,
+        )
+
+    def attempt(self, cancel: threading.Event) -> tuple[Outcome, bool]:
+        """One try: its outcome and whether retrying could help."""
+        raise NotImplementedError

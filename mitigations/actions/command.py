@@ -24,10 +24,9 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
-from mitigations.actions.base import Outcome, one_line, run_with_retries
+from mitigations.actions.base import Outcome, RetryingAction, one_line
 from mitigations.settings import CommandSettings
 
 TAIL_CHARS = 500  # of stderr/stdout kept in an outcome's detail
@@ -41,7 +40,7 @@ def _tail(data: bytes | None) -> str:
     return (data or b"").decode("utf-8", errors="replace")[-TAIL_CHARS:]
 
 
-class CommandAction:
+class CommandAction(RetryingAction):
     kind = "command"
 
     def __init__(self, name: str, settings: CommandSettings) -> None:
@@ -56,17 +55,7 @@ class CommandAction:
     def __repr__(self) -> str:
         return f"CommandAction({self.name!r}, {self.argv!r})"
 
-    def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
-        return run_with_retries(
-            self._attempt,
-            attempts=self.retries,
-            backoff_s=self.backoff_s,
-            cancel=cancel,
-            on_attempt=on_attempt,
-            where=self.where,
-        )
-
-    def _attempt(self, cancel: threading.Event) -> tuple[Outcome, bool]:
+    def attempt(self, cancel: threading.Event) -> tuple[Outcome, bool]:
         try:
             # Popen rather than subprocess.run: the wait must notice shutdown, and a
             # timeout must kill the whole process group, not only the direct child.

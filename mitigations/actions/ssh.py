@@ -77,12 +77,11 @@ import socket
 import stat
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import paramiko
 
-from mitigations.actions.base import Outcome, one_line, run_with_retries
+from mitigations.actions.base import Outcome, RetryingAction, one_line
 from mitigations.settings import SshSettings
 
 TAIL_CHARS = 500  # of stderr/stdout kept in an outcome's detail
@@ -171,7 +170,7 @@ def preflight(s: SshSettings) -> list[str]:
     return problems
 
 
-class SshAction:
+class SshAction(RetryingAction):
     kind = "ssh"
 
     def __init__(self, name: str, settings: SshSettings) -> None:
@@ -194,17 +193,7 @@ class SshAction:
 
     # -- running -------------------------------------------------------------------------
 
-    def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
-        return run_with_retries(
-            self._attempt,
-            attempts=self.retries,
-            backoff_s=self.backoff_s,
-            cancel=cancel,
-            on_attempt=on_attempt,
-            where=self.where,
-        )
-
-    def _attempt(self, cancel: threading.Event) -> tuple[Outcome, bool]:
+    def attempt(self, cancel: threading.Event) -> tuple[Outcome, bool]:
         try:
             return self._connect_and_run(cancel), False
         except _Fail as f:
