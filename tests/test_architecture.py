@@ -76,7 +76,9 @@ def test_architecture_tables_match_the_tree() -> None:
     }
     for doc in (ROOT / "README.md", ROOT / "docs" / "ARCHITECTURE.md"):
         named = _table_paths(doc)
-        missing = sorted(p for p in named if p.split("/")[0] in PACKAGES and not (ROOT / p).exists())
+        missing = sorted(
+            p for p in named if p.split("/")[0] in PACKAGES and not (ROOT / p).exists()
+        )
         assert not missing, f"{doc.name} names paths that do not exist: {missing}"
     named = _table_paths(ROOT / "docs" / "ARCHITECTURE.md")
     unnamed = sorted(p for p in packages if p not in named)
