@@ -14,7 +14,20 @@ from hypothesis import strategies as st
 from monitors.errors import UserError
 from monitors.frontend.formalize import formalize
 from monitors.frontend.parse import Duration, parse_requirement
-from monitors.ir.formula import FTP, BinOp, Const, Neg, Not, Past, Since, Var, parse_formula
+from monitors.ir.formula import (
+    FTP,
+    MAX_DEPTH,
+    BinOp,
+    Const,
+    FormulaSyntaxError,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    depth,
+    parse_formula,
+)
 
 EXAMPLES = Path(__file__).resolve().parent / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
@@ -354,3 +367,39 @@ def test_any_word_salad_is_a_requirement_or_a_located_error(words, ex):
         formalize(req, period_ms=1.0)
     except UserError as e:
         assert str(e).startswith("<input>")
+
+
+# ---------------------------------------------------------------- nesting limit
+# Every formula walker recurses; the parsers refuse more than MAX_DEPTH nested
+# operators up front, at the offending token (docs/reference/config.md, Limits).
+
+
+@pytest.mark.parametrize(
+    "expr",
+    [
+        "!" * 5000 + "p",
+        " & ".join(["p"] * 5000),
+        "-" * 5000 + "x > 0",
+        "if p then " * 3000 + "p",
+        "persisted(1, " * 3000 + "p" + ")" * 3000,
+    ],
+    ids=["not", "and", "minus", "ifthen", "call"],
+)
+def test_deep_nesting_is_one_located_error(expr):
+    e = err(f"sw shall always satisfy {expr}", file="c.yaml", line=7, col=11)
+    assert e.file == "c.yaml" and e.line == 7 and e.col is not None
+    assert f"nested more than {MAX_DEPTH} operators deep" in e.message
+
+
+def test_nesting_up_to_the_limit_parses_and_parentheses_are_free():
+    r = P("sw shall always satisfy " + "!" * (MAX_DEPTH - 1) + "(p)")
+    assert depth(r.response) == MAX_DEPTH
+    r = P("sw shall always satisfy " + "(" * 5000 + "p" + ")" * 5000)
+    assert r.response == Var("p")
+
+
+@pytest.mark.parametrize("text", ["!" * 5000 + "p", " & ".join(["p"] * 5000), "Y " * 5000 + "p"])
+def test_deep_formula_text_is_a_syntax_error(text):
+    with pytest.raises(FormulaSyntaxError, match="nested more than"):
+        parse_formula(text)
+    assert parse_formula("(" * 5000 + "p" + ")" * 5000) == Var("p")

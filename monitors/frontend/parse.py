@@ -44,6 +44,7 @@ from monitors.errors import UserError
 from monitors.ir.formula import (
     FALSE,
     FTP,
+    MAX_DEPTH,
     TRUE,
     BinOp,
     Const,
@@ -54,6 +55,7 @@ from monitors.ir.formula import (
     Since,
     Var,
     and_,
+    too_deep,
 )
 
 UNITS = ("tick", "hour", "minute", "second", "millisecond", "microsecond")
@@ -531,6 +533,10 @@ class _PostTiming:
 # ---------------------------------------------------------------- entry point
 
 
+# The rules of fretish.lark that nest (parentheses alone add no level).
+_NESTING_RULES = frozenset({"ifthen", "binop", "not_", "uminus", "call"})
+
+
 @cache
 def _parser() -> Lark:
     grammar = (Path(__file__).with_name("fretish.lark")).read_text()
@@ -546,6 +552,14 @@ def parse_requirement(
         if not text.strip():
             raise UserError("empty requirement", line=1, col=1)
         tree = _parser().parse(text)
+        deep = too_deep(tree, _NESTING_RULES)
+        if deep is not None:
+            raise UserError(
+                f"expression nested more than {MAX_DEPTH} operators deep",
+                line=deep.meta.line,
+                col=deep.meta.column,
+                hint="split it with internal variables (define:)",
+            )
         return _Build(text).transform(tree)
     except VisitError as e:
         orig = e.orig_exc

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
-from lark import Lark, Token, Transformer
+from lark import Lark, Token, Transformer, Tree
 
 BOOL_OPS = ("&", "|", "xor", "->", "<->")
 REL_OPS = ("=", "!=", "<", "<=", ">", ">=")
@@ -208,6 +208,37 @@ def subterms(f: Formula) -> list[Formula]:
 
     visit(f)
     return list(seen)
+
+
+# Every stage walks formulas recursively (printer, simplifier, type checker,
+# backends, interpreter, z3 encoding), so the parsers refuse deeper nesting up
+# front; a formalized requirement with defines expanded stays well inside
+# Python's recursion limit (docs/reference/config.md, "Limits").
+MAX_DEPTH = 100
+
+
+def depth(f: Formula) -> int:
+    """Nesting depth of ``f`` (a leaf is 1), computed without recursion."""
+    best, stack = 0, [(f, 1)]
+    while stack:
+        g, d = stack.pop()
+        best = max(best, d)
+        stack.extend((c, d + 1) for c in g.children())
+    return best
+
+
+def too_deep(tree: Tree, counted: frozenset[str]) -> Tree | None:
+    """The first node of a lark parse tree nested more than MAX_DEPTH of the
+    ``counted`` rules deep (None if there is none), found without recursion,
+    before any recursive transformer sees the tree."""
+    stack: list[tuple[Tree, int]] = [(tree, 0)]
+    while stack:
+        node, d = stack.pop()
+        d += node.data in counted
+        if d > MAX_DEPTH:
+            return node
+        stack.extend((c, d) for c in node.children if isinstance(c, Tree))
+    return None
 
 
 def map_children(f: Formula, fn: Callable[[Formula], Formula]) -> Formula:
@@ -407,6 +438,10 @@ class _Build(Transformer):
         return Var(str(a[0]))
 
 
+# The rules of _GRAMMAR that nest (parentheses alone add no level).
+_NESTING_RULES = frozenset("implies iff or_ xor and_ since rel arith pow not_ neg past".split())
+
+
 @cache
 def _parser() -> Lark:
     return Lark(_GRAMMAR, parser="lalr", maybe_placeholders=False)
@@ -417,7 +452,10 @@ def parse_formula(text: str) -> Formula:
     from lark.exceptions import LarkError, VisitError
 
     try:
-        return _Build().transform(_parser().parse(text))
+        tree = _parser().parse(text)
+        if too_deep(tree, _NESTING_RULES) is not None:
+            raise FormulaSyntaxError(f"nested more than {MAX_DEPTH} operators deep")
+        return _Build().transform(tree)
     except VisitError as e:
         if isinstance(e.orig_exc, FormulaSyntaxError):
             raise e.orig_exc from None

@@ -7,6 +7,7 @@ arithmetic), an integer power with a non-constant exponent.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 from monitors.errors import UserError
@@ -39,6 +40,11 @@ def type_of(f: Formula, env: Mapping[str, str]) -> str:
     callers anchor it with ``.at``) naming the offending subterm."""
     match f:
         case Const(v):
+            # Every backend and the analyses hold constants as int64 or IEEE double.
+            if type(v) is int and not -(2**63) <= v < 2**63:
+                raise UserError(f"integer constant {v} does not fit in int64")
+            if isinstance(v, float) and not math.isfinite(v):
+                raise UserError(f"number {v} is not finite (too large for a double)")
             return _const_type(v)
         case Var(name):
             if name not in env:
