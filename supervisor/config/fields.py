@@ -7,6 +7,7 @@ a helper given the mapping and the key reports the key's own line.
 from __future__ import annotations
 
 import difflib
+import math
 import re
 from pathlib import Path
 from typing import Any
@@ -62,18 +63,71 @@ def as_linedict(value: Any, parent: LineDict | None, line: int | None = None) ->
     return d
 
 
-def number(d: LineDict, key: str, what: str, *, positive: bool = True) -> float | None:
-    """``d[key]`` as a float (None if absent); positive unless told otherwise."""
+# The largest duration any key takes, in ms (about 11.6 days): timers, waits and
+# tick counts derived from it stay far inside what rclpy, threading and int64 hold.
+MAX_MS = 1e9
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+
+def _shown(v: Any) -> str:
+    text = str(v) if not isinstance(v, int) or abs(v) < 10**30 else f"{str(v)[:20]}..."
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def to_number(v: Any, where: Any, key: str | None, what: str) -> float:
+    """One config value as a finite float: ``true``, text that is no number,
+    ``nan``/``inf`` (also as text) and integers beyond a double are errors."""
+    x = math.nan
+    if not isinstance(v, bool):
+        try:
+            x = float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise error_at(f"{what} must be a number, got '{_shown(v)}'", where, key) from None
+    if not math.isfinite(x):
+        raise error_at(f"{what} must be a finite number, got '{_shown(v)}'", where, key)
+    return x
+
+
+def number(
+    d: LineDict, key: str, what: str, *, positive: bool = True, maximum: float = MAX_MS
+) -> float | None:
+    """``d[key]``, a duration in ms, as a float (None if absent): finite, never
+    negative, at most ``maximum``, and positive unless told otherwise."""
     v = d.get(key)
     if v is None:
         return None
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise error_at(f"{what}.{key} must be a number, got '{v}'", d, key) from None
+    x = to_number(v, d, key, f"{what}.{key}")
     if positive and x <= 0:
         raise error_at(f"{what}.{key} must be positive", d, key)
+    if x < 0:
+        raise error_at(f"{what}.{key} must not be negative", d, key)
+    if x > maximum:
+        raise error_at(
+            f"{what}.{key} must be at most {maximum:g}, got {_shown(v)}",
+            d,
+            key,
+            "durations are in milliseconds" if key.endswith("_ms") else None,
+        )
     return x
+
+
+def whole_number(
+    d: LineDict, key: str, what: str, *, default: int, minimum: int, maximum: int
+) -> int:
+    """``d[key]`` (``default`` if absent) as a whole number in [minimum, maximum]."""
+    v = d.get(key, default)
+    text = _shown(v).strip()
+    if (
+        isinstance(v, bool)
+        or not re.fullmatch(r"\d{1,18}", text)
+        or not minimum <= int(text) <= maximum
+    ):
+        raise error_at(
+            f"{what}: {key} must be a whole number from {minimum} to {maximum}, got '{text}'",
+            d,
+            key,
+        )
+    return int(text)
 
 
 def mitigation_names(value: Any, where: LineDict, key: str) -> list[str]:
@@ -106,18 +160,15 @@ def relative_to(config: Path, name: str) -> Path:
 
 def typed_value(v: Any, vtype: str, where: LineDict, key: str, name: str) -> Any:
     """``v`` as a value of monitor type ``vtype`` (variable ``name``'s ``initial``, ...)."""
-    s = str(v).strip()
+    s = _shown(v).strip()
     if vtype == "bool":
         if s.lower() in ("true", "1"):
             return True
         if s.lower() in ("false", "0"):
             return False
     elif vtype == "int64":
-        if re.fullmatch(r"-?\d+", s):
+        if re.fullmatch(r"-?\d{1,19}", s) and INT64_MIN <= int(s) <= INT64_MAX:
             return int(s)
     else:
-        try:
-            return float(s)
-        except ValueError:
-            pass
-    raise error_at(f"variable '{name}': {key} '{v}' is not a {vtype}", where, key)
+        return to_number(v, where, key, f"variable '{name}': {key}")
+    raise error_at(f"variable '{name}': {key} '{_shown(v)}' is not a {vtype}", where, key)

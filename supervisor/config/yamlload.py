@@ -4,16 +4,23 @@ Safety engineers edit the config by hand; every error must point at a line.
 Mappings load as LineDict (with ``.line`` and ``.key_line(k)``) and sequences
 as LineList (with ``.line`` and ``.item_line(i)``); duplicate keys are errors
 (PyYAML silently keeps the last one, which would hide a typo'd requirement).
+Numbers are finite (``.nan`` and ``.inf`` are errors, at their line) and
+nesting is at most MAX_NESTING deep (docs/reference/config.md, "Limits").
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
 import yaml
 
 from monitors.errors import UserError
+
+# PyYAML composes and constructs nested collections recursively; a config nests
+# a few levels, so anything deeper is refused before composing.
+MAX_NESTING = 50
 
 
 class LineDict(dict):
@@ -82,6 +89,34 @@ def _make_loader(file: str) -> type[yaml.SafeLoader]:
         s.file = file
         return s
 
+    def construct_float(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> float:
+        x = yaml.SafeLoader.construct_yaml_float(loader, node)
+        if not math.isfinite(x):
+            raise UserError(
+                f"'{node.value}' is not a finite number",
+                file=file,
+                line=node.start_mark.line + 1,
+                col=node.start_mark.column + 1,
+                hint="every number in the config must be finite",
+            )
+        return x
+
+    def construct_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int:
+        try:
+            return yaml.SafeLoader.construct_yaml_int(loader, node)
+        except ValueError:  # more digits than Python converts (sys.get_int_max_str_digits)
+            raise UserError(
+                f"number '{node.value[:20]}...' is too long",
+                file=file,
+                line=node.start_mark.line + 1,
+                col=node.start_mark.column + 1,
+            ) from None
+
+    Loader.add_constructor("tag:yaml.org,2002:float", construct_float)
+    # A date-like scalar stays text: no key takes a date, and a bad one
+    # (2001-13-45) would otherwise fail inside PyYAML with no line.
+    Loader.add_constructor("tag:yaml.org,2002:timestamp", construct_str)
+    Loader.add_constructor("tag:yaml.org,2002:int", construct_int)
     Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, construct_mapping)
     Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, construct_sequence)
     Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SCALAR_TAG, construct_str)
@@ -98,8 +133,10 @@ def load_yaml(path: Path | str, text: str | None = None) -> Any:
             raise UserError(f"cannot read: {e.strerror}", file=file) from None
         except UnicodeDecodeError:
             raise UserError("not UTF-8 text", file=file) from None
+    loader = _make_loader(file)
     try:
-        return yaml.load(text, Loader=_make_loader(file))  # noqa: S506 - SafeLoader subclass
+        _check_nesting(text, loader, file)
+        return yaml.load(text, Loader=loader)  # noqa: S506 - SafeLoader subclass
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         line = mark.line + 1 if mark else None
@@ -109,6 +146,24 @@ def load_yaml(path: Path | str, text: str | None = None) -> Any:
         ) from None
     except yaml.YAMLError as e:
         raise UserError(f"invalid YAML: {e}", file=file) from None
+
+
+def _check_nesting(text: str, loader: type[yaml.SafeLoader], file: str) -> None:
+    """Refuse collections nested deeper than MAX_NESTING.  PyYAML's event parser
+    keeps an explicit stack (no recursion), so this pass sees any depth."""
+    level = 0
+    for event in yaml.parse(text, Loader=loader):
+        if isinstance(event, yaml.CollectionStartEvent):
+            level += 1
+            if level > MAX_NESTING:
+                raise UserError(
+                    f"nested more than {MAX_NESTING} levels deep",
+                    file=file,
+                    line=event.start_mark.line + 1,
+                    col=event.start_mark.column + 1,
+                )
+        elif isinstance(event, yaml.CollectionEndEvent):
+            level -= 1
 
 
 def line_of(value: object, default: int | None = None) -> int | None:
