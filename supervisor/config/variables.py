@@ -24,6 +24,10 @@ from supervisor.config.yamlload import LineDict
 
 ROLES = ("input", "output", "internal")
 QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
+# Messages an input's subscription queues while the loop is busy elsewhere:
+# 1000 per topic hold a 50 ms backlog at 20k msg/s on one topic, far more than
+# the loop's 20 ms turn budget (docs/reference/config.md, ``depth``).
+DEFAULT_DEPTH = 1000
 # FRET's reserved words plus our formula keywords: a variable may not be called so.
 RESERVED = frozenset(
     "O H S Y Z X F G U V T A E abs max min mode next FTP TRUE FALSE xor mod inf".split()
@@ -83,6 +87,7 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
                 topic=v["topic"],
                 msg=v["msg"],
                 field=v["field"],
+                depth=DEFAULT_DEPTH,
             )
     raw = doc.get("variables")
     if raw is None:
@@ -152,7 +157,7 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
                 "qos",
                 "one of: " + ", ".join(QOS_PRESETS),
             )
-        depth = spec.get("depth", 10)
+        depth = spec.get("depth", base.depth if base else DEFAULT_DEPTH)
         if not str(depth).isdigit() or int(depth) < 1:
             raise error_at(
                 f"variable '{name}': depth must be a positive whole number", spec, "depth"

@@ -47,11 +47,20 @@ def input_status(
         "rejected": stats.get("rejected", 0),
         "age_ms": "never" if last is None else f"{(now_ns - last) / 1e6:.0f}",
         "publishers": stats.get("publishers", "?"),
+        # Skipped publication sequence numbers; per publisher stream as told
+        # apart by continuity (docs/reference/ros-interfaces.md).
+        "lost": stats.get("lost", 0),
+        "lost_by_publisher": " ".join(
+            f"{p['lost']}/{p['received'] + p['lost']}" for p in stats.get("by_publisher", ())
+        ),
+        "own_messages": stats.get("own", 0),
     }
     if last is None:
         level, message = ERROR, "no message received yet"
     elif stats.get("stale"):
         level, message = ERROR, "stale"
+    elif stats.get("lost_recent"):
+        level, message = WARN, f"lost {stats['lost_recent']} messages since the last report"
     elif stats.get("problem"):
         level, message = WARN, str(stats["problem"])
     else:

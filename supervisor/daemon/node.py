@@ -60,6 +60,7 @@ from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
+from supervisor.daemon.loss import OwnWrites, RecordingPublisher, SequenceStreams
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.qos import graph_type_name, matching_qos, qos_for
 from supervisor.daemon.runtime import InputEvent, Runtime, StepResult
@@ -74,6 +75,9 @@ from supervisor.names import (
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STALE_CHECK_MAX_NS = 50_000_000
 STATUS_EVERY_NS = 1_000_000_000
+# Longest a loop turn spends taking messages before its timed work (watchdog,
+# heartbeat, timers) runs: a flood never starves them (docs/reference/ros-interfaces.md).
+TURN_BUDGET_NS = 20_000_000
 REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
 REJECT_REPORT_EVERY = 1000
 
@@ -94,6 +98,7 @@ class _Sub:
     auto_qos: bool
     problem: str | None = None  # last graph problem reported (wrong type, QoS)
     publishers: int | None = None
+    streams: SequenceStreams | None = None  # kept when the QoS changes
 
 
 class SupervisorNode:
@@ -123,6 +128,9 @@ class SupervisorNode:
         self._reload_result: Session | Exception | None = None
         self._retired: list[Any] = []  # subscriptions replaced by a QoS change
         self._unpublished: list[dict[str, Any]] = []  # violation records for the topic
+        self._own = OwnWrites()  # what our mitigation publishers wrote
+        self._lost_reported: dict[str, int] = {}  # per input: lost total last logged
+        self._lost_at_diag: dict[str, int] = {}  # per input: lost total last on /diagnostics
 
         cfg = session.config
         self.node = Node(cfg.ros.node_name, context=context)
@@ -165,7 +173,11 @@ class SupervisorNode:
                 warn(warning)
                 self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
             sub = self.node.create_subscription(klass, var.topic, _never, qos)
-            subs.append(_Sub(var.name, var, klass, sub, auto_qos=var.qos == "auto"))
+            subs.append(
+                _Sub(
+                    var.name, var, klass, sub, auto_qos=var.qos == "auto", streams=SequenceStreams()
+                )
+            )
         for s in old.values():
             self.node.destroy_subscription(s.sub)
         self._subs = subs
@@ -175,6 +187,12 @@ class SupervisorNode:
             name: build_action(m, self.node, self._publish_actions)
             for name, m in cfg.mitigations.items()
         }
+        # Remember every write of our publishers, so that a halt published on a
+        # topic that is also an input is never taken for the robot's (loss.py).
+        for action in self._publish_actions.values():
+            if not isinstance(action.publisher, RecordingPublisher):
+                topic = getattr(action.publisher, "topic_name", action.topic)
+                action.publisher = RecordingPublisher(action.publisher, topic, self._own)
         return Engine(actions, self.log, on_done=self._on_done)
 
     def _on_done(self, request: Request, action: str, outcome: Outcome) -> None:
@@ -226,6 +244,9 @@ class SupervisorNode:
             stack.enter_context(self._wake.handle)
             stack.enter_context(ctx.handle)
             wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 1, 0, ctx.handle)
+            # The step trigger is taken last in each round (see _receive).
+            trigger = self.session.config.step.trigger
+            order = {s.sub.handle.pointer: (s.name == trigger, i) for i, s in enumerate(self._subs)}
             while not self._stop.is_set() and not self._rebuild and ctx.ok():
                 rt = self.session.runtime
                 now = time.monotonic_ns()
@@ -235,8 +256,9 @@ class SupervisorNode:
                 wait_set.add_service(srv)
                 wait_set.add_guard_condition(self._wake.handle)
                 wait_set.wait(max(0, self._deadline(now) - now))
-                for ptr in wait_set.get_ready_entities("subscription"):
-                    self._drain(by_ptr[ptr], rt)
+                ready = wait_set.get_ready_entities("subscription")
+                if ready:
+                    self._receive([by_ptr[p] for p in sorted(ready, key=order.__getitem__)], rt)
                 if wait_set.get_ready_entities("service"):
                     self._serve_reset(srv)
                 self._timed_work(time.monotonic_ns())
@@ -252,26 +274,46 @@ class SupervisorNode:
             times.append(d)
         return min(times)
 
-    def _drain(self, s: _Sub, rt: Runtime) -> None:
-        take = s.sub.handle.take_message
-        field_path = s.var.field
-        while True:
-            info = take(s.msg_type, False)
-            if info is None:
+    def _receive(self, ready: list[_Sub], rt: Runtime) -> None:
+        """Take one message from each ready subscription in turn, until all are
+        empty or the turn's budget is spent; what is left stays queued in the
+        middleware for the next turn, after the timed work. Round by round, a
+        backlog of the robot's cycles is replayed cycle by cycle, trigger last."""
+        end = time.monotonic_ns() + TURN_BUDGET_NS
+        while ready:
+            ready = [s for s in ready if self._take(s, rt)]
+            if time.monotonic_ns() >= end:
                 return
-            t = time.monotonic_ns()
-            try:
-                value = get_field(info[0], field_path)
-            except AttributeError as e:  # cannot happen after check; report
-                self._input_events([InputEvent("input_rejected", s.name, t, str(e))])
-                continue
-            result, events = rt.on_message(s.name, value, t)
-            if events:
-                self._input_events(events)
-            if result is not None:
-                self.supervision.after_step(result)
-                if self._unpublished:
-                    self._publish_reports()
+
+    def _take(self, s: _Sub, rt: Runtime) -> bool:
+        """One message of ``s`` into the runtime; False when its queue is empty."""
+        taken = s.sub.handle.take_message(s.msg_type, False)
+        if taken is None:
+            return False
+        msg, info = taken
+        t = time.monotonic_ns()
+        seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
+        if seq:
+            if self._own.is_own(s.sub.topic_name, seq, info.get("source_timestamp")):
+                rt.count_own(s.name)  # our own mitigation: not the robot's value
+                return True
+            assert s.streams is not None
+            gap = s.streams.on_sequence(seq)
+            if gap:
+                rt.count_lost(s.name, gap)
+        try:
+            value = get_field(msg, s.var.field)
+        except AttributeError as e:  # cannot happen after check; report
+            self._input_events([InputEvent("input_rejected", s.name, t, str(e))])
+            return True
+        result, events = rt.on_message(s.name, value, t)
+        if events:
+            self._input_events(events)
+        if result is not None:
+            self.supervision.after_step(result)
+            if self._unpublished:
+                self._publish_reports()
+        return True
 
     def _timed_work(self, now: int) -> None:
         rt = self.session.runtime
@@ -303,6 +345,7 @@ class SupervisorNode:
                 nxt["watchdog"] = now + self.watchdog_ns
         if now >= nxt["status"]:
             nxt["status"] = now + STATUS_EVERY_NS
+            self._report_loss()
             if self.notifier.enabled:
                 self.notifier.status(self.status_line())
         self._reload_step()
@@ -316,6 +359,26 @@ class SupervisorNode:
             return True
         assert self.watchdog_ns is not None
         return now - due < self.watchdog_ns
+
+    def _report_loss(self) -> None:
+        """At most once a second: one ``input_lost`` record per input that lost
+        messages since the last one."""
+        stats = self.session.runtime.input_stats()
+        for s in self._subs:
+            total = stats[s.name]["lost"]
+            new = total - self._lost_reported.get(s.name, 0)
+            if new <= 0:
+                continue
+            self._lost_reported[s.name] = total
+            warn(f"input '{s.name}': {new} messages lost ({total} so far) on {s.var.topic}")
+            self.log.supervisor(
+                "input_lost",
+                input=s.name,
+                topic=s.var.topic,
+                lost=new,
+                total=total,
+                by_publisher=s.streams.by_publisher() if s.streams else [],
+            )
 
     def _stale_after_ns(self) -> int | None:
         ms = self.session.config.step.stale_after_ms
@@ -335,6 +398,10 @@ class SupervisorNode:
             f"violations={self.violations}",
             f"stale={','.join(stale) if stale else 'none'}",
         ]
+        stats = rt.input_stats()
+        parts.append(f"received={sum(st['messages'] + st['rejected'] for st in stats.values())}")
+        lost = {n: st["lost"] for n, st in stats.items() if st["lost"]}
+        parts.append("lost=" + (",".join(f"{n}:{c}" for n, c in lost.items()) or "0"))
         if missing:
             parts.append(f"waiting_for={','.join(missing)}")
         if latched:
@@ -546,6 +613,9 @@ class SupervisorNode:
         for sub in self._subs:
             st = dict(stats[sub.name])
             st["problem"], st["publishers"] = sub.problem, sub.publishers
+            st["lost_recent"] = st["lost"] - self._lost_at_diag.get(sub.name, 0)
+            self._lost_at_diag[sub.name] = st["lost"]
+            st["by_publisher"] = sub.streams.by_publisher() if sub.streams else []
             statuses.append(
                 input_status(name, cfg.component, sub.name, sub.var.topic or "", st, now)
             )

@@ -83,6 +83,8 @@ class _Input:
     messages: int = 0
     rejected: int = 0
     nan: int = 0  # NaN doubles accepted (the formula decides; reported all the same)
+    lost: int = 0  # skipped in the publishers' sequence numbers (supervisor.daemon.loss)
+    own: int = 0  # the supervisor's own messages on this topic, never taken as input
 
 
 def coerce(value: Any, vtype: str) -> tuple[Any, str | None]:
@@ -162,6 +164,8 @@ class Runtime:
                 "messages": i.messages,
                 "rejected": i.rejected,
                 "nan": i.nan,
+                "lost": i.lost,
+                "own": i.own,
                 "stale": i.stale,
                 "last_ns": i.last_ns,
             }
@@ -186,6 +190,7 @@ class Runtime:
                 o.messages,
                 o.rejected,
             )
+            inp.nan, inp.lost, inp.own = o.nan, o.lost, o.own
         self.recent.extend(old.recent)
 
     # ------------------------------------------------------------ feeding
@@ -220,6 +225,15 @@ class Runtime:
             if all(i.fresh for i in self._in):
                 return self.step(t_ns), events
         return None, events
+
+    def count_lost(self, name: str, n: int) -> None:
+        """``n`` messages of input ``name`` never arrived (a sequence gap)."""
+        self._in[self._index[name]].lost += n
+
+    def count_own(self, name: str) -> None:
+        """The supervisor's own message came back on input ``name``'s topic: it
+        is not the robot's, so it changes neither the value nor the freshness."""
+        self._in[self._index[name]].own += 1
 
     def due(self, t_ns: int) -> int | None:
         """When the next timer-driven step is due (periodic / synchronized skew)."""
