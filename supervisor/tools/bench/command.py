@@ -10,6 +10,11 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    the daemon and a plain rclpy wait-set subscriber (optionally also rclpy's
    default executor) receive the same stream.  The daemon's counts come from
    its ``stop`` record, its drain is watched on ``/diagnostics``.
+   With ``--burst N,...`` each rate is run again with a bursty publisher (N rounds
+   back to back, then a pause: the same average rate). Every throughput run gives
+   the daemon ``WATCHDOG_USEC`` (1 s) and reports the longest gap between its
+   ``WATCHDOG=1`` pings during the run, and the messages the daemon counted lost
+   (from publication sequence numbers) next to sent - received: they must agree.
 2. Latency: the violating message's trigger published -> the halt
    received by another process, over many trials, measured in that one
    process with ``time.monotonic_ns``; first against a bare rclpy echo (the
@@ -56,6 +61,16 @@ def _rates(text: str) -> list[float]:
     return rates
 
 
+def _bursts(text: str) -> list[int]:
+    try:
+        bursts = [int(b) for b in text.split(",") if b.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of rounds: {text}") from None
+    if not bursts or any(b <= 0 for b in bursts):
+        raise argparse.ArgumentTypeError("bursts must be positive numbers of rounds")
+    return bursts
+
+
 def _positive(kind: type) -> Callable[[str], Any]:
     def parse(text: str) -> Any:
         try:
@@ -79,6 +94,19 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help=f"total offered msg/s over all topics (default {DEFAULT_RATES})",
     )
     p.add_argument("--seconds", type=_positive(float), default=5.0, help="per rate (default 5)")
+    p.add_argument(
+        "--burst",
+        type=_bursts,
+        default=[],
+        metavar="N,N,...",
+        help="also run each rate with bursts of N rounds (the thesis: 1; a backlog: 50)",
+    )
+    p.add_argument(
+        "--watchdog-usec",
+        type=_positive(int),
+        default=1_000_000,
+        help="WATCHDOG_USEC given to the daemon (default 1000000: a ping every 0.5 s)",
+    )
     p.add_argument(
         "--latency-trials", type=_positive(int), default=1000, metavar="N", help="default 1000"
     )

@@ -38,9 +38,14 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
         results["domain_id"] = s.domain_id
         if not args.skip_throughput:
             results["throughput"] = []
-            for rate in args.rates:
-                say(f"throughput at {rate:g} msg/s for {args.seconds:g} s")
-                results["throughput"].append(throughput(s, plan, rate, args.seconds, args.naive))
+            wd = args.watchdog_usec
+            for burst in (0, *args.burst):
+                for rate in args.rates:
+                    how = f" in bursts of {burst} rounds" if burst else ""
+                    say(f"throughput at {rate:g} msg/s{how} for {args.seconds:g} s")
+                    results["throughput"].append(
+                        throughput(s, plan, rate, args.seconds, args.naive, burst=burst, wd_usec=wd)
+                    )
         if not args.skip_latency:
             results["latency"] = latency(s, plan, args.latency_trials, say)
     results["loadavg_after"] = _loadavg()

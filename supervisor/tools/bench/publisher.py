@@ -1,6 +1,10 @@
 """The throughput experiment's publisher: the offered rate spread evenly over the
 spec's topics (the trigger last in each round), started by ``go`` on stdin once every
-receiver matched; then it relays the daemon's per-input counts from /diagnostics."""
+receiver matched; then it relays the daemon's per-input counts from /diagnostics.
+
+With ``--burst N`` it sends N rounds back to back, as fast as it can, then waits
+so that the average is the offered rate: the thesis's controller publishes its 7
+topics as one burst per cycle (N = 1), a robot catching up sends many cycles at once."""
 
 from __future__ import annotations
 
@@ -71,6 +75,9 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
         k = len(topics)
         total = max(1, round(args.rate * args.seconds / k)) * k  # whole rounds: trigger last
         period = 1e9 / args.rate
+        # Slot i is due at t0 + i * period; in burst mode a whole burst shares
+        # its first message's slot.
+        chunk = k * args.burst if args.burst else 1
         publish = [p.publish for p in pubs]
         perf = time.perf_counter_ns
         sleep = time.sleep
@@ -78,14 +85,14 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
         i = 0
         while i < total:
             now = perf()
-            due = t0 + int(i * period)
+            due = t0 + int((i // chunk) * chunk * period)
             if due > now:
                 left = due - now
                 if left > SPIN_BELOW_NS:
                     sleep((left - SPIN_BELOW_NS) / 1e9)
                 continue
             # Catch up on every slot already due (a sleep overshoots by ~60 us).
-            while i < total and t0 + int(i * period) <= now:
+            while i < total and t0 + int((i // chunk) * chunk * period) <= now:
                 publish[i % k](msgs[i % k])
                 i += 1
             if stop_requested.is_set():

@@ -34,9 +34,12 @@ def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
     ]
     for row in rows:
         per = next(iter(row["sent_per_topic"].values()))
+        burst = row.get("burst") or 0
         lines += [
             "",
-            f"offered {row['offered']:g} msg/s: sent {row['sent']} ({per}/topic) in "
+            f"offered {row['offered']:g} msg/s"
+            + (f" in bursts of {burst} rounds" if burst else ", evenly paced")
+            + f": sent {row['sent']} ({per}/topic) in "
             f"{row['seconds']:.2f} s = {row['achieved']:.0f} msg/s achieved"
             + ("" if row["drained"] else "  [receivers still busy after 30 s]"),
             f"  {'receiver':<16} {'received':>9} {'loss %':>7} {'msg/s':>8} {'CPU s':>6} "
@@ -47,6 +50,13 @@ def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
                 f"  {name:<16} {rc['received']:>9} {rc['loss_pct']:>7.2f} "
                 f"{rc['msg_per_s']:>8.0f} {rc['cpu_s']:>6.2f} {_f(rc['cpu_us_per_msg'], '.1f'):>10}"
             )
+        missing = row["sent"] - row["receivers"]["daemon"]["received"]
+        counted = row.get("daemon_counted_lost")
+        lines.append(
+            f"  daemon: longest gap between WATCHDOG=1 pings {_f(row.get('longest_ping_gap_ms'), '.0f')}"
+            f" ms (WATCHDOG_USEC={row.get('watchdog_usec')}); lost: counted {counted}, "
+            f"sent - received {missing}" + ("" if counted == missing else "  [DISAGREE]")
+        )
         lines.append(
             f"  overhead (eq. 1) vs {row['fastest_baseline']}: {_f(row['overhead_pct'])} %"
             + (
@@ -57,20 +67,23 @@ def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
         )
     base = {k for row in rows for k in row["receivers"] if k != "daemon"}
     lines += ["", "summary"]
-    head = f"  {'offered':>8} {'achieved':>8} {'daemon loss %':>13}"
+    head = f"  {'burst':>5} {'offered':>8} {'achieved':>8} {'daemon loss %':>13}"
     for b in sorted(base):
         head += f" {b + ' loss %':>21}"
-    head += f" {'overhead %':>10} {'daemon us/msg':>13} {'wait-set us/msg':>15}"
+    head += f" {'overhead %':>10} {'daemon us/msg':>13} {'wait-set us/msg':>15} {'ping gap ms':>11}"
     lines.append(head)
     for row in rows:
         rc = row["receivers"]
-        line = f"  {row['offered']:>8g} {row['achieved']:>8.0f} {rc['daemon']['loss_pct']:>13.2f}"
+        line = (
+            f"  {row.get('burst') or '-':>5} {row['offered']:>8g} {row['achieved']:>8.0f}"
+            f" {rc['daemon']['loss_pct']:>13.2f}"
+        )
         for b in sorted(base):
             line += f" {_f(rc[b]['loss_pct'] if b in rc else None):>21}"
         ws = rc.get("rclpy wait-set", {}).get("cpu_us_per_msg")
         line += (
             f" {_f(row['overhead_pct']):>10} {_f(rc['daemon']['cpu_us_per_msg'], '.1f'):>13}"
-            f" {_f(ws, '.1f'):>15}"
+            f" {_f(ws, '.1f'):>15} {_f(row.get('longest_ping_gap_ms'), '.0f'):>11}"
         )
         lines.append(line)
     return lines

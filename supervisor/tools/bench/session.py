@@ -14,6 +14,7 @@ import random
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -83,14 +84,20 @@ class Daemon(Helper):
     """``safety-supervisor run CONFIG`` with its log, build dir and a bound
     NOTIFY_SOCKET in ``workdir``."""
 
-    def __init__(self, config: Path, workdir: Path, env: dict[str, str]) -> None:
+    def __init__(
+        self, config: Path, workdir: Path, env: dict[str, str], watchdog_usec: int | None = None
+    ) -> None:
         workdir.mkdir(parents=True, exist_ok=True)
         self.log = workdir / "violations.jsonl"
         self.notify = NotifySocket(workdir / "notify.sock")
+        self.pings: list[float] = []  # monotonic times of WATCHDOG=1, once watched
+        self._watching = threading.Event()
+        self._watcher: threading.Thread | None = None
+        wd = {"WATCHDOG_USEC": str(watchdog_usec)} if watchdog_usec else {}
         super().__init__(
             "daemon",
             daemon_argv(config, self.log, workdir / "build"),
-            env={**env, **self.notify.env()},
+            env={**env, **self.notify.env(), **wd},
             cwd=workdir,
             stderr=workdir / "daemon.stderr",
         )
@@ -105,6 +112,28 @@ class Daemon(Helper):
             data = self.notify.recv(min(left, 0.2))
             if data is not None and "READY=1" in data.splitlines():
                 return
+
+    def watch_pings(self) -> None:
+        """After READY=1: time every WATCHDOG=1 on a thread of its own, as systemd would."""
+        self._watching.set()
+
+        def run() -> None:
+            while self._watching.is_set():
+                data = self.notify.recv(0.05)
+                if data is not None and "WATCHDOG=1" in data.splitlines():
+                    self.pings.append(time.monotonic())
+
+        self._watcher = threading.Thread(target=run, name="pings", daemon=True)
+        self._watcher.start()
+
+    def longest_ping_gap(self, start: float, end: float) -> float | None:
+        """Seconds: the longest time without a ping between ``start`` and ``end``."""
+        self._watching.clear()
+        if self._watcher is not None:
+            self._watcher.join()
+            self._watcher = None
+        marks = [start, *(t for t in self.pings if start < t < end), end]
+        return max(b - a for a, b in zip(marks, marks[1:], strict=False)) if self.pings else None
 
     def stop_cleanly(self, timeout: float = 10.0) -> None:
         """SIGTERM and wait: the daemon writes its ``stop`` record."""
@@ -124,6 +153,9 @@ class Daemon(Helper):
         raise BenchError(f"daemon wrote no stop record in {self.log}")
 
     def kill(self) -> None:
+        self._watching.clear()
+        if self._watcher is not None:
+            self._watcher.join()
         super().kill()
         self.notify.close()
 
@@ -153,8 +185,8 @@ class Session:
         self.children.append(c)
         return c
 
-    def daemon(self, config: Path, workdir: Path) -> Daemon:
-        d = Daemon(config, workdir, self.env)
+    def daemon(self, config: Path, workdir: Path, watchdog_usec: int | None = None) -> Daemon:
+        d = Daemon(config, workdir, self.env, watchdog_usec)
         self.children.append(d)
         return d
 

@@ -14,11 +14,20 @@ from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.session import Helper, Session, cpu_seconds
 
 
-def throughput(s: Session, plan: Plan, rate: float, seconds: float, naive: bool) -> dict[str, Any]:
-    work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-", dir=s.tmp))
+def throughput(
+    s: Session,
+    plan: Plan,
+    rate: float,
+    seconds: float,
+    naive: bool,
+    *,
+    burst: int = 0,
+    wd_usec: int | None = None,
+) -> dict[str, Any]:
+    work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
-    daemon = s.daemon(config, work)
+    daemon = s.daemon(config, work, wd_usec)
     baselines = {
         "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", spec, workdir=work)
     }
@@ -42,24 +51,30 @@ def throughput(s: Session, plan: Plan, rate: float, seconds: float, naive: bool)
         "--diagnostics",
         "--daemon-node",
         plan.daemon_node,
+        "--burst",
+        str(burst),
         workdir=work,
     )
     everyone = (daemon, pub, *baselines.values())
     try:
         daemon.wait_ready(60)
+        daemon.watch_pings()
         pub.wait_event("matched", 60, everyone)
         for b in baselines.values():
             b.wait_event("matched", 60, everyone)  # they see the publisher too
         pids = {"daemon": daemon.pid, **{k: b.pid for k, b in baselines.items()}}
         cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
+        go = time.monotonic()
         pub.send("go")
         done = pub.wait_event("done", seconds * 4 + 30, everyone)
         sent: dict[str, int] = done["sent"]
         drained = _wait_drained(pub, baselines, sent, done["wall"], everyone)
+        gap = daemon.longest_ping_gap(go, time.monotonic())
         cpu1 = {k: cpu_seconds(p) for k, p in pids.items()}
         daemon.stop_cleanly()
         stop = daemon.stop_record()
         received = {"daemon": {n: c["messages"] + c["rejected"] for n, c in stop["inputs"].items()}}
+        counted_lost = sum(int(c.get("lost", 0)) for c in stop["inputs"].values())
         for name, b in baselines.items():
             b.stop()
             final = b.latest("final") or b.latest("counts")
@@ -78,6 +93,10 @@ def throughput(s: Session, plan: Plan, rate: float, seconds: float, naive: bool)
         "achieved": done["achieved"],
         "drained": drained,
         "daemon_violations": stop.get("violations"),
+        "burst": burst,
+        "watchdog_usec": wd_usec,
+        "longest_ping_gap_ms": None if gap is None else 1000 * gap,
+        "daemon_counted_lost": counted_lost,
         "receivers": {},
     }
     for name, per_topic in received.items():
