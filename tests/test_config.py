@@ -180,6 +180,7 @@ requirements:
   - {id: r, text: T shall always satisfy p, on_violation: [m]}
 mitigations:
   m: MITIGATION
+step: {policy: periodic, period_ms: 100}
 """
 
 
@@ -232,3 +233,129 @@ def test_publish_value_checked_against_the_message(tmp_path: Path) -> None:
     assert any(":7:" in e and "mitigation 'm'" in e and "no field 'dat'" in e for e in errors), (
         errors
     )
+
+
+# ------------------------------------------------------------------ numbers and nesting
+# Every number is finite and in range at its own line, whichever section holds
+# it (docs/reference/config.md, Limits); a config that loads never fails later
+# on a number.
+
+MS_KEYS = {  # a config with KEY set to VALUE, and the line the key is on
+    "step.period_ms": (BASE.replace("period_ms: 100", "period_ms: VALUE"), 2),
+    "step.stale_after_ms": (
+        BASE.replace("period_ms: 100}", "period_ms: 100, stale_after_ms: VALUE}"),
+        2,
+    ),
+    "variable stale_after_ms": (
+        BASE.replace(
+            "msg: std_msgs/msg/Bool}", "msg: std_msgs/msg/Bool, stale_after_ms: VALUE}", 1
+        ),
+        4,
+    ),
+    "policy cooldown_ms": (
+        BASE.replace(
+            "    on_violation: [halt]\n",
+            "    on_violation: [halt]\n    policy: {cooldown_ms: VALUE}\n",
+        ),
+        10,
+    ),
+    "ros.heartbeat_ms": (BASE + "ros: {heartbeat_ms: VALUE}\n", 12),
+}
+BAD_NUMBERS = {
+    ".nan": "finite",
+    "-.inf": "finite",
+    ".inf": "finite",
+    "'nan'": "finite",
+    "'1e999'": "finite",
+    "1" + "0" * 400: "number",
+    "1" + "0" * 5000: "too long",
+    "1.0e+300": "at most",
+    "-5": "negative",
+    "true": "number",
+    "fast": "number",
+}
+
+
+@pytest.mark.parametrize("key", sorted(MS_KEYS))
+@pytest.mark.parametrize("value", sorted(BAD_NUMBERS))
+def test_every_duration_is_finite_and_in_range_at_its_line(tmp_path, key, value):
+    text, line = MS_KEYS[key]
+    e = error_of(tmp_path, text.replace("VALUE", value))
+    assert e.line == line, str(e)
+    assert BAD_NUMBERS[value] in str(e) or "positive" in str(e), str(e)
+
+
+def test_every_yaml_number_is_finite_wherever_it_is(tmp_path):
+    text = BASE.replace("value: {data: true}", "value: {data: .nan}")
+    assert error_of(tmp_path, text).line == 11
+    text = BASE + "analysis: {timeout_s: .inf}\n"
+    assert error_of(tmp_path, text).line == 12
+
+
+@pytest.mark.parametrize(
+    ("range_", "needle"),
+    [("[2, 0]", "is empty"), ("[a, 1]", "must be a number"), ("['nan', 1]", "finite")],
+)
+def test_a_range_is_two_ordered_finite_numbers(tmp_path, range_, needle):
+    text = BASE.replace("Int64}", f"Int64, range: {range_}}}")
+    e = error_of(tmp_path, text)
+    assert e.line == 5 and needle in str(e), str(e)
+
+
+@pytest.mark.parametrize(
+    ("initial", "ok"),
+    [("9223372036854775807", True), ("9223372036854775808", False), ("'1' * 5000", False)],
+)
+def test_an_int64_initial_fits_in_int64(tmp_path, initial, ok):
+    value = "1" * 5000 if initial.startswith("'1'") else initial
+    text = BASE.replace("Int64}", f"Int64, initial: '{value}'}}")
+    if ok:
+        assert load_config(write(tmp_path, text)).variables["x"].initial == int(value)
+    else:
+        assert error_of(tmp_path, text).line == 5
+
+
+@pytest.mark.parametrize(
+    ("edit", "needle"),
+    [
+        ("depth: " + "9" * 30, "depth must be a whole number"),
+        ("depth: 0", "depth must be a whole number"),
+    ],
+)
+def test_whole_numbers_are_bounded(tmp_path, edit, needle):
+    e = error_of(tmp_path, BASE.replace("Int64}", f"Int64, {edit}}}"))
+    assert e.line == 5 and needle in str(e)
+    e = error_of(tmp_path, BASE + "logging: {recent: 99999999999999999999}\n")
+    assert e.line == 12 and "recent must be a whole number" in str(e)
+
+
+@pytest.mark.parametrize("open_, close", [("[", "]"), ("{a: ", "}")])
+def test_deep_yaml_is_refused_at_its_line(tmp_path, open_, close):
+    text = BASE + "analysis: " + open_ * 10000 + "1" + close * 10000 + "\n"
+    e = error_of(tmp_path, text)
+    assert e.line == 12 and "nested more than 50 levels" in str(e)
+
+
+def test_a_date_like_value_is_text(tmp_path):
+    # PyYAML would build a date (and fail with no line on 2001-13-45); no key takes one.
+    for date in ("2001-12-14", "2001-13-45"):
+        cfg = load_config(write(tmp_path, BASE.replace("component: sw", f"component: {date}")))
+        assert cfg.component == date
+
+
+def test_no_step_section_is_an_error_not_a_default_without_a_period(tmp_path):
+    e = error_of(tmp_path, BASE.replace("step: {policy: periodic, period_ms: 100}\n", ""))
+    assert "no 'step:' section" in str(e) and e.line is not None
+
+
+def test_a_variable_read_only_by_a_policy_confirmation_is_used(tmp_path):
+    from supervisor.pipeline import project_for
+
+    text = BASE.replace(
+        "    on_violation: [halt]\n",
+        "    on_violation: [halt]\n    policy: {confirm: {variable: x, equals: 1, within_ms: 200}}\n",
+    )
+    project = project_for(write(tmp_path, text))
+    assert project.ok, [str(e) for e in project.errors]
+    unused = project_for(write(tmp_path, BASE))
+    assert any("'x' is declared but no requirement uses it" in str(e) for e in unused.errors)

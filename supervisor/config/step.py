@@ -14,8 +14,13 @@ STEP_KEYS = {"policy", "trigger", "period_ms", "stale_after_ms", "max_skew_ms", 
 
 def load_step(doc: LineDict) -> StepConfig:
     raw = doc.get("step")
-    if raw is None:
-        return StepConfig()
+    if raw is None:  # the default policy, periodic, has no default period
+        raise error_at(
+            "no 'step:' section: the monitor needs step.period_ms or another step.policy",
+            doc,
+            None,
+            "e.g. step: {policy: periodic, period_ms: 100}",
+        )
     s = as_mapping(raw, doc, "step", "step")
     check_keys(s, STEP_KEYS, "step")
     policy = str(s.get("policy", "periodic"))

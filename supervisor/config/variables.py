@@ -16,7 +16,9 @@ from supervisor.config.fields import (
     file_names,
     number,
     relative_to,
+    to_number,
     typed_value,
+    whole_number,
 )
 from supervisor.config.model import Variable
 from supervisor.config.ogma import load_ogma_variables
@@ -28,6 +30,7 @@ QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
 # 1000 per topic hold a 50 ms backlog at 20k msg/s on one topic, far more than
 # the loop's 20 ms turn budget (docs/reference/config.md, ``depth``).
 DEFAULT_DEPTH = 1000
+MAX_DEPTH = 1_000_000  # messages queued per topic; more is a typo, not a plan
 # FRET's reserved words plus our formula keywords: a variable may not be called so.
 RESERVED = frozenset(
     "O H S Y Z X F G U V T A E abs max min mode next FTP TRUE FALSE xor mod inf".split()
@@ -158,11 +161,9 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
                 "one of: " + ", ".join(QOS_PRESETS),
             )
         depth = spec.get("depth", base.depth if base else DEFAULT_DEPTH)
-        if not str(depth).isdigit() or int(depth) < 1:
-            raise error_at(
-                f"variable '{name}': depth must be a positive whole number", spec, "depth"
-            )
-        var.depth = int(depth)
+        var.depth = whole_number(
+            spec, "depth", f"variable '{name}'", default=depth, minimum=1, maximum=MAX_DEPTH
+        )
         var.stale_after_ms = number(spec, "stale_after_ms", f"variable '{name}'")
         if "initial" in spec:
             var.initial = typed_value(spec["initial"], vtype, spec, "initial", name)
@@ -170,6 +171,9 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             rng = spec["range"]
             if not isinstance(rng, list) or len(rng) != 2:
                 raise error_at(f"variable '{name}': range must be [min, max]", spec, "range")
-            var.range = (float(rng[0]), float(rng[1]))
+            lo, hi = (to_number(x, spec, "range", f"variable '{name}': range") for x in rng)
+            if lo > hi:
+                raise error_at(f"variable '{name}': range [{lo:g}, {hi:g}] is empty", spec, "range")
+            var.range = (lo, hi)
         out[name] = var
     return out
