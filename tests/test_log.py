@@ -99,11 +99,19 @@ def test_records_have_the_contract_schema(tmp_path: Path) -> None:
         "supervisor",
     ]
     for r in recs:
-        assert list(r)[:5] == ["ts", "event", "component", "config_sha256", "prev_sha256"]
+        assert list(r)[:6] == [
+            "ts",
+            "event",
+            "component",
+            "config_sha256",
+            "prev_sha256",
+            "seq",
+        ]
         assert list(r)[-1] == "line_sha256"
         assert TS_RE.match(r["ts"]), r["ts"]
         assert r["component"] == "sRobot"
     assert [r["config_sha256"] for r in recs] == [CFG] * 4 + ["d1" * 32]
+    assert [r["seq"] for r in recs] == [1, 2, 3, 4, 5]
     v = recs[1]
     assert v["requirement"] == "state_req103" and v["tick"] == 42
     assert v["inputs"] == {
@@ -425,9 +433,9 @@ def test_full_disk_is_reported_and_counted_not_raised(capfd) -> None:
     assert (
         log.mitigation("state_req103", action="a", kind="topic", ok=True, latency_ms=1.0) is False
     )
-    assert log.failed_writes == 2
+    assert log.failed_writes == 2 and log.pending == 2  # kept in memory, retried
     err = capfd.readouterr().err
-    assert "violation record NOT written: No space left on device" in err
+    assert "violation record seq=1 NOT written: No space left on device; kept in memory" in err
     # the record still reaches journald as a readable line
     assert "VIOLATION state_req103 tick=1 classifier=1" in err
     log.close()

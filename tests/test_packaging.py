@@ -255,7 +255,8 @@ def test_logrotate_creates_and_never_copytruncates() -> None:
         assert d in directives
     script = LOGROTATE.read_text().split("postrotate", 1)[1].split("endscript", 1)[0]
     commands = "\n".join(w for w in script.splitlines() if not w.strip().startswith("#"))
-    assert "systemctl kill --kill-who=main --signal=HUP safety-supervisor.service" in commands
+    # USR1 reopens the log only; HUP would reload the config (docs/reference/log.md).
+    assert "systemctl kill --kill-who=main --signal=USR1 safety-supervisor.service" in commands
     assert "reload" not in commands  # a rotation must not re-run check
 
 

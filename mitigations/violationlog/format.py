@@ -2,7 +2,11 @@
 
 Format (written by :mod:`mitigations.violationlog.writer`, read by :mod:`mitigations.violationlog.reader`): JSON lines, ASCII, one object per
 line, ``\\n``-terminated.  Every record starts with ``ts``, ``event``,
-``component``, ``config_sha256``, ``prev_sha256`` and ends with ``line_sha256``.
+``component``, ``config_sha256``, ``prev_sha256``, ``seq`` and ends with ``line_sha256``.
+
+``seq`` numbers the records one writer makes (1, 2, ...; across rotated files; a new
+writer starts at 1).  A gap is accounted for by the ``supervisor`` record
+``what=records_lost`` that follows it, naming the missing numbers (docs/reference/log.md).
 
 Hash chain, per file:
 
@@ -41,10 +45,11 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-HEADER = ("ts", "event", "component", "config_sha256", "prev_sha256")
+HEADER = ("ts", "event", "component", "config_sha256", "prev_sha256", "seq")
 EMPTY_SHA256 = hashlib.sha256(b"").hexdigest()
 ZERO_SHA256 = "0" * 64
 EVENTS = ("violation", "mitigation", "reset", "supervisor")
+RETRY_BUFFER = 1000  # records kept in memory while the log cannot be written (default)
 
 _LINE_HASH_RE = re.compile(rb',"line_sha256":"([0-9a-f]{64})"\}\n\Z')
 _PREV_RE = re.compile(rb'"prev_sha256":"([0-9a-f]{64})"')
@@ -113,7 +118,7 @@ def details(rec: dict[str, Any]) -> str:
         )
     if ev == "reset":
         return f"reason={rec.get('reason')}"
-    skip = {"ts", "event", "component", "config_sha256", "prev_sha256", "line_sha256", "what"}
+    skip = {*HEADER, "line_sha256", "what"}
     extra = [f"{k}={_fmt_value(v)}" for k, v in rec.items() if k not in skip and k[:1] != "_"]
     return " ".join([str(rec.get("what"))] + extra)
 

@@ -28,10 +28,52 @@ class VerifyResult:
     warnings: list[str] = field(default_factory=list)
     last_sha256: str = EMPTY_SHA256
     links: list[tuple[int, str]] = field(default_factory=list)  # (line, previous_last_sha256)
+    broken: bool = False  # the hash chain itself is broken (else errors are seq gaps)
+    first_seq: int | None = None  # of the file's first record, for the rotation link
+    last_seq: int | None = None
+    first: dict[str, Any] | None = None  # the file's first record
+    lost: int = 0  # records a records_lost record accounts for
+    missing: int = 0  # records missing from the seq with nothing to account for them
 
     @property
     def intact(self) -> bool:
         return not self.errors
+
+
+def check_seq_gap(where: str, lo: int, hi: int, rec: dict[str, Any], res: VerifyResult) -> None:
+    """Records ``lo``..``hi`` are missing before ``rec``: the writer accounts for a
+    gap with a ``records_lost`` record right where the records would have been."""
+    n = hi - lo + 1
+    span = f"{lo}" if lo == hi else f"{lo}-{hi}"
+    named: set[int] = set()
+    if rec.get("event") == "supervisor" and rec.get("what") == "records_lost":
+        for r in rec.get("lost") or []:
+            if isinstance(r, list) and len(r) == 2 and all(isinstance(x, int) for x in r):
+                named.update(range(r[0], r[1] + 1))
+    if named == set(range(lo, hi + 1)):
+        res.lost += n
+        res.warnings.append(
+            f"{where}: warning: {n} records (seq {span}) were never written: "
+            f"{rec.get('reason')} (records_lost; they went to the journal only)"
+        )
+        return
+    res.missing += n
+    why = (
+        f"the records_lost record there names seq {_ranges_text(rec.get('lost'))}"
+        if named
+        else "no records_lost record accounts for them"
+    )
+    res.errors.append(
+        f"{where}: {n} records missing (seq {span}) before this line: {why} "
+        "(removed, or the writer was changed)"
+    )
+
+
+def _ranges_text(ranges: Any) -> str:
+    try:
+        return ",".join(f"{a}" if a == b else f"{a}-{b}" for a, b in ranges)
+    except (TypeError, ValueError):
+        return repr(ranges)
 
 
 def read_bytes(path: str) -> bytes:
@@ -60,6 +102,7 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
     res = VerifyResult(path)
     lines = split_lines(data)
     expected = EMPTY_SHA256
+    seq: int | None = None  # of the last record; seq restarts at 1 with each writer
     for i, line in enumerate(lines, 1):
         where = f"{path}:{i}"
         last = i == len(lines)
@@ -68,6 +111,7 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
                 f"{where}: incomplete final line (writer interrupted or file "
                 f"truncated); the {res.records} records before it are intact"
             )
+            res.broken = True
             break
         try:
             rec = json.loads(line)
@@ -90,10 +134,12 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
             res.errors.append(
                 f"{where}: hash chain broken: not a log record (line was edited or inserted)"
             )
+            res.broken = True
             break
         seal = line_seal_ok(line)
         if seal is False:
             res.errors.append(f"{where}: hash chain broken: line was edited")
+            res.broken = True
             break
         if rec["prev_sha256"] != expected:
             if seal is None:
@@ -103,8 +149,24 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
             else:
                 msg = "line was inserted, or a line before it was removed or rewritten"
             res.errors.append(f"{where}: hash chain broken: {msg}")
+            res.broken = True
             break
         res.records += 1
+        if res.first is None:
+            res.first = rec
+        n = rec.get("seq")
+        if isinstance(n, int) and not isinstance(n, bool):
+            if seq is None:
+                res.first_seq = n
+            elif n > seq + 1 and n != 1:
+                check_seq_gap(where, seq + 1, n - 1, rec, res)
+            elif n <= seq and n != 1:
+                res.missing += 1
+                res.errors.append(
+                    f"{where}: seq {n} after seq {seq}: out of order (a record was "
+                    "duplicated or moved, or the writer was changed)"
+                )
+            seq = res.last_seq = n
         if rec.get("event") == "supervisor" and rec.get("previous_last_sha256"):
             res.links.append((i, str(rec["previous_last_sha256"])))
         expected = sha256_hex(line)

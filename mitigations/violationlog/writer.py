@@ -1,7 +1,7 @@
 """The violation log writer (docs/reference/log.md).
 
 JSON lines rendered by a structlog processor chain; the format, the hash chain
-(``prev_sha256``, ``line_sha256``), its semantics across rotation and the
+(``prev_sha256``, ``line_sha256``), ``seq``, its semantics across rotation and the
 encoding of NaN/inf are documented in :mod:`mitigations.violationlog.format`; the reader
 verifies them.
 
@@ -9,9 +9,17 @@ Writing: the file is opened ``O_WRONLY|O_APPEND|O_CREAT`` (mode 0640); each
 line is rendered completely and written with one ``os.write`` under a lock,
 so threads never interleave partial lines.  ``violation`` and ``mitigation``
 return only after ``os.fsync``: the contract requires a violation to be on
-disk before its mitigations run.  A failure to write is reported on stderr
-and counted (``failed_writes``) but never raised: the daemon must keep
-monitoring with a full disk.  Only opening the log raises (``UserError``).
+disk before its mitigations run.  Only opening the log raises (``UserError``).
+
+A failure to write (a full disk) never raises and never waits: the record
+gets its ``seq`` and its time as usual, is echoed to stderr (the journal) as
+usual, and waits in a bounded in-memory queue (``retry_buffer`` records).  The
+queue is written, in ``seq`` order and chained, at the next record and every
+``retry_interval_s`` by a helper thread.  When the queue is full, further
+records are dropped (the first records of an outage are the evidence of how
+it began); once there is room again, a ``supervisor`` record
+``what=records_lost`` is queued right where the dropped ones would have been,
+naming their exact ``seq`` ranges and the write error (docs/reference/faults.md).
 
 Every record is also echoed as one readable line on stderr (journald), e.g.
 ``VIOLATION state_req103 tick=42 classifier=1 distance_to_target=2``.
@@ -24,7 +32,10 @@ import json
 import os
 import sys
 import threading
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -34,6 +45,8 @@ from structlog.typing import EventDict, WrappedLogger
 from mitigations.violationlog.format import (
     EMPTY_SHA256,
     HEADER,
+    RETRY_BUFFER,
+    ZERO_SHA256,
     describe,
     json_safe,
     seal_line,
@@ -43,6 +56,8 @@ from monitors.errors import UserError
 
 _RESERVED = frozenset(HEADER) | {"line_sha256"}
 _ISO_UTC_US = "%Y-%m-%dT%H:%M:%S.%fZ"  # strftime keeps .000000; isoformat() would drop it
+_PREV_KEY = b'"prev_sha256":"'
+RETRY_INTERVAL_S = 1.0
 
 
 def _header_first(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDict:
@@ -55,8 +70,8 @@ def _header_first(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> 
 def _processors() -> list[Any]:
     # A local chain rather than structlog.configure(): the daemon may configure
     # structlog for its own diagnostics, and must not change this file's format.
+    # ``ts`` is set by the writer: a record written late keeps the time it was made.
     return [
-        structlog.processors.TimeStamper(fmt=_ISO_UTC_US, utc=True, key="ts"),
         _header_first,
         structlog.processors.JSONRenderer(separators=(",", ":"), allow_nan=False),
     ]
@@ -71,6 +86,31 @@ def _stderr_is_journal() -> bool:
     return os.environ.get("JOURNAL_STREAM", "") == f"{st.st_dev}:{st.st_ino}"
 
 
+def seq_ranges(ranges: Sequence[Sequence[int]]) -> str:
+    """``[[3, 5], [9, 9]]`` -> ``3-5,9``."""
+    return ",".join(f"{a}" if a == b else f"{a}-{b}" for a, b in ranges)
+
+
+@dataclass
+class _Entry:
+    """A rendered record waiting to be written: its body has ``prev_sha256`` as
+    zeros at ``prev_at``, filled in when it is written (it chains to whatever
+    line precedes it then)."""
+
+    seq: int
+    event: str
+    ts: str
+    body: bytes
+    prev_at: int
+    durable: bool
+    counted: bool = True  # counts against retry_buffer (records_lost records do not)
+    state: str = "queued"  # queued | written | dropped
+
+    def line(self, prev: str) -> bytes:
+        body = self.body[: self.prev_at] + prev.encode() + self.body[self.prev_at + 64 :]
+        return seal_line(body)
+
+
 class ViolationLog:
     """Append-only, hash-chained violation log.  Thread-safe."""
 
@@ -81,23 +121,42 @@ class ViolationLog:
         config_sha256: str,
         *,
         echo: TextIO | bool = True,
+        retry_buffer: int = RETRY_BUFFER,
+        retry_interval_s: float = RETRY_INTERVAL_S,
     ) -> None:
-        """``echo``: True for stderr (looked up at write time), a stream, or False."""
+        """``echo``: True for stderr (looked up at write time), a stream, or False.
+        ``retry_buffer``: records kept in memory while the file cannot be written (>= 1)."""
         self._path = Path(path)
         self._config_sha256 = config_sha256
         self._echo = echo
-        self._lock = threading.RLock()  # reopen() writes its link record while holding it
+        self._lock = threading.RLock()  # reopen() queues its link record while holding it
         self._log = structlog.BoundLogger(
             structlog.ReturnLogger(), _processors(), {"component": component}
         )
         self._failed = 0
-        self._failing = False
         self._journal = _stderr_is_journal()
         self._fd: int | None = None
         self._prev = EMPTY_SHA256
         self._size = 0
         self._needs_newline = False
         self._resync = False
+        self._seq = 0
+        self._queue: deque[_Entry] = deque()
+        self._queued = 0  # records in the queue, records_lost records not counted
+        self._cap = max(1, int(retry_buffer))
+        self._retry_s = retry_interval_s
+        self._retrier: threading.Thread | None = None
+        self._closed = threading.Event()
+        self._error = ""  # the last write error: the reason of a loss
+        self._outage = False
+        self._lost: list[list[int]] = []  # dropped seq ranges not yet recorded
+        self._lost_events: dict[str, int] = {}
+        self._lost_ts: list[str] = []  # first and last dropped record's time
+        self._late = 0  # records written late in the current outage
+        self._messages: list[str] = []  # reports gathered under the lock, printed after
+        self._unsynced = False  # the last drain wrote durable records but fsync failed
+        self._echoes: list[_Entry] = []  # records made under the lock, echoed after
+        self._tail = b""
         self._fd = self._open()
         self._load_tail()
 
@@ -109,7 +168,27 @@ class ViolationLog:
 
     @property
     def failed_writes(self) -> int:
+        """Records that could not be written when they were made (queued or lost)."""
         return self._failed
+
+    @property
+    def pending(self) -> int:
+        """Records waiting in memory to be written."""
+        return len(self._queue)
+
+    @property
+    def seq(self) -> int:
+        """The ``seq`` of the last record made (0 before the first)."""
+        return self._seq
+
+    @property
+    def retry_buffer(self) -> int:
+        return self._cap
+
+    @retry_buffer.setter
+    def retry_buffer(self, value: int) -> None:
+        with self._lock:  # a reload may change it; records already queued stay
+            self._cap = max(1, int(value))
 
     @property
     def config_sha256(self) -> str:
@@ -181,44 +260,75 @@ class ViolationLog:
 
     # ---------------------------------------------------------------- file handling
 
-    def reopen(self) -> bool:
-        """SIGHUP after logrotate (create mode): open the path anew and continue the
-        chain of whatever file is there now (a new empty file starts from the empty
-        hash).  When the file changed, the first record written to it links back:
-        ``supervisor what=log_reopened previous_last_sha256=<old file's last line>``.
-        Never raises; False when the path could not be opened (old file kept)."""
+    def reopen(self, *, only_if_moved: bool = False) -> bool:
+        """After logrotate (create mode): open the path anew and continue the chain
+        of whatever file is there now (a new empty file starts from the empty hash).
+        The first record made after it links back: ``supervisor what=log_reopened
+        previous_last_sha256=<old file's last line>`` (records still queued from an
+        outage are written before it, in ``seq`` order).  ``only_if_moved``: do
+        nothing while the path still names the open file.  Never raises; False when
+        the path could not be opened (old file kept) or the link record is not on disk."""
         with self._lock:
-            old_fd, old_prev = self._fd, self._prev
+            if self._fd is None:
+                return False
+            if only_if_moved and not self._moved():
+                return True
+            old_fd = self._fd
             try:
                 new_fd = self._open()
             except UserError as e:
-                self._report(f"violation log: reopen failed, still writing the old file: {e}")
+                self._messages.append(
+                    f"violation log: reopen failed, still writing the old file: {e}"
+                )
+                self._flush_messages()
                 return False
-            rotated = True
-            if old_fd is not None:
-                try:
-                    a, b = os.fstat(old_fd), os.fstat(new_fd)
-                    rotated = (a.st_dev, a.st_ino) != (b.st_dev, b.st_ino)
-                    os.close(old_fd)
-                except OSError:
-                    pass
+            self._terminate_old(old_fd)
+            old_prev, rotated = self._prev, True
+            try:
+                a, b = os.fstat(old_fd), os.fstat(new_fd)
+                rotated = (a.st_dev, a.st_ino) != (b.st_dev, b.st_ino)
+                os.close(old_fd)
+            except OSError:
+                pass
             self._fd = new_fd
             self._load_tail()
-            link = {"rotated": rotated}
+            link: dict[str, Any] = {"rotated": rotated}
             if rotated:
                 link["previous_last_sha256"] = old_prev
             return self._emit("supervisor", {"what": "log_reopened"}, link, durable=True)
+
+    def retry(self) -> int:
+        """Write what is queued now; the number of records still waiting."""
+        with self._lock:
+            if self._fd is not None:
+                self._drain()
+            left = len(self._queue)
+        self._flush_messages()
+        return left
 
     def close(self) -> None:
         with self._lock:
             if self._fd is None:
                 return
+            self._drain()
+            unwritten = [e.seq for e in self._queue if e.state == "queued"]
+            lost = [r[:] for r in self._lost]
+            for s in unwritten:
+                _add_seq(lost, s)
+            if lost:
+                self._messages.append(
+                    f"violation log: {self._path}: closing with "
+                    f"{sum(b - a + 1 for a, b in lost)} records never written "
+                    f"(seq {seq_ranges(lost)}: {self._error}); they are only in the journal"
+                )
             fd, self._fd = self._fd, None
+            self._closed.set()
             try:
                 os.fsync(fd)
             except OSError:
                 pass  # e.g. a character device; every durable record was fsynced already
             os.close(fd)
+        self._flush_messages()
 
     def __enter__(self) -> ViolationLog:
         return self
@@ -245,12 +355,32 @@ class ViolationLog:
                 hint=hint,
             ) from e
 
+    def _moved(self) -> bool:
+        assert self._fd is not None
+        try:
+            a, b = os.fstat(self._fd), os.stat(self._path)
+        except OSError:
+            return True
+        return (a.st_dev, a.st_ino) != (b.st_dev, b.st_ino)
+
+    def _terminate_old(self, fd: int) -> None:
+        """Before leaving a file: end a line a failed write left unterminated, so the
+        old file does not end in a torn line (best effort: its disk may be full)."""
+        try:
+            if self._resync or os.fstat(fd).st_size != self._size:
+                self._load_tail()
+            if self._needs_newline and os.write(fd, b"\n") == 1:
+                self._prev = sha256_hex(self._tail + b"\n")
+                self._needs_newline = False
+        except OSError:
+            pass
+
     def _load_tail(self) -> None:
         """Chain state from the file's last line (restart, rotation, a failed write
         or another writer): its hash, and whether it lacks its newline."""
         assert self._fd is not None
         self._resync = False
-        self._prev, self._needs_newline = EMPTY_SHA256, False
+        self._prev, self._needs_newline, self._tail = EMPTY_SHA256, False, b""
         try:
             self._size = os.fstat(self._fd).st_size
             if self._size == 0:
@@ -259,7 +389,7 @@ class ViolationLog:
             # whatever has been renamed in the meantime.
             rfd = os.open(f"/proc/self/fd/{self._fd}", os.O_RDONLY | os.O_CLOEXEC)
         except OSError as e:
-            self._report(
+            self._messages.append(
                 f"violation log: cannot read {self._path} to continue its hash "
                 f"chain ({e.strerror}); the chain restarts here"
             )
@@ -279,59 +409,203 @@ class ViolationLog:
             # An unterminated tail is a line cut short by a crash or a full disk: the
             # next write terminates it, and the chain covers it with that newline.
             self._prev = sha256_hex(tail + b"\n")
-            self._needs_newline = not ends_nl
+            self._needs_newline, self._tail = not ends_nl, tail
         except OSError as e:
-            self._report(
+            self._messages.append(
                 f"violation log: cannot read {self._path} ({e.strerror}); "
                 "the hash chain restarts here"
             )
         finally:
             os.close(rfd)
 
+    def _render(self, event: str, ts: str, fields: dict[str, Any], durable: bool) -> _Entry:
+        """Render with the next ``seq`` (taken only when rendering succeeds)."""
+        seq = self._seq + 1
+        rendered = self._log.msg(
+            event,
+            ts=ts,
+            config_sha256=self._config_sha256,
+            prev_sha256=ZERO_SHA256,
+            seq=seq,
+            **fields,
+        ).encode("ascii")
+        # The header precedes every event field, and inside a JSON string a quote
+        # is escaped, so the first match is the header's own prev_sha256.
+        at = rendered.index(_PREV_KEY) + len(_PREV_KEY)
+        self._seq = seq
+        return _Entry(seq, event, ts, rendered, at, durable)
+
     def _emit(
         self, event: str, fields: dict[str, Any], extra: Mapping[str, Any], durable: bool = False
     ) -> bool:
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
-        record: dict[str, Any] | None = None
+        ts = datetime.now(UTC).strftime(_ISO_UTC_US)
+        entry: _Entry | None = None
         error: str | None = None
         with self._lock:
             if self._fd is None:
                 error = "the log is closed"
             else:
+                self._drain()
+                room = self._queued < self._cap
+                if room and self._lost:
+                    self._queue_lost()
                 try:
-                    if self._resync or os.fstat(self._fd).st_size != self._size:
-                        self._load_tail()  # copytruncate, another writer, a failed write
-                    rendered = self._log.msg(
-                        event, config_sha256=self._config_sha256, prev_sha256=self._prev, **fields
-                    )
-                    line = seal_line(rendered.encode("ascii"))
-                    record = json.loads(line)
+                    entry = self._render(event, ts, fields, durable)
                 except Exception as e:  # noqa: BLE001 - a bad value must not stop monitoring
                     error = f"cannot render the record: {type(e).__name__}: {e}"
                 else:
-                    error = self._write(line, durable)
-            failed, recovered = self._failed + (error is not None), self._failing and not error
-            self._failed, self._failing = failed, error is not None
-        if record is None:
-            record = {"event": event, **json_safe(fields)}
-        self._echo_line(record)
-        if recovered:
-            self._report(f"violation log: {self._path}: writing again ({failed} failed writes)")
-        if error is not None:
-            if failed <= 10 or failed % 1000 == 0:  # a full disk must not flood the journal
-                self._report(
-                    f"violation log: {self._path}: {event} record NOT written: {error} "
-                    f"({failed} failed writes)"
-                )
-            return False
-        return True
+                    if room:
+                        self._queue.append(entry)
+                        self._queued += 1
+                    else:
+                        self._drop(entry)
+                    self._drain()
+            ok = entry is not None and entry.state == "written"
+            if not ok:
+                self._failed += 1
+                self._not_written(event, entry, error)
+            ok = ok and not (durable and self._unsynced)
+        if self._echo is not False:
+            record = json.loads(entry.body) if entry is not None else None
+            self._echo_line(record or {"event": event, "ts": ts, **json_safe(fields)})
+        self._flush_messages()
+        return ok
 
-    def _write(self, line: bytes, durable: bool) -> str | None:
+    def _not_written(self, event: str, entry: _Entry | None, error: str | None) -> None:
+        n = self._failed
+        if n > 10 and n % 1000:  # a full disk must not flood the journal
+            return
+        if entry is None:
+            what = f"{event} record NOT written: {error}"
+        elif entry.state == "dropped":
+            what = (
+                f"{event} record seq={entry.seq} NOT written: {self._error}; dropped, "
+                f"{self._cap} records already wait (logging.retry_buffer); it is "
+                "in the journal and a records_lost record will name it"
+            )
+        else:
+            what = (
+                f"{event} record seq={entry.seq} NOT written: {self._error}; kept in "
+                f"memory and retried ({len(self._queue)} waiting)"
+            )
+        self._messages.append(f"violation log: {self._path}: {what} ({n} failed writes)")
+
+    def _drop(self, entry: _Entry) -> None:
+        entry.state = "dropped"
+        if not self._lost:  # once per gap, whatever the rate limit of the lines above
+            self._messages.append(
+                f"violation log: {self._path}: {self._cap} records wait to be written "
+                f"(logging.retry_buffer); from seq {entry.seq} on records are dropped "
+                "(they are in the journal) until there is room, and a records_lost "
+                "record will name them"
+            )
+        _add_seq(self._lost, entry.seq)
+        self._lost_events[entry.event] = self._lost_events.get(entry.event, 0) + 1
+        self._lost_ts = [self._lost_ts[0] if self._lost_ts else entry.ts, entry.ts]
+
+    def _queue_lost(self) -> None:
+        """The records_lost record, queued right after the gap it explains."""
+        lost, self._lost = self._lost, []
+        events, self._lost_events = self._lost_events, {}
+        first_last, self._lost_ts = self._lost_ts, []
+        fields: dict[str, Any] = {
+            "what": "records_lost",
+            "lost": lost,
+            "count": sum(b - a + 1 for a, b in lost),
+            "reason": self._error or "unknown",
+            "events": events,
+        }
+        if first_last:
+            fields["first_ts"], fields["last_ts"] = first_last
+        ts = datetime.now(UTC).strftime(_ISO_UTC_US)
+        entry = self._render("supervisor", ts, fields, durable=True)
+        entry.counted = False  # one per gap, so the queue stays bounded
+        self._queue.append(entry)
+        self._echoes.append(entry)
+        self._messages.append(
+            f"violation log: {self._path}: {fields['count']} records were lost "
+            f"(seq {seq_ranges(lost)}: {fields['reason']}); a records_lost record says so"
+        )
+
+    def _drain(self) -> None:
+        """Write the queue in order until it is empty or a write fails; then, if
+        records were dropped, queue and write the records_lost record."""
+        synced = True
+        self._unsynced = False
+        wrote_durable = False
+        while True:
+            while self._queue:
+                head = self._queue[0]
+                error = self._write(head)
+                if error is not None:
+                    self._error = error
+                    if not self._outage:
+                        self._outage = True
+                        self._messages.append(
+                            f"violation log: {self._path}: cannot write: {error}; records "
+                            f"are kept in memory (up to {self._cap}) and retried"
+                        )
+                    self._start_retrier()
+                    break
+                self._queue.popleft()
+                self._queued -= head.counted
+                head.state = "written"
+                wrote_durable = wrote_durable or head.durable
+                if self._outage:
+                    self._late += 1
+            if self._queue or not self._lost:
+                break
+            self._queue_lost()
+        if wrote_durable:
+            try:
+                os.fsync(self._fd)  # type: ignore[arg-type]
+            except OSError as e:
+                synced = False
+                self._messages.append(
+                    f"violation log: {self._path}: written but not fsynced: {e.strerror}"
+                )
+        self._unsynced = not synced
+        if self._outage and not self._queue and not self._lost:
+            self._outage = False
+            self._messages.append(
+                f"violation log: {self._path}: writing again; {self._late} records "
+                "were written late"
+            )
+            self._late = 0
+
+    def _start_retrier(self) -> None:
+        if self._retrier is not None or self._closed.is_set():
+            return
+        self._retrier = threading.Thread(
+            target=self._retry_loop, name="violation-log-retry", daemon=True
+        )
+        self._retrier.start()
+
+    def _retry_loop(self) -> None:
+        while not self._closed.wait(self._retry_s):  # returns at once when closed
+            with self._lock:
+                if self._fd is None:
+                    self._retrier = None
+                    return
+                self._drain()
+                done = not self._queue and not self._lost
+                if done:
+                    self._retrier = None  # the next failure starts a new one
+            self._flush_messages()
+            if done:
+                return
+
+    def _write(self, entry: _Entry) -> str | None:
+        """Write one queued record, chained to the file's last line; the error text or None."""
         assert self._fd is not None
-        data = b"\n" + line if self._needs_newline else line
         written = 0
         try:
+            if self._resync or os.fstat(self._fd).st_size != self._size:
+                self._load_tail()  # copytruncate, another writer, a failed write
+            line = entry.line(self._prev)
+            data = b"\n" + line if self._needs_newline else line
             # One write per line; the loop only continues a short write (disk
             # nearly full), still under the lock, so nothing interleaves.
             while written < len(data):
@@ -339,13 +613,13 @@ class ViolationLog:
                 if n == 0:
                     raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
                 written += n
-            if durable:
-                os.fsync(self._fd)
         except OSError as e:
-            self._resync = True  # re-read the tail: part of the line may be in the file
+            # Part of the line may be in the file: re-read the tail before the next
+            # write, which ends that fragment and chains over it.
+            self._resync = True
             return e.strerror or str(e)
         self._size += written
-        self._prev, self._needs_newline = sha256_hex(line), False
+        self._prev, self._needs_newline, self._tail = sha256_hex(line), False, line[:-1]
         return None
 
     def _echo_line(self, record: dict[str, Any]) -> None:
@@ -360,9 +634,24 @@ class ViolationLog:
         except (OSError, ValueError):
             pass  # a closed stderr must not stop monitoring
 
-    def _report(self, text: str) -> None:
-        try:
-            sys.stderr.write(("<3>" if self._journal else "") + text + "\n")
-            sys.stderr.flush()
-        except (OSError, ValueError):
-            pass
+    def _flush_messages(self) -> None:
+        """Print the reports gathered under the lock (never print while holding it)."""
+        with self._lock:
+            messages, self._messages = self._messages, []
+            echoes, self._echoes = self._echoes, []
+        for entry in echoes:
+            if self._echo is not False:
+                self._echo_line(json.loads(entry.body))
+        for text in messages:
+            try:
+                sys.stderr.write(("<3>" if self._journal else "") + text + "\n")
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+
+
+def _add_seq(ranges: list[list[int]], seq: int) -> None:
+    if ranges and ranges[-1][1] == seq - 1:
+        ranges[-1][1] = seq
+    else:
+        ranges.append([seq, seq])

@@ -70,7 +70,7 @@ def load_config(path: str | Path) -> Config:
     variables = load_variables(doc, path)
     requirements = load_requirements(doc, path)
     mitigations = load_mitigations(doc)
-    log_path, recent = load_violation_log(doc)
+    log_path, recent, log_retry_buffer = load_violation_log(doc)
     on_stale = load_on_stale(doc, mitigations)
     check_on_violation(requirements, mitigations)
     for r in requirements:
@@ -88,6 +88,7 @@ def load_config(path: str | Path) -> Config:
         mitigations=mitigations,
         log_path=log_path,
         recent=recent,
+        log_retry_buffer=log_retry_buffer,
         on_stale=on_stale,
         analysis=dict(analysis),
         ros=ros,

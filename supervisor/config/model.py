@@ -85,6 +85,7 @@ class Config:
     on_stale: list[str]
     analysis: dict[str, Any]
     ros: RosConfig = field(default_factory=RosConfig)
+    log_retry_buffer: int = 1000  # logging.retry_buffer
 
     @property
     def inputs(self) -> list[Variable]:

@@ -1,21 +1,30 @@
-"""The ``logging:`` section: where the violation log goes, and how much context a record keeps."""
+"""The ``logging:`` section: where the violation log goes, how much context a record
+keeps, and how many records wait in memory while the log cannot be written."""
 
 from __future__ import annotations
 
-from supervisor.config.fields import as_mapping, check_keys, error_at
+from mitigations.violationlog.format import RETRY_BUFFER
+from supervisor.config.fields import as_mapping, check_keys, whole_number
 from supervisor.config.yamlload import LineDict
 
 # stderr is accepted and not read: the daemon's warnings always go to stderr.
-LOG_KEYS = {"violations", "recent", "stderr"}
+LOG_KEYS = {"violations", "recent", "stderr", "retry_buffer"}
+# retry_buffer: records kept in memory while the log cannot be written; at a few KB
+# each, a million is the most that is still a bounded amount of memory.
+MAX_RETRY = 1_000_000
+# recent: ticks of context each violation record carries (kept in memory per input).
+MAX_RECENT = 10_000
 
 
-def load_violation_log(doc: LineDict) -> tuple[str | None, int]:
-    """(the violation log's path or None for the default, ticks of ``recent`` per record)."""
+def load_violation_log(doc: LineDict) -> tuple[str | None, int, int]:
+    """(the violation log's path or None for the default, ticks of ``recent`` per
+    record, records kept in memory while the log cannot be written)."""
     logging = as_mapping(doc.get("logging") or LineDict(), doc, "logging", "logging")
     if logging:
         check_keys(logging, LOG_KEYS, "logging")
-    recent = int(logging.get("recent", 10)) if str(logging.get("recent", 10)).isdigit() else None
-    if recent is None:
-        raise error_at("logging.recent must be a whole number of ticks", logging, "recent")
+    recent = whole_number(logging, "recent", "logging", default=10, minimum=0, maximum=MAX_RECENT)
+    retry_buffer = whole_number(
+        logging, "retry_buffer", "logging", default=RETRY_BUFFER, minimum=1, maximum=MAX_RETRY
+    )
     log_path = logging.get("violations")
-    return (str(log_path) if log_path else None), recent
+    return (str(log_path) if log_path else None), recent, retry_buffer

@@ -126,6 +126,8 @@ class SupervisorNode:
         self._reload_request: Callable[[], Session] | None = None
         self._reload_thread: threading.Thread | None = None
         self._reload_result: Session | Exception | None = None
+        self._reopen_requests = 0  # SIGUSR1s received; counted, so none is lost
+        self._reopens_done = 0
         self._retired: list[Any] = []  # subscriptions replaced by a QoS change
         self._unpublished: list[dict[str, Any]] = []  # violation records for the topic
         self._own = OwnWrites()  # what our mitigation publishers wrote
@@ -207,8 +209,13 @@ class SupervisorNode:
         self._stop.set()
 
     def request_reload(self, prepare: Callable[[], Session]) -> None:
-        """Reload with ``prepare()`` (run on a helper thread); safe from a signal handler."""
+        """Reload with ``prepare()`` (run on a helper thread); safe from a signal handler.
+        A request while a reload runs waits for it and then reloads once more."""
         self._reload_request = prepare
+
+    def request_reopen(self) -> None:
+        """Reopen the violation log (logrotate); safe from a signal handler."""
+        self._reopen_requests += 1
 
     def close(self) -> None:
         """After :meth:`run`: stop the action workers, destroy the node."""
@@ -628,23 +635,28 @@ class SupervisorNode:
     # ------------------------------------------------------------ reload
 
     def _reload_step(self) -> None:
-        prepare, self._reload_request = self._reload_request, None
-        if prepare is not None:
-            if self._reload_thread is not None:
-                warn("reload already in progress; ignoring SIGHUP")
-            else:
-                self.log.reopen()  # logrotate's create mode: a fresh file after rename
-                self.notifier.reloading(status="reloading configuration")
+        # Reopen first: a reload never delays the switch to the new log file.
+        requested = self._reopen_requests
+        if requested != self._reopens_done:
+            self._reopens_done = requested  # a signal after this line is served next turn
+            self.log.reopen()  # logrotate's create mode: a fresh file after rename
+        if self._reload_request is not None and self._reload_thread is None:
+            # A SIGHUP during a reload stays in _reload_request until this one ends:
+            # the newest config is then read once more (requests coalesce, none is lost).
+            prepare, self._reload_request = self._reload_request, None
+            # An old logrotate snippet sends SIGHUP: follow a rotated path all the same.
+            self.log.reopen(only_if_moved=True)
+            self.notifier.reloading(status="reloading configuration")
 
-                def work() -> None:
-                    try:
-                        self._reload_result = prepare()
-                    except Exception as e:  # noqa: BLE001 - reported by the loop
-                        self._reload_result = e
-                    self._wake.trigger()
+            def work() -> None:
+                try:
+                    self._reload_result = prepare()
+                except Exception as e:  # noqa: BLE001 - reported by the loop
+                    self._reload_result = e
+                self._wake.trigger()
 
-                self._reload_thread = threading.Thread(target=work, name="reload", daemon=True)
-                self._reload_thread.start()
+            self._reload_thread = threading.Thread(target=work, name="reload", daemon=True)
+            self._reload_thread.start()
         if self._reload_thread is not None and not self._reload_thread.is_alive():
             self._reload_thread = None
             result, self._reload_result = self._reload_result, None
@@ -662,10 +674,14 @@ class SupervisorNode:
         rt_new.adopt(rt_old)
         self._make_subscriptions(new.config)
         old_engine = self.engine
+        kept = _keep_policies(old, new)
         self.session = new
         self.engine = self._make_engine(new.config)
         self.supervision = Supervision(new.runtime, new.policies, self)
+        # Kept policies go on where they were: latches stay, repeats keep running.
+        self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
         self.log.config_sha256 = new.config.sha256
+        self.log.retry_buffer = new.config.log_retry_buffer
         self.reloads += 1
         self._rebuild = True
         threading.Thread(target=old_engine.close, name="old-engine", daemon=True).start()
@@ -676,11 +692,31 @@ class SupervisorNode:
             "reload",
             ok=True,
             config=new.config.path,
+            kept_state=kept,
             requirements=n,
             inputs=len(new.config.inputs),
             policy=new.config.step.policy,
         )
         self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
+
+
+def _keep_policies(old: Session, new: Session) -> list[str]:
+    """A requirement whose text, formula, policy and actions did not change keeps its
+    policy object (latch, episode, incident) across a reload, so a reload neither
+    releases a latch nor reports a violation again; the ids of those kept."""
+
+    def key(s: Session, i: int) -> tuple[Any, ...]:
+        p = s.policies[i]
+        return (s.formulas[i], p.config, p.on_violation, p.repeatable)
+
+    before = {r.id: i for i, r in enumerate(old.requirements)}
+    kept = []
+    for i, req in enumerate(new.requirements):
+        j = before.get(req.id)
+        if j is not None and key(old, j) == key(new, i):
+            new.policies[i] = old.policies[j]
+            kept.append(req.id)
+    return kept
 
 
 def _never(*_args: Any) -> None:

@@ -2,10 +2,13 @@
 
 Start-up order matters to systemd: the config is checked and the monitor
 compiled and loaded, subscriptions are created, and only then ``READY=1``.
-SIGTERM/SIGINT: ``STOPPING=1`` and a clean exit within 2 s.  SIGHUP: the log
-is reopened (logrotate) and the config reloaded; a config that fails the
-same checks as ``safety-supervisor check`` is rejected, the reason is logged
-and the running monitor continues untouched.
+SIGTERM/SIGINT: ``STOPPING=1`` and a clean exit within 2 s.  SIGHUP: the
+config is reloaded; a config that fails the same checks as
+``safety-supervisor check`` is rejected, the reason is logged and the running
+monitor continues untouched.  SIGUSR1: the violation log is reopened
+(logrotate), nothing else.  No signal is lost: one that arrives before the
+node exists, or during a reload, is served when it can be
+(docs/reference/ros-interfaces.md#signals).
 """
 
 from __future__ import annotations
@@ -73,16 +76,22 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
     def reload_session() -> Session:
         return prepare_session(config, build_root)
 
+    early: set[int] = set()  # SIGHUP/SIGUSR1 before the node exists: served once it does
+
     def on_signal(signum: int, _frame: Any) -> None:
-        if signum == signal.SIGHUP:
-            if node is not None:
+        if signum in (signal.SIGHUP, signal.SIGUSR1):
+            if node is None:
+                early.add(signum)
+            elif signum == signal.SIGHUP:
                 node.request_reload(reload_session)
+            else:
+                node.request_reopen()
             return
         stop_requested.set()
         if node is not None:
             node.stop()
 
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1):
         signal.signal(sig, on_signal)
 
     with contextlib.ExitStack() as stack:
@@ -105,7 +114,9 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or tempfile.mkdtemp(
                 prefix="safety-supervisor-ros-log-"
             )
-        log = stack.enter_context(ViolationLog(path, cfg.component, cfg.sha256))
+        log = stack.enter_context(
+            ViolationLog(path, cfg.component, cfg.sha256, retry_buffer=cfg.log_retry_buffer)
+        )
         log.supervisor("start", config=str(config), pid=os.getpid())
         for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
             print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
@@ -118,6 +129,10 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
         stack.callback(node.close)
         if stop_requested.is_set():
             node.stop()
+        if signal.SIGUSR1 in early:
+            node.request_reopen()
+        if signal.SIGHUP in early:
+            node.request_reload(reload_session)
         n_req = len(session.requirements)
         log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
         notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")

@@ -11,7 +11,13 @@ import sys
 from typing import Any
 
 from mitigations.violationlog.format import EVENTS, details
-from mitigations.violationlog.reader import iter_records, parse_time, read_bytes, verify_bytes
+from mitigations.violationlog.reader import (
+    check_seq_gap,
+    iter_records,
+    parse_time,
+    read_bytes,
+    verify_bytes,
+)
 
 
 def time_arg(text: str) -> Any:
@@ -23,25 +29,49 @@ def time_arg(text: str) -> Any:
 
 
 def verify_files(paths: list[str], out: Any = None) -> int:
+    """Each file's chain and ``seq``, and the links between rotated files."""
     out = out or sys.stdout
     results = [verify_bytes(p, read_bytes(p)) for p in paths]
-    by_last = {r.last_sha256: r.path for r in results if r.records}
+    by_last = {r.last_sha256: r for r in results if r.records}
+    linked: dict[str, list[str]] = {}
+    for r in results:
+        for line, prev in r.links:
+            old = by_last.get(prev)
+            if old is None or old is r:
+                continue
+            linked.setdefault(r.path, []).append(
+                f"{r.path}:{line}: continues {old.path} (rotation link intact)"
+            )
+            # seq runs on across rotation: the new file starts where the old one ended.
+            first = r.first_seq
+            if (
+                old.last_seq is not None
+                and first is not None
+                and first not in (1, old.last_seq + 1)
+            ):
+                assert r.first is not None
+                check_seq_gap(f"{r.path}:1", old.last_seq + 1, first - 1, r.first, r)
     status = 0
     for r in results:
         for w in r.warnings:
             print(w, file=out)
         for e in r.errors:
             print(e, file=out)
-        if r.intact:
-            print(f"{r.path}: {r.records} records, chain intact", file=out)
-            for line, prev in r.links:
-                if prev in by_last and by_last[prev] != r.path:
-                    print(
-                        f"{r.path}:{line}: continues {by_last[prev]} (rotation link intact)",
-                        file=out,
-                    )
-        else:
+        if r.broken:
             status = 1
+            continue
+        lost = f", {r.lost} records lost and accounted for (records_lost)" if r.lost else ""
+        if r.missing:
+            status = 1
+            print(
+                f"{r.path}: {r.records} records{lost}, {r.missing} records MISSING "
+                "(the hash chain itself is unbroken)",
+                file=out,
+            )
+        else:
+            print(f"{r.path}: {r.records} records, chain intact{lost}", file=out)
+        for text in linked.get(r.path, []):
+            print(text, file=out)
     return status
 
 
@@ -108,7 +138,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--verify",
         action="store_true",
-        help="check the hash chain; exit 1 at the first broken line",
+        help="check the hash chain and the records' seq; exit 1 at a broken line or missing records",
     )
     p.add_argument("--since", type=time_arg, metavar="TIME", help="ISO 8601, UTC if no zone")
     p.add_argument("--until", type=time_arg, metavar="TIME", help="ISO 8601, UTC if no zone")
