@@ -29,6 +29,7 @@ from supervisor.pipeline import Project
 
 ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
 LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
+BUDGET_KEY = "limits.analysis_budget_s"
 
 
 # ------------------------------------------------------------------ settings
@@ -134,7 +135,8 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
     if not enabled:
         return None
     reqs, roles = project_requirements(project)
-    return analyse(reqs, roles, k=k or cfg_k, timeout_s=timeout)
+    budget = project.config.limits.analysis_budget_s
+    return analyse(reqs, roles, k=k or cfg_k, timeout_s=timeout, budget_s=budget)
 
 
 # ------------------------------------------------------------------ text
@@ -210,10 +212,19 @@ def format_analysis(a: Analysis) -> str:
     ]
     errors, warnings = len(a.errors), len(a.warnings)
     out.append(f"  findings:      {_count(errors, 'error')}, {_count(warnings, 'warning')}")
+    out.extend(skipped_lines(a))
     for f in a.findings:
         out.append("")
         out.extend(format_finding(f, a.variables))
     return "\n".join(out)
+
+
+def skipped_lines(a: Analysis) -> list[str]:
+    """One line per reason the time budget skipped or cut analyses short, naming them."""
+    by_why: dict[str, list[str]] = {}
+    for name, why in a.skipped.items():
+        by_why.setdefault(why, []).append(name)
+    return [f"  skipped:       {', '.join(ns)}: {why} ({BUDGET_KEY})" for why, ns in by_why.items()]
 
 
 def format_example(ex: Example | None, what: str, variables: dict[str, VarInfo]) -> list[str]:
@@ -230,9 +241,12 @@ def explain_lines(a: Analysis, rid: str) -> list[str]:
     if found:
         for f in found:
             out.append(f"  analysis:  {LABEL[f.severity]} {f.kind}: {f.message}")
-    else:
+    elif not a.skipped:
         out.append(f"  analysis:  no findings (traces of {a.k} ticks)")
     sat, viol = a.examples(rid)
+    if "examples" in a.skipped:
+        out.append(f"  analysis:  skipped: {a.skipped['examples']} ({BUDGET_KEY})")
+        return out
     out.extend(format_example(sat, "satisfied by", a.variables))
     out.extend(format_example(viol, "violated by", a.variables))
     return out

@@ -20,6 +20,7 @@ from monitors.backends.build import build_library
 from monitors.backends.c99 import write_c
 from monitors.backends.copilot import compile_copilot
 from monitors.backends.load import load_monitor
+from monitors.backends.memory import memory_errors
 from monitors.errors import UserError
 from monitors.frontend.formalize import Formalization, formalize
 from monitors.frontend.parse import Requirement, parse_requirement
@@ -262,10 +263,35 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
     return errors, warnings
 
 
+def check_memory(cfg: Config, reqs: list[CompiledRequirement]) -> list[UserError]:
+    """limits.monitor_memory_mb, before any C is written: a requirement over it fails
+    at its line; a monitor over it as a whole is a config error (docs/reference/faults.md)."""
+    ok = [r for r in reqs if r.ok]
+    spec = Project(cfg, ok, [], []).spec()
+    where = {r.id: (r.entry.file, r.entry.line) for r in ok}
+    try:
+        found = memory_errors(
+            spec,
+            cfg.limits.monitor_memory_bytes,
+            where,
+            (cfg.path, cfg.limits.line),
+            "limits.monitor_memory_mb",
+        )
+    except UserError:
+        return []  # a C-name problem: compile_project reports it where it always has
+    for rid, e in found:
+        for r in ok:
+            if r.id == rid:
+                r.error = e
+    return [e for rid, e in found if rid is None]
+
+
 def build_project(cfg: Config, *, ros: bool = True) -> Project:
     env = _env(cfg)
     reqs = [compile_requirement(e, cfg, env) for e in cfg.requirements]
-    errors, warnings = check_variables(cfg, reqs, ros=ros)
+    errors = check_memory(cfg, reqs)
+    v_errors, warnings = check_variables(cfg, reqs, ros=ros)
+    errors += v_errors
     m_errors, m_warnings = check_mitigations(cfg, ros=ros)
     return Project(cfg, reqs, errors + m_errors, warnings + m_warnings)
 

@@ -66,8 +66,11 @@ from monitors.ir.spec import C_TYPES, MonitorSpec, RequirementSpec, c_name, expa
 
 INT64_MIN = -(1 << 63)
 INT64_MAX = (1 << 63) - 1
-# Largest delay line (bytes of static memory per lower time bound).
-MAX_DELAY = 1 << 20
+# Longest delay line the layout can index (uint32_t position and fill count).  What
+# the config allows is the memory limit checked before generation (``state_bytes``).
+MAX_DELAY = (1 << 32) - 1
+# (size, alignment) of each state member's C type on the LP64 and ILP32 ABIs we build for.
+_C_SIZE = {"bool": (1, 1), "uint8_t": (1, 1), "uint32_t": (4, 4), "uint64_t": (8, 8)}
 
 # Identifiers the generated C (or the host shim) declares itself.
 _RESERVED = re.compile(
@@ -187,12 +190,24 @@ class _Req:
 
     index: int
     fields: list[str] = field(default_factory=list)  # struct member declarations
+    layout: list[tuple[str, int]] = field(default_factory=list)  # (C type, array length)
     inits: list[tuple[str, str]] = field(default_factory=list)  # (member, initial value)
     body: list[str] = field(default_factory=list)
 
     @property
     def struct(self) -> str:
         return f"ss__r{self.index}"
+
+    @property
+    def size(self) -> int:
+        """sizeof the state struct: members in order, each at its alignment, the
+        whole rounded up to the largest alignment (C99 6.7.2.1)."""
+        offset, align = 0, 1
+        for ctype, length in self.layout:
+            size, a = _C_SIZE[ctype]
+            offset = -(-offset // a) * a + size * length
+            align = max(align, a)
+        return -(-offset // align) * align if self.layout else 0
 
 
 class _Gen:
@@ -357,6 +372,7 @@ class _Gen:
     def member(self, req: _Req, ctype: str, init: str | None, length: int | None = None) -> str:
         name = f"f{len(req.fields)}"
         req.fields.append(f"{ctype} {name}{'' if length is None else f'[{length}]'};")
+        req.layout.append((ctype, 1 if length is None else length))
         if init is not None:
             req.inits.append((name, init))
         return f"{req.struct}.{name}"
@@ -368,11 +384,6 @@ class _Gen:
 
     def delay(self, req: _Req, x: str, length: int) -> str:
         """x as it was ``length`` ticks ago (false before tick ``length``)."""
-        if length > MAX_DELAY:
-            raise UserError(
-                f"time bound {length} needs a delay line of {length} ticks (at most {MAX_DELAY})",
-                hint="use a longer tick (step.period_ms)",
-            )
         if length <= 64:
             r = self.member(req, "uint64_t", "0u")
             out = self.local(req, f"(({r} >> {length - 1}) & 1u) != 0")
@@ -502,8 +513,11 @@ def _define_plan(spec: MonitorSpec) -> tuple[list, list[Formula]]:
     return order, formulas
 
 
-def generate(spec: MonitorSpec) -> tuple[str, str]:
-    """The text of (monitor.c, monitor.h) for ``spec``."""
+def _requirements(spec: MonitorSpec) -> tuple[_Gen, list[str], list[Formula], list[_Req]]:
+    """The generator's pass over the defines and requirements: the step code and the
+    state layout.  Its cost follows the formulas' size, never their time bounds (a
+    bound only becomes a number in the C text), so it is also how ``state_bytes``
+    learns the layout before anything is written or compiled."""
     gen = _Gen(spec)
     defines, formulas = _define_plan(spec)
     top: list[str] = []
@@ -511,14 +525,36 @@ def generate(spec: MonitorSpec) -> tuple[str, str]:
         e, t = gen.formula(d.expr, None, top)
         top.append(f"const {C_TYPES[t]} {c_name(d.name)} = {e};")
         gen.env[d.name], gen.names[d.name] = t, c_name(d.name)
-    reqs: list[tuple[RequirementSpec, _Req]] = []
+    reqs: list[_Req] = []
     for i, (r, f) in enumerate(zip(spec.requirements, formulas, strict=True)):
         req = _Req(i)
         e, t = gen.formula(f, req, req.body)
         req.body.append(f"if (!{_as_bool(e, t)}) {{")
         req.body.append(f"    {c_name(r.handler)}();")
         req.body.append("}")
-        reqs.append((r, req))
+        reqs.append(req)
+    return gen, top, formulas, reqs
+
+
+def state_bytes(spec: MonitorSpec) -> dict[str, int]:
+    """Static memory of each requirement's state struct in the generated monitor, in
+    bytes (the sizes the compiler gives ``ss__r<N>``), by requirement id."""
+    _, _, _, reqs = _requirements(spec)
+    return {r.id: req.size for r, req in zip(spec.requirements, reqs, strict=True)}
+
+
+def generate(spec: MonitorSpec) -> tuple[str, str]:
+    """The text of (monitor.c, monitor.h) for ``spec``."""
+    gen, top, formulas, req_list = _requirements(spec)
+    reqs = list(zip(spec.requirements, req_list, strict=True))
+    for r, req in reqs:
+        length = max(n for _, n in req.layout) if req.layout else 0
+        if length > MAX_DELAY:
+            raise UserError(
+                f"requirement '{r.id}' has a lower time bound of {length} ticks, longer than "
+                f"a delay line can be ({MAX_DELAY} ticks)",
+                hint="use a longer tick (step.period_ms) or a shorter bound",
+            )
 
     h = _header(spec)
     c = [

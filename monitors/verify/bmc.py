@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import struct
+import time
 from collections.abc import Iterable, Mapping, Sequence
 
 import z3
@@ -56,6 +57,32 @@ Row = dict[str, z3.ExprRef]
 
 class Unsupported(ValueError):
     """A formula that z3 cannot encode with exactly the interpreter's semantics."""
+
+
+class OutOfTime(Exception):
+    """The deadline passed (the analyses' time budget, docs/reference/faults.md)."""
+
+
+def check_deadline(deadline: float | None) -> None:
+    """Raise OutOfTime once ``time.monotonic()`` has passed ``deadline`` (None: never)."""
+    if deadline is not None and time.monotonic() > deadline:
+        raise OutOfTime
+
+
+def encoding_cells(formulas: Iterable[Formula], k: int) -> int:
+    """How many z3 terms (and operands) unrolling ``formulas`` over ``k`` ticks builds:
+    k per distinct subterm, times the window for bounded temporal operators (what
+    ``Encoder`` does; its time and memory are proportional to this).  Computed from the
+    bounds, without building anything."""
+    cells = 0
+    for g in {g for f in formulas for g in subterms(f)}:
+        if isinstance(g, Past) and g.op in ("O", "H") and g.hi is not None:
+            cells += k * max(1, min(k, g.hi - (g.lo or 0) + 1))
+        elif isinstance(g, Since):
+            cells += k * max(1, min(k, (g.lo or 0) + 1 if g.hi is None else g.hi + 1))
+        else:
+            cells += k
+    return cells
 
 
 # ------------------------------------------------------------------ values
@@ -91,9 +118,20 @@ def fresh_row(types: Mapping[str, str], names: Iterable[str], tag: str) -> Row:
     return row
 
 
-def fresh_rows(types: Mapping[str, str], names: Iterable[str], k: int, tag: str = "") -> list[Row]:
+def fresh_rows(
+    types: Mapping[str, str],
+    names: Iterable[str],
+    k: int,
+    tag: str = "",
+    deadline: float | None = None,
+) -> list[Row]:
     names = list(names)
-    return [fresh_row(types, names, f"{tag}{t}") for t in range(k)]
+    rows = []
+    for t in range(k):
+        if t % 256 == 0:
+            check_deadline(deadline)
+        rows.append(fresh_row(types, names, f"{tag}{t}"))
+    return rows
 
 
 def py_value(vtype: str, v: z3.ExprRef) -> Value:
@@ -169,10 +207,13 @@ class Encoder:
     Subterm encodings are cached, so formulas sharing subterms share z3 terms.
     """
 
-    def __init__(self, types: Mapping[str, str], rows: Sequence[Row]) -> None:
+    def __init__(
+        self, types: Mapping[str, str], rows: Sequence[Row], deadline: float | None = None
+    ) -> None:
         self.types = dict(types)
         self.rows = list(rows)
         self.k = len(self.rows)
+        self.deadline = deadline  # time.monotonic() after which encoding raises OutOfTime
         self._table: dict[tuple, list[z3.ExprRef]] = {}
         self._types: dict[tuple, str] = {}
         self._keys: dict[int, tuple[Formula, tuple]] = {}
@@ -188,6 +229,7 @@ class Encoder:
         for g in self._nodes(f):  # children first: every lookup below is already filled
             key = self._key(g)
             if key not in self._table:
+                check_deadline(self.deadline)
                 self._table[key] = self._node(g)
         return self._table[self._key(f)]
 
@@ -307,24 +349,54 @@ class Encoder:
                 run.append(x if i == 0 else join([run[-1], x]))
             empty = z3.BoolVal(not once)
             return [run[i - lo] if i >= lo else empty for i in range(self.k)]
-        return [join([xs[j] for j in range(max(0, i - hi), i - lo + 1)]) for i in range(self.k)]
+        out = []
+        for i in range(self.k):
+            if i % 64 == 0:
+                check_deadline(self.deadline)
+            out.append(join([xs[j] for j in range(max(0, i - hi), i - lo + 1)]))
+        return out
 
     def _since(self, strong: bool, xs: list, ys: list, lo: int, hi: int | None) -> list:
         """a S b: some j in the window has b(j) and a at every m in (j, i].
-        a T b: every j in the window has b(j) or a at some m in (j, i]."""
+        a T b: every j in the window has b(j) or a at some m in (j, i].
+        Size O(k * window): per tick one fold over its window, oldest tick first."""
+        if hi is None:
+            return self._since_from(strong, xs, ys, lo)
         out = []
         for i in range(self.k):
-            first = 0 if hi is None else max(0, i - hi)
-            terms = []
-            between: list = []  # a at the ticks (j, i]
-            for j in range(i, first - 1, -1):
-                if j <= i - lo:
-                    if strong:
-                        terms.append(_and([ys[j], *between]))
-                    else:
-                        terms.append(_or([ys[j], *between]))
-                between.append(xs[j])
-            out.append(_or(terms) if strong else _and(terms))
+            if i % 16 == 0:
+                check_deadline(self.deadline)
+            acc = z3.BoolVal(not strong)  # no witness yet / nothing to answer for yet
+            for j in range(max(0, i - hi), i + 1):
+                if strong:  # a witness before j must see a at j; j itself may be one
+                    acc = z3.And(acc, xs[j]) if j > max(0, i - hi) else z3.BoolVal(False)
+                    acc = z3.Or(acc, ys[j]) if j <= i - lo else acc
+                else:
+                    acc = z3.Or(acc, xs[j]) if j > max(0, i - hi) else z3.BoolVal(True)
+                    acc = z3.And(acc, ys[j]) if j <= i - lo else acc
+            out.append(acc)
+        return out
+
+    def _since_from(self, strong: bool, xs: list, ys: list, lo: int) -> list:
+        """Unbounded window, size O(k * (lo + 1)): the plain recurrence
+        s(i) = b(i) | (a(i) & s(i-1)) at tick i - lo, and a throughout (i - lo, i]
+        (for T, dually, t(i) = b(i) & (a(i) | t(i-1)), or a somewhere in (i - lo, i])."""
+        core: list = []
+        for i in range(self.k):
+            if strong:
+                core.append(ys[i] if i == 0 else z3.Or(ys[i], z3.And(xs[i], core[-1])))
+            else:
+                core.append(ys[i] if i == 0 else z3.And(ys[i], z3.Or(xs[i], core[-1])))
+        if lo == 0:
+            return core
+        out = []
+        for i in range(self.k):
+            if i < lo:
+                out.append(z3.BoolVal(not strong))
+            elif strong:
+                out.append(_and([*xs[i - lo + 1 : i + 1], core[i - lo]]))
+            else:
+                out.append(_or([*xs[i - lo + 1 : i + 1], core[i - lo]]))
         return out
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from monitors.errors import UserError
 from supervisor.config.fields import check_keys, error_at
+from supervisor.config.limits import load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
 from supervisor.config.requirements import check_on_violation, load_requirements, policy_config
@@ -37,6 +38,7 @@ TOP_KEYS = {
     "on_stale",
     "analysis",
     "ros",
+    "limits",
 }
 
 
@@ -78,6 +80,7 @@ def load_config(path: str | Path) -> Config:
     check_trigger(step, variables, doc)
     analysis = doc.get("analysis") or {}
     ros = load_ros(doc)
+    limits = load_limits(doc)
     return Config(
         path=file,
         sha256=hashlib.sha256(raw_bytes).hexdigest(),
@@ -92,4 +95,5 @@ def load_config(path: str | Path) -> Config:
         on_stale=on_stale,
         analysis=dict(analysis),
         ros=ros,
+        limits=limits,
     )

@@ -12,6 +12,7 @@ from typing import Any
 from mitigations.settings import Mitigation, PolicyConfig
 from monitors.errors import UserError
 from monitors.ir.formula import Formula
+from supervisor.config.limits import Limits
 from supervisor.names import NODE_NAME
 
 
@@ -85,6 +86,7 @@ class Config:
     on_stale: list[str]
     analysis: dict[str, Any]
     ros: RosConfig = field(default_factory=RosConfig)
+    limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
 
     @property

@@ -96,8 +96,8 @@ def abstract_arena(
     a_ins = bools_in + [n for n in atoms.values() if side[n] == "in"]
     a_outs = bools_out + [n for n in atoms.values() if side[n] == "out"]
     types = {n: "bool" for n in a_ins + a_outs}
-    rows = fresh_rows(types, a_ins + a_outs, ctx.k, prefix)
-    enc = Encoder(types, rows)
+    rows = fresh_rows(types, a_ins + a_outs, ctx.k, prefix, ctx.deadline)
+    enc = Encoder(types, rows, ctx.deadline)
     holds = {r: enc.holds(f) for r, f in abstract.items()}
 
     # comparisons sharing a variable constrain each other: one feasibility table each

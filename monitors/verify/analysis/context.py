@@ -4,6 +4,7 @@ of z3's traces with the reference interpreter."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterable, Sequence
 
 import z3
@@ -11,7 +12,14 @@ import z3
 from monitors.ir.formula import Formula, variables
 from monitors.verify.analysis.requirements import Req, VarInfo, range_formula
 from monitors.verify.analysis.results import Trace
-from monitors.verify.bmc import Encoder, Row, Unsupported, fresh_rows, model_trace
+from monitors.verify.bmc import (
+    Encoder,
+    Row,
+    Unsupported,
+    check_deadline,
+    fresh_rows,
+    model_trace,
+)
 from monitors.verify.interpret import verdicts
 
 
@@ -21,17 +29,23 @@ class Context:
     incremental solver answers every query (and names its unsat cores)."""
 
     def __init__(
-        self, reqs: Sequence[Req], vars_: dict[str, VarInfo], k: int, timeout_s: float
+        self,
+        reqs: Sequence[Req],
+        vars_: dict[str, VarInfo],
+        k: int,
+        timeout_s: float,
+        deadline: float | None = None,
     ) -> None:
         self.k = k
-        self.timeout_ms = int(timeout_s * 1000)
+        self.per_call_ms = int(timeout_s * 1000)  # analysis.timeout_s, one solver call
+        self.deadline = deadline  # time.monotonic() when the analyses' budget runs out
         self.vars = vars_
         self.types = {v.name: v.type for v in vars_.values()}
         names = list(dict.fromkeys(n for r in reqs for n in variables(r.formula)))
         names += [n for n in vars_ if n not in names]
         self.names = names
-        self.rows: list[Row] = fresh_rows(self.types, names, k)
-        self.enc = Encoder(self.types, self.rows)
+        self.rows: list[Row] = fresh_rows(self.types, names, k, deadline=deadline)
+        self.enc = Encoder(self.types, self.rows, deadline)
         self.reqs: dict[str, Req] = {}
         self.holds: dict[str, list[z3.BoolRef]] = {}
         self.unsupported: dict[str, str] = {}
@@ -48,8 +62,17 @@ class Context:
             if rf is not None and v.name in names:
                 self.ranges[v.name] = rf
         self.solver = z3.Solver()
-        self.solver.set(timeout=self.timeout_ms)
         self._lits: dict[tuple, z3.BoolRef] = {}
+
+    @property
+    def timeout_ms(self) -> int:
+        """The next solver call's timeout: analysis.timeout_s, cut to what is left of the
+        budget; OutOfTime once nothing is left (every solver call starts here)."""
+        if self.deadline is None:
+            return self.per_call_ms
+        check_deadline(self.deadline)
+        left = int((self.deadline - time.monotonic()) * 1000)
+        return max(1, min(self.per_call_ms, left))
 
     # -------------------------------------------------------------- building blocks
 
@@ -94,6 +117,7 @@ class Context:
         return self.lit(("fired", rid, n), lambda: z3.Or(xs[:n]) if n > 1 else xs[0])
 
     def check(self, lits: Sequence[z3.BoolRef]) -> z3.CheckSatResult:
+        self.solver.set(timeout=self.timeout_ms)
         return self.solver.check(*lits)
 
     def minimal_core(

@@ -179,7 +179,7 @@ class Game:
                     f"only the weaker check passed: for every input sequence of {k} ticks "
                     "there are outputs satisfying the guarantees, but those outputs may depend "
                     "on future inputs; whether a controller that only knows past and present "
-                    f"inputs exists was not decided within {ctx.timeout_ms / 1000:g} s",
+                    f"inputs exists was not decided within {ctx.per_call_ms / 1000:g} s",
                     "raise analysis.timeout_s, or lower the time bounds / k",
                 )
             )
@@ -225,7 +225,7 @@ class Game:
                 "warning",
                 tuple(self.guarantees),
                 f"realizability ({what}) not decided: z3 gave up within "
-                f"{self.ctx.timeout_ms / 1000:g} s (double arithmetic is the usual cause)",
+                f"{self.ctx.per_call_ms / 1000:g} s (double arithmetic is the usual cause)",
                 "raise analysis.timeout_s, or give the double variables ranges",
             )
         )

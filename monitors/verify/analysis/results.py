@@ -6,6 +6,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from monitors.verify.analysis.requirements import Req, VarInfo
+from monitors.verify.bmc import OutOfTime
 from monitors.verify.interpret import Value
 
 Trace = list[dict[str, Value]]
@@ -50,6 +51,8 @@ class Analysis:
     seconds: dict[str, float]
     # answers examples() from the analyses' solver, which stays alive for it
     find_examples: ExampleFinder | None = field(default=None, repr=False)
+    # analysis name -> why it was skipped or stopped (the time budget, docs/reference/faults.md)
+    skipped: dict[str, str] = field(default_factory=dict)
 
     @property
     def errors(self) -> list[Finding]:
@@ -67,4 +70,8 @@ class Analysis:
         violating it, both re-checked with the interpreter."""
         if self.find_examples is None:
             return None, None
-        return self.find_examples(rid)
+        try:
+            return self.find_examples(rid)
+        except OutOfTime:
+            self.skipped.setdefault("examples", "the time budget ran out")
+            return None, None

@@ -1,9 +1,10 @@
-"""``analyse``: every analysis of a requirement set, in order, on one solver context."""
+"""``analyse``: every analysis of a requirement set, in order, on one solver context,
+within a total time budget (docs/reference/faults.md)."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 
 from monitors.verify.analysis.consistency import consistency
@@ -11,11 +12,18 @@ from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.examples import examples
 from monitors.verify.analysis.realizability import realizability
 from monitors.verify.analysis.redundancy import redundancy
-from monitors.verify.analysis.requirements import Req, VarInfo, default_k
+from monitors.verify.analysis.requirements import Req, VarInfo, default_k, range_formula
 from monitors.verify.analysis.results import SEVERITIES, Analysis, Finding
 from monitors.verify.analysis.vacuity import vacuity
+from monitors.verify.bmc import OutOfTime, encoding_cells
 
 DEFAULT_TIMEOUT_S = 10.0
+# The analyses in the order they run (and are reported as skipped).
+ANALYSES = ("consistency", "realizability", "vacuity", "redundancy")
+# Terms the encoder builds per second (measured: 100k-300k on one core of a laptop,
+# tools/bench/analysis.py); an unrolling estimated to need more than the whole
+# budget at this rate is not started.
+CELLS_PER_S = 200_000
 
 
 def analyse(
@@ -24,16 +32,44 @@ def analyse(
     *,
     k: int | None = None,
     timeout_s: float = DEFAULT_TIMEOUT_S,
+    budget_s: float | None = None,
 ) -> Analysis:
-    """Run every analysis on traces of ``k`` ticks (default: ``default_k``)."""
+    """Run every analysis on traces of ``k`` ticks (default: ``default_k``), each solver
+    call within ``timeout_s`` and all of them within ``budget_s`` (None: no budget).
+    What the budget cut short is in ``Analysis.skipped``, with the reason."""
     if not isinstance(vars_, dict):
         vars_ = {v.name: v for v in vars_}
     k = k or default_k(reqs)
     if k < 1:
         raise ValueError("k must be at least 1")
+    deadline = None if budget_s is None else time.monotonic() + budget_s
     seconds: dict[str, float] = {}
+    skipped: dict[str, str] = {}
     t0 = time.perf_counter()
-    ctx = Context(reqs, vars_, k, timeout_s)
+
+    def give_up(why: str) -> Analysis:
+        skipped.update({name: why for name in (*ANALYSES, "examples") if name not in skipped})
+        seconds["total"] = time.perf_counter() - t0
+        return Analysis(
+            k, list(reqs), dict(vars_), [], None, "skipped", "skipped", seconds, None, skipped
+        )
+
+    if budget_s is not None:
+        formulas = [f for r in reqs for f in (r.formula, r.activation)]
+        formulas += [f for v in vars_.values() if (f := range_formula(v)) is not None]
+        cells = encoding_cells(formulas, k)
+        if cells > budget_s * CELLS_PER_S:
+            return give_up(
+                f"unrolling traces of k = {k} ticks builds about {cells:.2g} solver terms, "
+                f"about {cells / CELLS_PER_S:.2g} s against a time budget of {budget_s:g} s; "
+                "a shorter k (analysis.k, --k) analyses shorter traces"
+            )
+    try:
+        ctx = Context(reqs, vars_, k, timeout_s, deadline)
+    except OutOfTime:
+        return give_up(
+            f"the time budget of {budget_s:g} s ran out while unrolling traces of k = {k} ticks"
+        )
     findings: list[Finding] = []
     for rid, why in ctx.unsupported.items():
         findings.append(
@@ -59,21 +95,40 @@ def analyse(
                 )
             )
     seconds["encode"] = time.perf_counter() - t0
-    t = time.perf_counter()
-    consistent, consistency_text = consistency(ctx, findings)
-    seconds["consistency"] = time.perf_counter() - t
-    t = time.perf_counter()
-    realizability_text = (
-        realizability(ctx, findings) if consistent else "not checked (inconsistent)"
+
+    def step(name: str, run: Callable[[], object], default: object) -> object:
+        """One analysis, timed; ``default`` when the budget is gone before or during it
+        (findings it made before that stay: each was checked on its own)."""
+        t = time.perf_counter()
+        if deadline is not None and time.monotonic() >= deadline:
+            skipped[name] = f"the time budget of {budget_s:g} s ran out before it"
+            return default
+        try:
+            return run()
+        except OutOfTime:
+            skipped[name] = f"stopped: the time budget of {budget_s:g} s ran out during it"
+            return default
+        finally:
+            seconds[name] = time.perf_counter() - t
+
+    consistent_text = step("consistency", lambda: consistency(ctx, findings), None)
+    consistent, consistency_text = (
+        consistent_text if isinstance(consistent_text, tuple) else (None, "skipped")
     )
-    seconds["realizability"] = time.perf_counter() - t
-    t = time.perf_counter()
-    vacuous = vacuity(ctx, findings, consistent)
-    seconds["vacuity"] = time.perf_counter() - t
-    t = time.perf_counter()
+    realizability_text = (
+        str(step("realizability", lambda: realizability(ctx, findings), "skipped"))
+        if consistent
+        else "not checked (inconsistent)"
+        if consistent is False
+        else "skipped"
+    )
+    vacuous = step("vacuity", lambda: vacuity(ctx, findings, bool(consistent)), set())
     if consistent:
-        redundancy(ctx, findings, vacuous)
-    seconds["redundancy"] = time.perf_counter() - t
+        step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
+    elif consistent is None and "redundancy" not in skipped:
+        skipped["redundancy"] = skipped.get("consistency", "consistency was not decided")
+    if consistent is None and "realizability" not in skipped:
+        skipped["realizability"] = skipped.get("consistency", "consistency was not decided")
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])
@@ -87,4 +142,5 @@ def analyse(
         realizability_text,
         seconds,
         partial(examples, ctx),
+        skipped,
     )

@@ -1,0 +1,50 @@
+"""The ``limits:`` section: how much memory and time ``check`` may spend on one config.
+
+A time bound is paid for in monitor state and in analysis size, so a typo such as
+``within 100000 hours`` must be refused before anything is built
+(docs/reference/config.md, limits; docs/reference/faults.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from supervisor.config.fields import as_mapping, check_keys, number
+from supervisor.config.yamlload import LineDict
+
+LIMITS_KEYS = {"monitor_memory_mb", "analysis_budget_s", "analysis_memory_mb"}
+MB = 1 << 20
+
+
+@dataclass(frozen=True)
+class Limits:
+    # Static state of the compiled monitor (all requirements together).
+    monitor_memory_mb: float = 64.0
+    # Wall-clock time of all the analyses of one check/explain together; the unit's
+    # TimeoutStartSec (60 s) has to cover check and the start of run.
+    analysis_budget_s: float = 30.0
+    # Estimated memory of the analyses' unrolled solver terms.
+    analysis_memory_mb: float = 512.0
+    line: int | None = None  # of 'limits:' (for errors about the whole monitor)
+
+    @property
+    def monitor_memory_bytes(self) -> int:
+        return int(self.monitor_memory_mb * MB)
+
+    @property
+    def analysis_memory_bytes(self) -> int:
+        return int(self.analysis_memory_mb * MB)
+
+
+def load_limits(doc: LineDict) -> Limits:
+    raw = doc.get("limits")
+    if raw is None:
+        return Limits()
+    s = as_mapping(raw, doc, "limits", "limits")
+    check_keys(s, LIMITS_KEYS, "limits")
+    values: dict[str, float] = {}
+    for key in sorted(LIMITS_KEYS):
+        v = number(s, key, "limits")
+        if v is not None:
+            values[key] = v
+    return Limits(**values, line=doc.key_line("limits"))
