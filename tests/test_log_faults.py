@@ -410,3 +410,63 @@ def test_retry_buffer_is_checked_at_its_line(tmp_path: Path, value: str) -> None
     assert r.returncode == 1
     assert f"{config}:{line}: logging: retry_buffer must be a whole number from 1" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.ros
+def test_daemon_on_a_full_disk_keeps_monitoring_and_accounts_for_every_record(
+    small_fs: Path, tmp_path: Path, robot_node: Any
+) -> None:
+    _ros()
+    from rosutil import S0, VIOLATING, Daemon, Robot, variant, wait_until
+
+    config = variant(tmp_path, ("  recent: 10\n", "  recent: 10\n  retry_buffer: 20\n"))
+    run = tmp_path / "run"
+    run.mkdir()
+    log = small_fs / "v.jsonl"
+    (run / "v.jsonl").symlink_to(log)
+    d = Daemon(run, config)
+    try:
+        d.wait_notify("READY=1", timeout=30)
+        robot = Robot(robot_node)
+        robot.matched()
+        robot.warm_up(d, S0)
+        fill(small_fs / "filler")
+        written_before = len(file_records(log))
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            robot.publish(VIOLATING, gap_before_trigger=0.005)
+            time.sleep(0.05)  # the robot's publishing period
+            robot.publish(S0, gap_before_trigger=0.005)
+        # The outage reached the journal: violations on stderr, far more than the file holds.
+        journal = d.stderr.read_text()
+        echoed = journal.count("VIOLATION state_req103 ")
+        assert echoed >= 10, journal[-2000:]
+        assert "No space left on device" in journal
+        assert d.proc.poll() is None  # still monitoring
+        os.unlink(small_fs / "filler")
+        lost = wait_until(
+            "the records_lost record",
+            lambda: next((r for r in file_records(log) if r.get("what") == "records_lost"), None),
+            15,
+            d.explain,
+        )
+        assert lost["reason"] == "No space left on device" and lost["count"] > 0
+        d.terminate()
+    finally:
+        d.close()
+    recs = file_records(log)
+    assert len(recs) > written_before
+    seqs = [r["seq"] for r in recs]
+    named = {s for a, b in lost["lost"] for s in range(a, b + 1)}
+    assert not named & set(seqs)
+    assert sorted(set(seqs) | named) == list(range(1, max(seqs) + 1))  # nothing else missing
+    in_file = sum(1 for r in recs if r["event"] == "violation")
+    assert in_file + lost["events"].get("violation", 0) == journal_violations(d)
+    r = run_cli("logs", "--verify", str(log))
+    assert r.returncode == 0, r.stdout
+    assert "records lost and accounted for" in r.stdout
+
+
+def journal_violations(d: Any) -> int:
+    """Violations the daemon echoed to stderr (the journal) over its whole run."""
+    return d.stderr.read_text().count("VIOLATION ")
