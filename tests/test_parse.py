@@ -403,3 +403,14 @@ def test_deep_formula_text_is_a_syntax_error(text):
     with pytest.raises(FormulaSyntaxError, match="nested more than"):
         parse_formula(text)
     assert parse_formula("(" * 5000 + "p" + ")" * 5000) == Var("p")
+
+
+@pytest.mark.parametrize("where", ["satisfy x > NUM", "within NUM ticks satisfy p"])
+def test_a_number_of_thousands_of_digits_is_one_located_error(where):
+    text = "sw shall " + ("always " if "satisfy x" in where else "") + where
+    e = err(text.replace("NUM", "1" * 5000), file="c.yaml", line=3, col=11)
+    assert e.line == 3 and "is too long" in e.message
+    with pytest.raises(FormulaSyntaxError, match="too long"):
+        parse_formula("x > " + "1" * 5000)
+    with pytest.raises(FormulaSyntaxError, match="too long"):
+        parse_formula("O[0," + "1" * 5000 + "] p")

@@ -45,6 +45,7 @@ from monitors.ir.formula import (
     FALSE,
     FTP,
     MAX_DEPTH,
+    MAX_NUMBER_CHARS,
     TRUE,
     BinOp,
     Const,
@@ -398,6 +399,7 @@ class _Build(Transformer):
 
     def duration(self, items: list) -> Duration:
         num = _toks(items, "NUMBER")[0]
+        _number_text(num)
         line, col = _at(items[0])
         if _toks(items, "MINUS"):
             raise _Located(f"negative duration -{num}: a duration must be 0 or more", line, col)
@@ -433,7 +435,7 @@ class _Build(Transformer):
         return Neg(a)
 
     def number(self, items: list) -> Formula:
-        text = str(items[0])
+        text = _number_text(items[0])
         if any(c in text for c in ".eE"):
             return Const(float(text))
         return Const(int(text))
@@ -484,6 +486,16 @@ def _join(disjuncts: list[list[Formula]]) -> Formula:
         out = conj if out is None else BinOp("|", out, conj)
     assert out is not None
     return out
+
+
+def _number_text(tok: Token) -> str:
+    """A number's text; longer than any int64 or double needs is an error (Python
+    refuses to convert integers of thousands of digits)."""
+    text = str(tok)
+    if len(text) > MAX_NUMBER_CHARS:
+        line, col = _at(tok)
+        raise _Located(f"number '{text[:20]}...' is too long", line, col)
+    return text
 
 
 def _name(tok: Token) -> str:

@@ -215,6 +215,9 @@ def subterms(f: Formula) -> list[Formula]:
 # front; a formalized requirement with defines expanded stays well inside
 # Python's recursion limit (docs/reference/config.md, "Limits").
 MAX_DEPTH = 100
+# The longest number text the parsers convert: far beyond int64 and double, and
+# short of Python's limit on converting integers of thousands of digits.
+MAX_NUMBER_CHARS = 400
 
 
 def depth(f: Formula) -> int:
@@ -408,6 +411,8 @@ class _Build(Transformer):
         return Past(op, a[1])
 
     def bounds(self, a: list) -> tuple[int, int | None]:
+        if any(len(str(x)) > MAX_NUMBER_CHARS for x in a):
+            raise FormulaSyntaxError("time bound too long")
         lo = int(a[0])
         hi = int(a[1]) if len(a) > 1 else None
         if lo < 0:
@@ -430,6 +435,8 @@ class _Build(Transformer):
 
     def number(self, a: list) -> Formula:
         text = str(a[0])
+        if len(text) > MAX_NUMBER_CHARS:
+            raise FormulaSyntaxError(f"number '{text[:20]}...' is too long")
         if any(c in text for c in ".eE"):
             return Const(float(text))
         return Const(int(text))
