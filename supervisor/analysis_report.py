@@ -9,6 +9,8 @@ reference interpreter's verdict per requirement), and what to change.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
@@ -25,7 +27,7 @@ from monitors.verify.analysis import (
 )
 from monitors.verify.interpret import Value
 from supervisor.config import Config
-from supervisor.pipeline import Project
+from supervisor.pipeline import Project, project_for
 
 ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
 LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
@@ -137,6 +139,50 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
     reqs, roles = project_requirements(project)
     budget = project.config.limits.analysis_budget_s
     return analyse(reqs, roles, k=k or cfg_k, timeout_s=timeout, budget_s=budget)
+
+
+# ------------------------------------------------------------------ validation
+
+
+@dataclass
+class Validation:
+    """What ``check`` judges and ``run`` and reload require: the project and its
+    analyses.  ``skipped`` says why the analyses did not run (or ran only in part)."""
+
+    project: Project
+    analysis: Analysis | None
+    skipped: str | None
+
+    @property
+    def ok(self) -> bool:
+        return self.project.ok and not (self.analysis is not None and self.analysis.errors)
+
+    def first_error(self) -> UserError | None:
+        err = self.project.first_error()
+        if err is not None or self.analysis is None or not self.analysis.errors:
+            return err
+        f = self.analysis.errors[0]
+        cfg = self.project.config
+        lines = [r.id_line or r.line for r in cfg.requirements if r.id in f.requirements]
+        ids = ", ".join(f.requirements) or "the whole set"
+        return UserError(
+            f"analysis: {f.kind} ({ids}): {f.message}",
+            file=cfg.path,
+            line=min((n for n in lines if n is not None), default=None),
+            hint=f"{f.fix}; `safety-supervisor check` prints the trace",
+        )
+
+
+def validate(path: str | Path, k: int | None = None) -> Validation:
+    """The one validation of a config, for ``check``, ``run`` and reload alike."""
+    project = project_for(path)
+    if not project.ok:
+        return Validation(project, None, "the config has errors")
+    analysis = analyse_project(project, k)
+    if analysis is None:
+        return Validation(project, None, "analysis.enabled is false")
+    partial = [f.message for f in analysis.findings if f.kind == "not-analysed"]
+    return Validation(project, analysis, "; ".join(partial) or None)
 
 
 # ------------------------------------------------------------------ text

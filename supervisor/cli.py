@@ -156,12 +156,12 @@ def _print_project(project: object) -> int:
 
 
 def cmd_check(args: argparse.Namespace) -> int:
-    from supervisor.config import load_config
-    from supervisor.pipeline import build_project, compile_project
+    from supervisor.analysis_report import format_analysis, validate
+    from supervisor.pipeline import compile_project
 
     t0 = time.perf_counter()
-    cfg = load_config(args.config)
-    project = build_project(cfg)
+    checked = validate(args.config, args.k)  # the same validation as run and reload
+    project = checked.project
     failures = _print_project(project)
     n = len(project.requirements)
     if failures:
@@ -170,9 +170,7 @@ def cmd_check(args: argparse.Namespace) -> int:
             f"{failures} error(s); monitor not compiled"
         )
         return EXIT_FAIL
-    from supervisor.analysis_report import analyse_project, format_analysis
-
-    analysis = analyse_project(project, args.k)
+    analysis = checked.analysis
     if analysis is not None:
         _out(format_analysis(analysis))
     with tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp:
