@@ -29,6 +29,7 @@ from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_na
 from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
 from supervisor.config import Config, RequirementEntry, Variable, load_config
+from supervisor.config.ros import reset_service_warning
 
 
 @dataclass
@@ -293,6 +294,9 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
     v_errors, warnings = check_variables(cfg, reqs, ros=ros)
     errors += v_errors
     m_errors, m_warnings = check_mitigations(cfg, ros=ros)
+    reset_warning = reset_service_warning(cfg.ros, cfg.path)
+    if reset_warning:
+        m_warnings.append(reset_warning)
     return Project(cfg, reqs, errors + m_errors, warnings + m_warnings)
 
 

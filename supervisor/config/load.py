@@ -14,6 +14,7 @@ import hashlib
 from pathlib import Path
 
 from monitors.errors import UserError
+from supervisor.config.control import load_control
 from supervisor.config.fields import check_keys, error_at
 from supervisor.config.limits import load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
@@ -38,6 +39,7 @@ TOP_KEYS = {
     "on_stale",
     "analysis",
     "ros",
+    "control",
     "limits",
 }
 
@@ -80,6 +82,7 @@ def load_config(path: str | Path) -> Config:
     check_trigger(step, variables, doc)
     analysis = doc.get("analysis") or {}
     ros = load_ros(doc)
+    control = load_control(doc, path)
     limits = load_limits(doc)
     return Config(
         path=file,
@@ -95,5 +98,6 @@ def load_config(path: str | Path) -> Config:
         on_stale=on_stale,
         analysis=dict(analysis),
         ros=ros,
+        control=control,
         limits=limits,
     )

@@ -34,6 +34,22 @@ class RosConfig:
     node_name: str = NODE_NAME
     heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
     diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
+    reset_service: bool = False  # /safety_supervisor/reset: opt-in, no credentials
+    reset_service_line: int | None = None
+
+
+@dataclass
+class ControlConfig:
+    """The operator's control socket (``control:``)."""
+
+    socket: str | None = None  # None: names.daemon_control_socket()
+    group: str | None = None  # may connect besides the daemon's user and root
+    max_resets: int = 1  # accepted operator resets per interval
+    interval_ms: float = 1000.0  # also the period of the refusal summary
+    file: str = ""
+    line: int | None = None
+    socket_line: int | None = None
+    group_line: int | None = None
 
 
 @dataclass
@@ -86,6 +102,7 @@ class Config:
     on_stale: list[str]
     analysis: dict[str, Any]
     ros: RosConfig = field(default_factory=RosConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
     limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
 

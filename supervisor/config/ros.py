@@ -1,4 +1,5 @@
-"""The ``ros:`` section: the supervisor's own node name and publishing periods."""
+"""The ``ros:`` section: the supervisor's own node name, publishing periods and
+whether the unauthenticated ROS reset service exists (off by default)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ import re
 from supervisor.config.fields import as_mapping, check_keys, error_at, number
 from supervisor.config.model import RosConfig
 from supervisor.config.yamlload import LineDict
+from supervisor.names import RESET_SERVICE
 
-ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms"}
+ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms", "reset_service"}
 
 
 def load_ros(doc: LineDict) -> RosConfig:
@@ -27,4 +29,24 @@ def load_ros(doc: LineDict) -> RosConfig:
         v = number(r, key, "ros")
         if v is not None:
             setattr(out, key, v)
+    reset = r.get("reset_service")
+    if reset is not None:
+        if not isinstance(reset, bool):
+            raise error_at(
+                f"ros.reset_service must be true or false, got '{reset}'", r, "reset_service"
+            )
+        out.reset_service, out.reset_service_line = reset, r.key_line("reset_service")
     return out
+
+
+def reset_service_warning(ros: RosConfig, file: str) -> str | None:
+    """``check``'s warning for the opt-in ROS reset service: std_srvs/Trigger
+    carries no credentials, so only the graph's access control protects it."""
+    if not ros.reset_service:
+        return None
+    return (
+        f"{file}:{ros.reset_service_line}: ros.reset_service: any node on the ROS graph can "
+        f"call {RESET_SERVICE} and lift a latched mitigation (std_srvs/Trigger carries no "
+        "credentials); enable it only on an SROS2 graph with access control, else use "
+        "the control socket (safety-supervisor reset)"
+    )

@@ -59,6 +59,7 @@ from mitigations.supervision import Supervision
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
+from supervisor.daemon.control import ControlServer, Refusals, ResetGate
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.loss import OwnWrites, RecordingPublisher, SequenceStreams
 from supervisor.daemon.notify import Notifier
@@ -112,6 +113,7 @@ class SupervisorNode:
         context: Context | None = None,
         notifier: Notifier | None = None,
         watchdog_s: float | None = None,
+        control: ControlServer | None = None,
     ) -> None:
         self.session = session
         self.log = log
@@ -148,8 +150,18 @@ class SupervisorNode:
         from std_srvs.srv import Trigger
 
         self._trigger = Trigger
-        self.reset_service = self.node.create_service(Trigger, RESET_SERVICE, _never)
+        # Opt-in (ros.reset_service): a Trigger carries no credentials; the
+        # control socket is the authenticated way (docs/reference/ros-interfaces.md).
+        self.reset_service: Any = None
+        self._sync_reset_service(cfg)
+        # Operator resets: the socket thread hands requests to this loop.
+        self.control = control
+        self._reset_gate = ResetGate()
+        self._refusals = Refusals()
+        self._control_seen = (cfg.control.socket, cfg.control.group)
         self._wake = self.node.create_guard_condition(_never)
+        if control is not None:
+            control.start(self._wake.trigger)
         # Kept across reloads: what a publisher latched stays latched.
         self._publish_actions: dict[PublisherKey, PublishAction] = {}
         self.engine = self._make_engine(cfg)
@@ -219,6 +231,8 @@ class SupervisorNode:
 
     def close(self) -> None:
         """After :meth:`run`: stop the action workers, destroy the node."""
+        if self.control is not None:
+            self.control.close()  # before the guard condition it wakes is destroyed
         busy = self.engine.close(timeout=1.0)
         if busy:
             warn(f"mitigations still running at exit: {', '.join(busy)}")
@@ -246,11 +260,15 @@ class SupervisorNode:
             for s in self._subs:
                 stack.enter_context(s.sub.handle)
                 by_ptr[s.sub.handle.pointer] = s
-            srv = self.reset_service.handle
-            stack.enter_context(srv)
+            self._sync_reset_service(self.session.config)
+            srv = self.reset_service.handle if self.reset_service is not None else None
+            if srv is not None:
+                stack.enter_context(srv)
             stack.enter_context(self._wake.handle)
             stack.enter_context(ctx.handle)
-            wait_set = _rclpy.WaitSet(len(self._subs), 1, 0, 0, 1, 0, ctx.handle)
+            wait_set = _rclpy.WaitSet(
+                len(self._subs), 1, 0, 0, 0 if srv is None else 1, 0, ctx.handle
+            )
             # The step trigger is taken last in each round (see _receive).
             trigger = self.session.config.step.trigger
             order = {s.sub.handle.pointer: (s.name == trigger, i) for i, s in enumerate(self._subs)}
@@ -260,13 +278,14 @@ class SupervisorNode:
                 wait_set.clear_entities()
                 for s in self._subs:
                     wait_set.add_subscription(s.sub.handle)
-                wait_set.add_service(srv)
+                if srv is not None:
+                    wait_set.add_service(srv)
                 wait_set.add_guard_condition(self._wake.handle)
                 wait_set.wait(max(0, self._deadline(now) - now))
                 ready = wait_set.get_ready_entities("subscription")
                 if ready:
                     self._receive([by_ptr[p] for p in sorted(ready, key=order.__getitem__)], rt)
-                if wait_set.get_ready_entities("service"):
+                if srv is not None and wait_set.get_ready_entities("service"):
                     self._serve_reset(srv)
                 self._timed_work(time.monotonic_ns())
 
@@ -332,6 +351,7 @@ class SupervisorNode:
             self._publish_reports()
         if self._done:
             self._outcomes()
+        self._control_work(now)
         nxt = self._next
         if now >= nxt["stale"]:
             events = rt.check_stale(now, self._stale_after_ns())
@@ -510,6 +530,16 @@ class SupervisorNode:
 
     # ------------------------------------------------------------ operator reset
 
+    def _sync_reset_service(self, cfg: Config) -> None:
+        """The ROS reset service exists iff ``ros.reset_service`` (also after a reload)."""
+        if cfg.ros.reset_service and self.reset_service is None:
+            self.reset_service = self.node.create_service(self._trigger, RESET_SERVICE, _never)
+            self.log.supervisor("reset_service", enabled=True, service=RESET_SERVICE)
+        elif not cfg.ros.reset_service and self.reset_service is not None:
+            self.node.destroy_service(self.reset_service)
+            self.reset_service = None
+            self.log.supervisor("reset_service", enabled=False, service=RESET_SERVICE)
+
     def _serve_reset(self, srv: Any) -> None:
         taken = srv.service_take_request(self._trigger.Request)
         if taken is None:
@@ -517,7 +547,7 @@ class SupervisorNode:
         request, header = taken
         if header is None:
             return
-        ok, message = self.operator_reset()
+        ok, message, _ = self.operator_reset(via="ros_service", caller=None)
         # take_request gives rmw_service_info_t; the reply wants its request id.
         request_id = getattr(header, "request_id", header)
         try:
@@ -527,14 +557,63 @@ class SupervisorNode:
         except Exception as e:  # noqa: BLE001 - the caller went away; the reset stands
             warn(f"cannot answer {RESET_SERVICE}: {e}")
 
-    def operator_reset(self) -> tuple[bool, str]:
-        """Reset every requirement's monitor; lift latches of requirements that hold."""
+    def _control_work(self, now: int) -> None:
+        """Answer the control socket's requests; report refused calls once per interval."""
+        cfg = self.session.config.control
+        if self.control is not None:
+            for req in self.control.take():
+                if req.refused is not None:
+                    self._refusals.add(req.refused, _who(req.caller.record()))
+                    req.answer({"ok": False, "refused": req.refused, "message": req.detail})
+                    continue
+                ok, message, refused = self.operator_reset(
+                    via="control_socket", caller=req.caller.record(), now=now
+                )
+                reply: dict[str, Any] = {"ok": ok, "message": message}
+                if refused is not None:
+                    reply["refused"] = refused
+                req.answer(reply)
+            seen = (cfg.socket, cfg.group)
+            if seen != self._control_seen:  # a reload changed control.socket or group
+                self._control_seen = seen
+                why = "control.socket and control.group take effect at the next start"
+                warn(f"{why}; still serving {self.control.path}")
+                self.log.supervisor("control_unchanged", socket=self.control.path, why=why)
+        summary = self._refusals.due(now, int(cfg.interval_ms * 1e6))
+        if summary is not None:
+            counts = ", ".join(f"{n} {why}" for why, n in summary["refused"].items())
+            warn(f"operator reset refused: {counts}")
+            self.log.supervisor("reset_refused", **summary)
+
+    def operator_reset(
+        self, *, via: str, caller: dict[str, Any] | None, now: int | None = None
+    ) -> tuple[bool, str, str | None]:
+        """Reset every requirement's monitor; lift latches of requirements that hold.
+        Returns (accepted, message for the caller, why refused).
+
+        At most ``control.max_resets`` per ``control.interval_ms``: a refused call
+        touches nothing and is counted, not logged on its own (:class:`Refusals`)."""
+        now = time.monotonic_ns() if now is None else now
+        who = _who(caller) if caller is not None else via
+        cfg = self.session.config.control
+        if not self._reset_gate.admit(now, cfg.max_resets, int(cfg.interval_ms * 1e6)):
+            self._refusals.add("rate", who)
+            return (
+                False,
+                f"not reset: rate limited to {cfg.max_resets} per {cfg.interval_ms:g} ms "
+                "(control.max_resets, control.interval_ms); try again",
+                "rate",
+            )
         ids = [r.id for r in self.session.requirements]
         refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
-        self.log.reset("*", reason="operator reset (/safety_supervisor/reset)", refused=refused)
+        extra: dict[str, Any] = {"via": via}
+        if caller is not None:
+            extra["caller"] = caller
+        self.log.reset("*", reason="operator reset", refused=refused, **extra)
         if refused:
-            return False, "not reset: " + ", ".join(refused)
-        return True, "all requirements reset"
+            self._refusals.add("still_violated", who)
+            return False, "not reset: " + ", ".join(refused), "still_violated"
+        return True, "all requirements reset", None
 
     # ------------------------------------------------------------ graph and diagnostics
 
@@ -717,6 +796,11 @@ def _keep_policies(old: Session, new: Session) -> list[str]:
             new.policies[i] = old.policies[j]
             kept.append(req.id)
     return kept
+
+
+def _who(caller: dict[str, Any]) -> str:
+    """A caller as the refusal summary names it."""
+    return str(caller.get("user", f"uid {caller.get('uid')}"))
 
 
 def _never(*_args: Any) -> None:

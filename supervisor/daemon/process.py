@@ -29,6 +29,7 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
+from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
 from supervisor.daemon.session import Session, build_session
@@ -121,10 +122,19 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
         for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
             print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
             log.supervisor("check_warning", detail=w)
+        # The operator's socket exists before READY=1 (docs/reference/ros-interfaces.md).
+        control = open_control(cfg.control)
+        stack.callback(control.close)
+        log.supervisor("control_socket", socket=control.path, group=control.group)
         ctx = init_ros()
         stack.callback(_shutdown_ros, ctx)
         node = SupervisorNode(
-            session, log, context=ctx, notifier=notifier, watchdog_s=watchdog_interval()
+            session,
+            log,
+            context=ctx,
+            notifier=notifier,
+            watchdog_s=watchdog_interval(),
+            control=control,
         )
         stack.callback(node.close)
         if stop_requested.is_set():

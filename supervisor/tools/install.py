@@ -2,7 +2,9 @@
 
 What it does, in order (each step is printed before it runs):
 
-1. the system user (``useradd --system``, no home, no login shell);
+1. the system user (``useradd --system``, no home, no login shell) and the
+   operators' group (``groupadd --system safety-operators``: its members may
+   reset through the control socket);
 2. ``/etc/safety-supervisor`` with the config (copied only if absent: an
    existing config is never overwritten) and an environment file template;
 3. a venv under the prefix (``/opt/safety-supervisor/venv``) and
@@ -24,6 +26,7 @@ Standard library only (plus PyYAML, a dependency anyway), so it stays quick.
 from __future__ import annotations
 
 import argparse
+import grp
 import json
 import os
 import pwd
@@ -42,6 +45,7 @@ from urllib.parse import unquote, urlparse
 import supervisor
 from monitors.errors import UserError
 from supervisor import data
+from supervisor.names import OPERATORS_GROUP
 
 NAME = "safety-supervisor"
 PROG = "install-service"
@@ -382,6 +386,18 @@ def make_plan(args: argparse.Namespace) -> Plan:
             skip=user_skip,
         )
     )
+    try:
+        grp.getgrnam(OPERATORS_GROUP)
+        group_skip: str | None = f"group {OPERATORS_GROUP} exists"
+    except KeyError:
+        group_skip = None
+    steps.append(
+        Step(
+            f"create the group {OPERATORS_GROUP}: its members may `safety-supervisor reset`",
+            argv=("groupadd", "--system", OPERATORS_GROUP),
+            skip=group_skip,
+        )
+    )
     steps.append(
         Step(
             f"create {CONFIG_DIR}",
@@ -478,6 +494,10 @@ def make_plan(args: argparse.Namespace) -> Plan:
     next_steps.append(
         f"Start it now and at boot: systemctl enable --now {UNIT_NAME}; watch it: "
         f"systemctl status {UNIT_NAME}; journalctl -u {UNIT_NAME} -f"
+    )
+    next_steps.append(
+        f"Let operators reset latched mitigations: usermod -aG {OPERATORS_GROUP} USER "
+        "(then `safety-supervisor reset` as that user, after logging in again)."
     )
     next_steps.append(
         f"After editing the config: systemctl reload {UNIT_NAME} (runs check first; a "

@@ -1,18 +1,32 @@
-"""``safety-supervisor reset``: the operator's reset, from a shell on the robot.
+"""``safety-supervisor reset``: the operator's reset, through the control socket.
 
-Calls the running daemon's ``/safety_supervisor/reset`` (std_srvs/Trigger),
-the same service a dashboard button would call.  The daemon resets every
-requirement's monitor and lifts latched mitigations of requirements that
-hold again; it refuses (and says which) for those still violated.
+Connects to the running daemon's control socket (:mod:`supervisor.daemon.control`;
+``--socket``, else the installed service's ``/run/safety-supervisor/control.sock``,
+else the path a ``run`` of this user in this ROS domain listens on).  The
+kernel checks the socket file's permissions, the daemon the caller's
+credentials, which it writes into the ``reset`` record.  The daemon resets
+every requirement's monitor and lifts latched mitigations of requirements that
+hold again; it refuses (and says which) for those still violated, and refuses
+resets beyond its rate limit.  docs/reference/commands.md, ``reset``.
 """
 
 from __future__ import annotations
 
 import argparse
-import time
+import contextlib
+import errno
+import grp
+import json
+import os
+import pwd
+import socket
+import stat
+from typing import Any
 
 from monitors.errors import UserError
-from supervisor.names import RESET_SERVICE
+from supervisor.names import client_control_socket
+
+MAX_ANSWER = 65536
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -20,40 +34,86 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "reset", help="operator reset of the running supervisor (lifts latched mitigations)"
     )
     r.add_argument(
-        "--timeout", type=float, default=10.0, help="seconds to find the service (default 10)"
+        "--socket",
+        metavar="PATH",
+        help="the daemon's control socket (default: /run/safety-supervisor/control.sock "
+        "if it exists, else the one `run` uses for this user and ROS_DOMAIN_ID)",
+    )
+    r.add_argument(
+        "--timeout", type=float, default=10.0, help="seconds to wait for the answer (default 10)"
     )
 
 
 def cmd_reset(args: argparse.Namespace) -> int:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
-    from std_srvs.srv import Trigger
+    path = args.socket or client_control_socket()
+    answer = request(path, {"command": "reset"}, args.timeout)
+    print(answer.get("message", ""), flush=True)
+    return 0 if answer.get("ok") is True else 1
 
-    ctx = Context()
-    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    try:
-        node = rclpy.create_node("safety_supervisor_reset", context=ctx)
-        client = node.create_client(Trigger, RESET_SERVICE)
-        if not client.wait_for_service(timeout_sec=args.timeout):
+
+def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
+    """One request, one answer; every failure is a UserError naming the socket."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(timeout)
+        try:
+            s.connect(path)
+        except (FileNotFoundError, ConnectionRefusedError):
             raise UserError(
-                f"no service within {args.timeout:g} s",
-                file=RESET_SERVICE,
-                hint="is the supervisor running, with the same ROS_DOMAIN_ID?",
-            )
-        future = client.call_async(Trigger.Request())
-        executor = SingleThreadedExecutor(context=ctx)
-        executor.add_node(node)
-        deadline = time.monotonic() + args.timeout
-        while not future.done() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.1)
-        if not future.done():
-            raise UserError(f"no answer within {args.timeout:g} s", file=RESET_SERVICE)
-        response = future.result()
-        print(response.message, flush=True)
-        executor.shutdown()
-        node.destroy_node()
-        return 0 if response.success else 1
-    finally:
-        rclpy.shutdown(context=ctx)
+                "no supervisor is running here",
+                file=path,
+                hint="start it (systemctl start safety-supervisor), or pass the socket "
+                "of a `run` with --socket",
+            ) from None
+        except PermissionError:
+            who, hint = _who_may(path)
+            raise UserError("permission denied: " + who, file=path, hint=hint) from None
+        except OSError as e:
+            if e.errno == errno.ENOTSOCK:
+                raise UserError("not a control socket", file=path) from None
+            raise UserError(f"cannot connect: {e.strerror or e}", file=path) from None
+        try:
+            s.sendall(json.dumps(req).encode() + b"\n")
+            data = b""
+            while b"\n" not in data and len(data) < MAX_ANSWER:
+                chunk = s.recv(MAX_ANSWER)
+                if not chunk:
+                    break
+                data += chunk
+        except TimeoutError:
+            raise UserError(f"no answer within {timeout:g} s", file=path) from None
+        except OSError as e:
+            raise UserError(f"connection failed: {e.strerror or e}", file=path) from None
+    try:
+        answer = json.loads(data.partition(b"\n")[0])
+    except ValueError:
+        answer = None
+    if not isinstance(answer, dict):
+        raise UserError("the supervisor closed the connection without an answer", file=path)
+    return answer
+
+
+def _who_may(path: str) -> tuple[str, str]:
+    """Who the socket file lets in, in words (its owner, its group if it has the
+    mode), and what to ask for."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return (
+            "the socket's directory is closed to this user",
+            "pass the socket of a supervisor you may reach with --socket",
+        )
+    owner = str(st.st_uid)
+    with contextlib.suppress(KeyError):
+        owner = pwd.getpwuid(st.st_uid).pw_name
+    group = str(st.st_gid)
+    with contextlib.suppress(KeyError):
+        group = grp.getgrgid(st.st_gid).gr_name
+    if st.st_mode & stat.S_IWGRP:
+        return (
+            f"only user {owner} and members of group {group} may reset",
+            f"ask for membership of group {group} (usermod -aG {group} USER), log in again",
+        )
+    return (
+        f"only user {owner} (and root) may reset; the socket has no operators group",
+        "set control.group in the supervisor's config (the service's is safety-operators)",
+    )

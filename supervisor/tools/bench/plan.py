@@ -79,7 +79,8 @@ class Plan:
     def write_config(self, out: Path, log: Path, *, latency: bool) -> Path:
         """A copy of the config for the daemon: inputs reliable with depth 1000 (the
         baselines' QoS), no on_stale (a stale halt would add messages nobody sent),
-        the log in our temp dir; for latency, state_req103 acts at every violation."""
+        the log in our temp dir, the ROS reset service on for the driver's handshake;
+        for latency, state_req103 acts at every violation."""
         import yaml
 
         doc = yaml.safe_load(self.path.read_text())
@@ -92,6 +93,15 @@ class Plan:
                 spec["qos"], spec["depth"] = "reliable", DEPTH
         doc.pop("on_stale", None)
         doc.setdefault("logging", {})["violations"] = str(log)
+        # The driver's handshake is a call of the ROS reset service, several per
+        # trial: turn the service on and lift the operator-reset rate limit
+        # (docs/reference/ros-interfaces.md); the socket stays in our temp dir.
+        doc["ros"] = {**(doc.get("ros") or {}), "reset_service": True}
+        doc["control"] = {
+            **(doc.get("control") or {}),
+            "socket": str(out.parent / "control.sock"),
+            "max_resets": 1_000_000_000,
+        }
         if latency:
             reqs = doc.setdefault("requirements", [])
             entry = next((r for r in reqs if r.get("id") == LATENCY_REQUIREMENT), None)

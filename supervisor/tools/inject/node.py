@@ -11,11 +11,13 @@ from typing import Any
 # rclpy and the ROS message packages are imported where they are used: --dry-run
 # computes and prints without ROS.
 from mitigations.rosmsg import message_class
+from monitors.errors import UserError
 from monitors.verify.interpret import Value
-from supervisor.names import RESET_SERVICE
+from supervisor.names import client_control_socket
 from supervisor.tools.inject.errors import InjectError
 from supervisor.tools.inject.report import fmt_value
 from supervisor.tools.inject.schedule import Topic
+from supervisor.tools.reset import request
 
 
 class RosOut:
@@ -102,21 +104,11 @@ def set_field(msg: Any, path: str, value: Any) -> None:
 
 
 def request_reset(out: RosOut) -> str:
-    """Ask the supervisor for an operator reset (judge every requirement afresh)."""
-    from rclpy.executors import SingleThreadedExecutor
-    from std_srvs.srv import Trigger
-
-    client = out.node.create_client(Trigger, RESET_SERVICE)
-    if not client.wait_for_service(timeout_sec=5.0):
-        return f"not done: no {RESET_SERVICE} service within 5 s"
-    future = client.call_async(Trigger.Request())
-    ex = SingleThreadedExecutor(context=out.ctx)
-    ex.add_node(out.node)
-    deadline = time.monotonic() + 5.0
-    while not future.done() and time.monotonic() < deadline:
-        ex.spin_once(timeout_sec=0.1)
-    ex.shutdown()
-    if not future.done():
-        return "not done: no answer within 5 s"
-    res = future.result()
-    return f"{'ok' if res.success else 'refused'}: {res.message}"
+    """Ask the supervisor for an operator reset (judge every requirement afresh),
+    through its control socket, as ``safety-supervisor reset`` does."""
+    path = out.cfg.control.socket or client_control_socket()
+    try:
+        answer = request(path, {"command": "reset"}, 5.0)
+    except UserError as e:
+        return f"not done: {e}"
+    return f"{'ok' if answer.get('ok') is True else 'refused'}: {answer.get('message', '')}"
