@@ -359,3 +359,9 @@ def test_a_variable_read_only_by_a_policy_confirmation_is_used(tmp_path):
     assert project.ok, [str(e) for e in project.errors]
     unused = project_for(write(tmp_path, BASE))
     assert any("'x' is declared but no requirement uses it" in str(e) for e in unused.errors)
+
+
+@pytest.mark.parametrize("value", ["[1, 2]", "7", "text"])
+def test_every_section_must_be_a_mapping(tmp_path, value):
+    e = error_of(tmp_path, BASE + f"analysis: {value}\n")
+    assert e.line == 12 and "analysis must be a mapping" in str(e)

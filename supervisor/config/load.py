@@ -15,7 +15,7 @@ from pathlib import Path
 
 from monitors.errors import UserError
 from supervisor.config.control import load_control
-from supervisor.config.fields import check_keys, error_at
+from supervisor.config.fields import as_mapping, check_keys, error_at
 from supervisor.config.limits import load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
@@ -80,7 +80,7 @@ def load_config(path: str | Path) -> Config:
     for r in requirements:
         r.policy_config = policy_config(r, mitigations, variables, file)
     check_trigger(step, variables, doc)
-    analysis = doc.get("analysis") or {}
+    analysis = as_mapping(doc.get("analysis") or {}, doc, "analysis", "analysis")
     ros = load_ros(doc)
     control = load_control(doc, path)
     limits = load_limits(doc)
