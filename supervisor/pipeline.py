@@ -217,6 +217,9 @@ def check_variables(
             used.update(variables(v.define))
     if cfg.step.trigger:
         used.add(cfg.step.trigger)
+    for entry in cfg.requirements:  # a policy's confirmation reads its variable too
+        if entry.policy_config.confirm is not None:
+            used.add(entry.policy_config.confirm.variable)
     if all(r.ok for r in reqs):  # unused is only meaningful when every requirement was read
         for v in cfg.variables.values():
             if v.name not in used:
