@@ -142,3 +142,22 @@ def test_unparseable_sentence_points_at_column(tmp_path):
 def test_usage_error_exit_2():
     r = cli("check")
     assert r.returncode == 2
+
+
+@pytest.mark.ros
+def test_run_leaves_no_ros_log_directory_behind(tmp_path):
+    """Outside systemd (no ROS_LOG_DIR, no LOGS_DIRECTORY) run makes a temporary
+    directory for rclpy's own log files, and removes it at exit."""
+    from rosutil import Daemon
+
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    daemon = Daemon(tmp_path, env={"ROS_LOG_DIR": "", "LOGS_DIRECTORY": "", "TMPDIR": str(tmpdir)})
+    try:
+        daemon.wait_notify("READY=1", timeout=60)
+        made = list(tmpdir.glob("safety-supervisor-ros-log-*"))
+        assert len(made) == 1, daemon.explain()
+        daemon.terminate()
+    finally:
+        daemon.close()
+    assert list(tmpdir.glob("safety-supervisor-ros-log-*")) == []

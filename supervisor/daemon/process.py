@@ -20,6 +20,7 @@ import signal
 import sys
 import tempfile
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -29,11 +30,11 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
+from supervisor.analysis_report import validate
 from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
 from supervisor.daemon.session import Session, build_session
-from supervisor.pipeline import project_for
 
 
 def init_ros(domain_id: int | None = None) -> Context:
@@ -50,13 +51,19 @@ def _shutdown_ros(ctx: Context) -> None:
         rclpy.shutdown(context=ctx)
 
 
-def prepare_session(config: str | Path, build_root: Path) -> Session:
-    """Check and compile ``config`` into a loaded Session (raises UserError)."""
-    project = project_for(config)
-    if not project.ok:
-        err = project.first_error()
-        assert err is not None
+def prepare_session(
+    config: str | Path, build_root: Path, skipped: Callable[[str], None] | None = None
+) -> Session:
+    """Validate ``config`` as ``check`` does (the same function) and compile it into
+    a loaded Session; raises UserError.  ``skipped`` hears why the analyses did not
+    run in full, for the log (docs/reference/log.md)."""
+    checked = validate(config)
+    err = checked.first_error()
+    if err is not None:
         raise err
+    if checked.skipped and skipped is not None:
+        skipped(checked.skipped)
+    project = checked.project
     build_root.mkdir(parents=True, exist_ok=True)
     build = Path(tempfile.mkdtemp(prefix="monitor-", dir=build_root))
     try:
@@ -74,8 +81,14 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
     node: SupervisorNode | None = None
     build_root: Path
 
+    logs: list[ViolationLog] = []  # the open log, for the reload thread's records
+
     def reload_session() -> Session:
-        return prepare_session(config, build_root)
+        def skipped(why: str) -> None:
+            for log in logs:
+                log.supervisor("analysis_skipped", why=why, reload=True)
+
+        return prepare_session(config, build_root, skipped)
 
     early: set[int] = set()  # SIGHUP/SIGUSR1 before the node exists: served once it does
 
@@ -102,7 +115,8 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             )
         else:
             build_root = Path(build_dir)
-        session = prepare_session(config, build_root)
+        skipped: list[str] = []
+        session = prepare_session(config, build_root, skipped.append)
         cfg = session.config
         path = log_path or cfg.log_path
         if not path:
@@ -111,14 +125,19 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             )
         # rclpy writes its own log files; under ProtectSystem=strict only a few
         # places are writable.
+        # places are writable.  A directory made here is removed at exit.
         if not os.environ.get("ROS_LOG_DIR"):
-            os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or tempfile.mkdtemp(
-                prefix="safety-supervisor-ros-log-"
+            stack.callback(os.environ.pop, "ROS_LOG_DIR", None)
+            os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or stack.enter_context(
+                tempfile.TemporaryDirectory(prefix="safety-supervisor-ros-log-")
             )
         log = stack.enter_context(
             ViolationLog(path, cfg.component, cfg.sha256, retry_buffer=cfg.log_retry_buffer)
         )
+        logs.append(log)
         log.supervisor("start", config=str(config), pid=os.getpid())
+        for why in skipped:  # run validates as check does; say what it could not judge
+            log.supervisor("analysis_skipped", why=why)
         for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
             print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
             log.supervisor("check_warning", detail=w)
