@@ -47,6 +47,9 @@ SETTING_KEYS: dict[str, tuple[set[str], set[str]]] = {
 }
 
 _POSITIVE = {"connect_timeout_s", "command_timeout_s", "timeout_s"}
+# The longest time setting, in seconds (1e9 ms, as the config's durations):
+# waits and timers built from it stay inside what threading and sockets take.
+MAX_SECONDS = 1e6
 _STRINGS = {"host", "user", "command", "key", "known_hosts"}
 
 
@@ -206,13 +209,15 @@ def _check_types(name: str, kind: str, params: Mapping[str, Any], key: str | Non
             if isinstance(v, bool) or not isinstance(v, int) or not 0 < v < 65536:
                 bad = "must be a port number 1..65535"
         elif k == "retries":
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                bad = "must be a whole number of attempts >= 1"
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1_000_000:
+                bad = "must be a whole number of attempts from 1 to 1000000"
         elif k in _POSITIVE or k == "backoff_s":
             if isinstance(v, bool) or not isinstance(v, int | float):
                 bad = "must be a number of seconds"
             elif v < 0 or (k in _POSITIVE and v == 0):
                 bad = "must be positive" if k in _POSITIVE else "must not be negative"
+            elif not v <= MAX_SECONDS:  # an int beyond a double compares exactly
+                bad = f"must be at most {MAX_SECONDS:g} seconds"
         elif k in _STRINGS:
             if not isinstance(v, str) or not v.strip():
                 bad = "must be a non-empty string"

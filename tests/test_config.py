@@ -365,3 +365,16 @@ def test_a_variable_read_only_by_a_policy_confirmation_is_used(tmp_path):
 def test_every_section_must_be_a_mapping(tmp_path, value):
     e = error_of(tmp_path, BASE + f"analysis: {value}\n")
     assert e.line == 12 and "analysis must be a mapping" in str(e)
+
+
+@pytest.mark.parametrize("value", ["1" + "0" * 400, "1.0e+300", "10000000"])
+def test_mitigation_seconds_are_bounded(tmp_path, value):
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        MITIGATION_BASE.replace(
+            "MITIGATION", f"{{command: {{argv: [/bin/true], timeout_s: {value}}}}}"
+        )
+    )
+    with pytest.raises(UserError, match="must be at most 1e\\+06 seconds") as e:
+        load_config(path)
+    assert e.value.line == 7  # mitigations: m: {...}
