@@ -30,6 +30,7 @@ from supervisor.config import Config
 from supervisor.pipeline import Project, project_for
 
 ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
+MAX_K = 100_000  # ticks; far past what the analyses' memory limit lets run
 LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
 BUDGET_KEY = "limits.analysis_budget_s"
 
@@ -70,9 +71,9 @@ def analysis_settings(cfg: Config) -> tuple[int | None, float, bool]:
             k = int(str(k))
         except ValueError:
             k = 0
-        if k < 1:
+        if not 1 <= k <= MAX_K:
             raise UserError(
-                "analysis.k must be a whole number of ticks, at least 1",
+                f"analysis.k must be a whole number of ticks from 1 to {MAX_K}",
                 file=cfg.path,
                 line=_key_line(cfg, "k"),
             )
