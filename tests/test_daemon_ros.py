@@ -213,12 +213,15 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
         assert v["config_sha256"] == rejected["config_sha256"]
 
         # A good config adds a requirement: after the reload it is monitored,
-        # without a gap (inputs keep their values) and with the new hash.
+        # without a gap (inputs keep their values) and with the new hash. It must
+        # pass check's analyses too (reload validates as check does), so it is
+        # consistent with state_req102, which wants state 2 farther out.
         config.write_text(
             original.replace(
                 "\n# A silent classifier",
                 "\n  - id: no_state2_for_trained\n"
-                "    text: While classifier = 1 sRobot shall always satisfy OpState != 2\n"
+                "    text: While classifier = 1 sRobot shall always satisfy"
+                " (distance_to_target > 3 | OpState != 2)\n"
                 "    on_violation: [record]\n"
                 "\n# A silent classifier",
             )
