@@ -69,6 +69,11 @@ def test_bench_short_run() -> None:
     assert _number(row["overhead_pct"])
     assert row["fastest_baseline"] == "rclpy wait-set"
     assert row["daemon_violations"] == 0  # the published state is nominal
+    loss = row["daemon_loss"]
+    assert loss["agree"], loss
+    assert loss["missing"] == sent - row["receivers"]["daemon"]["received"]
+    assert loss["gaps"] + loss["before_first"] + loss["after_last"] == loss["missing"]
+    assert loss["gaps"] == row["daemon_counted_lost"]
 
     lat = r["latency"]
     for who in ("echo", "daemon"):
@@ -81,6 +86,64 @@ def test_bench_short_run() -> None:
     _percentiles_sane(d["detect_to_publish_ms"])
     _percentiles_sane(lat["fsync"])
     assert lat["thesis_mean_ms"] == 33.0 and lat["tessla_mean_ms"] == 15.0
+
+
+def test_daemon_loss_splits_what_was_not_taken() -> None:
+    """sent - received = gaps + before the first number heard + after the last one
+    (the stop record's by_publisher); [DISAGREE] only when they do not add up."""
+    from supervisor.tools.bench.report import _format_loss
+    from supervisor.tools.bench.throughput import daemon_loss
+
+    sent = {"a": 100, "b": 100, "c": 100}
+    inputs = {
+        # 10 lost before the first heard, 5 in gaps, 20 after the last taken
+        "a": {
+            "messages": 64,
+            "rejected": 1,
+            "lost": 5,
+            "by_publisher": [{"first": 11, "last": 80, "received": 65, "lost": 5}],
+        },
+        "b": {
+            "messages": 100,
+            "rejected": 0,
+            "lost": 0,
+            "by_publisher": [{"first": 1, "last": 100, "received": 100, "lost": 0}],
+        },
+        "c": {"messages": 0, "rejected": 0, "lost": 0, "by_publisher": []},  # nothing heard
+    }
+    loss = daemon_loss(sent, inputs)
+    assert loss["per_topic"]["a"] == {
+        "missing": 35,
+        "gaps": 5,
+        "before_first": 10,
+        "after_last": 20,
+    }
+    assert loss["per_topic"]["c"] == {
+        "missing": 100,
+        "gaps": 0,
+        "before_first": 0,
+        "after_last": 100,
+    }
+    assert (loss["missing"], loss["gaps"], loss["before_first"], loss["after_last"]) == (
+        135,
+        5,
+        10,
+        120,
+    )
+    assert loss["agree"]
+    row = {"daemon_loss": loss, "drained": True}
+    line = _format_loss(row)
+    assert "sent - received 135 = counted lost 5 + before the first heard 10" in line
+    assert "after the last taken 120" in line and "DISAGREE" not in line
+    assert "not yet taken" in _format_loss({**row, "drained": False})
+
+    # A second stream on a topic with one publisher, or a message taken twice:
+    # the categories no longer add up.
+    inputs["b"]["by_publisher"].append({"first": 1, "last": 3, "received": 3, "lost": 0})
+    inputs["b"]["messages"] = 103
+    loss = daemon_loss(sent, inputs)
+    assert not loss["agree"]
+    assert _format_loss({"daemon_loss": loss, "drained": True}).endswith("[DISAGREE]")
 
 
 def test_bench_text_and_errors(tmp_path: Path) -> None:

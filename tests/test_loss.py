@@ -25,7 +25,7 @@ def test_one_publisher_gaps_are_counted() -> None:
     assert s.on_sequence(40) == 0
     assert [s.on_sequence(n) for n in (41, 42, 45, 46, 50)] == [0, 0, 2, 0, 3]
     assert s.lost == 5
-    assert s.by_publisher() == [{"first": 40, "received": 6, "lost": 5}]
+    assert s.by_publisher() == [{"first": 40, "last": 50, "received": 6, "lost": 5}]
 
 
 def test_interleaved_publishers_are_told_apart_by_continuity() -> None:
@@ -42,8 +42,8 @@ def test_interleaved_publishers_are_told_apart_by_continuity() -> None:
     assert lost == 5 + 3
     by = sorted(s.by_publisher(), key=lambda p: p["received"])
     assert by == [
-        {"first": 1, "received": 8, "lost": 3},
-        {"first": 1000, "received": 15, "lost": 5},
+        {"first": 1, "last": 11, "received": 8, "lost": 3},
+        {"first": 1000, "last": 1019, "received": 15, "lost": 5},
     ]
 
 
@@ -205,6 +205,9 @@ def test_burst_never_starves_the_watchdog_and_loss_is_counted(
     for name in ("a", "b"):
         st = stop["inputs"][name]
         assert st["messages"] + st["lost"] == n + 1, (name, st)
+        # The stream's ends: the bench compares them with what it sent.
+        (pub,) = st["by_publisher"]
+        assert (pub["first"], pub["last"], pub["received"]) == (1, n + 1, st["messages"]), st
     assert stop["inputs"]["a"]["lost"] > 0, stop  # depth 10 cannot hold the burst
     lost_records = [r for r in d.records() if r.get("what") == "input_lost"]
     assert sum(r["lost"] for r in lost_records if r["input"] == "a") == stop["inputs"]["a"]["lost"]

@@ -10,7 +10,10 @@ writer's ``publication_sequence_number`` (1, 2, 3, ... per publisher) and its
   publisher per topic, a best guess of the split (not of the total) when
   several publishers' numbers interleave closely. What a publisher sent before
   the first message heard from it is not counted: it may have been sent before
-  the subscription matched (its first number is reported instead);
+  the subscription matched (its first number is reported instead); nor is what
+  it sent after the last one heard, which no later number reveals (the last
+  number is reported, so whoever knows what was sent can tell;
+  docs/reference/ros-interfaces.md#lost-messages);
 * :class:`OwnWrites` remembers what the daemon's own publishers wrote (their
   sequence number and the real-time window of the write), so a mitigation's
   message that comes back on an input topic is recognised and never taken
@@ -69,9 +72,13 @@ class SequenceStreams:
         return gap
 
     def by_publisher(self) -> list[dict[str, int]]:
-        """Per publisher stream: the first sequence number heard, messages
-        received and lost since."""
-        return [{"first": s.first, "received": s.received, "lost": s.lost} for s in self._streams]
+        """Per publisher stream: the first and the last sequence number heard,
+        messages received and lost between them (``last - first + 1 ==
+        received + lost``)."""
+        return [
+            {"first": s.first, "last": s.last, "received": s.received, "lost": s.lost}
+            for s in self._streams
+        ]
 
 
 class OwnWrites:

@@ -435,6 +435,19 @@ class SupervisorNode:
             parts.append(f"latched={','.join(sorted(latched))}")
         return " ".join(parts)
 
+    def stop_stats(self) -> dict[str, dict[str, Any]]:
+        """Per input, for the ``stop`` record: the counts, and per publisher stream
+        the first and last number heard, received and lost: what a publisher sent
+        outside them is not counted as lost, but whoever knows what it sent can
+        (docs/reference/ros-interfaces.md#lost-messages)."""
+        streams = {s.name: s.streams for s in self._subs}
+        out: dict[str, dict[str, Any]] = {}
+        for name, st in self.session.runtime.input_stats().items():
+            out[name] = {k: st[k] for k in ("messages", "rejected", "nan", "lost", "own")}
+            seqs = streams.get(name)
+            out[name]["by_publisher"] = seqs.by_publisher() if seqs else []
+        return out
+
     # ------------------------------------------------------------ violations
 
     # Sink of mitigations.supervision: effects, in the policy's order.

@@ -172,10 +172,7 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             ticks=node.session.runtime.tick,
             violations=node.violations,
             reloads=node.reloads,
-            inputs={
-                name: {k: st[k] for k in ("messages", "rejected", "nan", "lost", "own")}
-                for name, st in node.session.runtime.input_stats().items()
-            },
+            inputs=node.stop_stats(),
         )
     notifier.close()
     return 0

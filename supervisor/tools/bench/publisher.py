@@ -105,7 +105,8 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
 
 
 def _relay_diagnostics(node: Any, diag: list[Any], daemon: str, topics: list[Topic]) -> None:
-    """Emit the daemon's per-input message counts from each /diagnostics report."""
+    """Emit the daemon's per-input counts from each /diagnostics report: messages
+    taken (accepted or rejected) and counted lost."""
     loop = WaitLoop(node, diag)
     names = {f"{daemon}: input {t.name}": t.name for t in topics}
     try:
@@ -113,14 +114,15 @@ def _relay_diagnostics(node: Any, diag: list[Any], daemon: str, topics: list[Top
             if not loop.wait(100_000_000):
                 continue
             while (msg := loop.take(0)) is not None:
-                counts = {}
+                counts, lost = {}, {}
                 for st in msg.status:
                     name = names.get(st.name)
                     if name is not None:
                         kv = {v.key: v.value for v in st.values}
-                        counts[name] = int(kv.get("messages", 0))
+                        counts[name] = int(kv.get("messages", 0)) + int(kv.get("rejected", 0))
+                        lost[name] = int(kv.get("lost", 0))
                 stamp = msg.header.stamp.sec + msg.header.stamp.nanosec / 1e9
                 if counts:
-                    emit(event="diag", counts=counts, stamp=stamp)
+                    emit(event="diag", counts=counts, lost=lost, stamp=stamp)
     finally:
         loop.close()

@@ -50,13 +50,11 @@ def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
                 f"  {name:<16} {rc['received']:>9} {rc['loss_pct']:>7.2f} "
                 f"{rc['msg_per_s']:>8.0f} {rc['cpu_s']:>6.2f} {_f(rc['cpu_us_per_msg'], '.1f'):>10}"
             )
-        missing = row["sent"] - row["receivers"]["daemon"]["received"]
-        counted = row.get("daemon_counted_lost")
         lines.append(
             f"  daemon: longest gap between WATCHDOG=1 pings {_f(row.get('longest_ping_gap_ms'), '.0f')}"
-            f" ms (WATCHDOG_USEC={row.get('watchdog_usec')}); lost: counted {counted}, "
-            f"sent - received {missing}" + ("" if counted == missing else "  [DISAGREE]")
+            f" ms (WATCHDOG_USEC={row.get('watchdog_usec')})"
         )
+        lines.append(_format_loss(row))
         lines.append(
             f"  overhead (eq. 1) vs {row['fastest_baseline']}: {_f(row['overhead_pct'])} %"
             + (
@@ -87,6 +85,18 @@ def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
         )
         lines.append(line)
     return lines
+
+
+def _format_loss(row: dict[str, Any]) -> str:
+    """sent - received of the daemon, split as docs/reference/commands.md#bench says."""
+    loss = row["daemon_loss"]
+    # Not drained: what is above the last number taken may still have been on its way.
+    tail = "after the last taken" if row["drained"] else "not yet taken (or after the last)"
+    return (
+        f"  daemon: sent - received {loss['missing']} = counted lost {loss['gaps']}"
+        f" + before the first heard {loss['before_first']} + {tail} {loss['after_last']}"
+        + ("" if loss["agree"] else "  [DISAGREE]")
+    )
 
 
 def _format_latency(lat: dict[str, Any]) -> list[str]:

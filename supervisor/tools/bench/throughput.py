@@ -74,7 +74,6 @@ def throughput(
         daemon.stop_cleanly()
         stop = daemon.stop_record()
         received = {"daemon": {n: c["messages"] + c["rejected"] for n, c in stop["inputs"].items()}}
-        counted_lost = sum(int(c.get("lost", 0)) for c in stop["inputs"].values())
         for name, b in baselines.items():
             b.stop()
             final = b.latest("final") or b.latest("counts")
@@ -96,7 +95,8 @@ def throughput(
         "burst": burst,
         "watchdog_usec": wd_usec,
         "longest_ping_gap_ms": None if gap is None else 1000 * gap,
-        "daemon_counted_lost": counted_lost,
+        "daemon_counted_lost": sum(int(c.get("lost", 0)) for c in stop["inputs"].values()),
+        "daemon_loss": daemon_loss(sent, stop["inputs"]),
         "receivers": {},
     }
     for name, per_topic in received.items():
@@ -119,6 +119,14 @@ def throughput(
     return out
 
 
+# A receiver's counts must stay unchanged this long before what it has not taken is
+# taken for lost. A reliable reader that missed samples gets them again only after
+# the writer's next heartbeat (Fast DDS: every 3 s by default), and meanwhile holds
+# back every later sample: under a flood the daemon's counts were measured flat for
+# 2 s, then up by a thousand (docs/reference/commands.md#bench).
+QUIET_S = 5.0
+
+
 def _wait_drained(
     pub: Helper,
     baselines: dict[str, Helper],
@@ -127,38 +135,72 @@ def _wait_drained(
     everyone: tuple[Helper, ...],
     timeout: float = 30.0,
 ) -> bool:
-    """Until every receiver's counts stop increasing (or equal what was sent).
-    The daemon's come from its /diagnostics reports (1 Hz) published after the
-    publisher finished, relayed by the publisher process."""
+    """Until every receiver has taken all that was sent, or its counts stayed the
+    same for QUIET_S. The daemon's come from its /diagnostics reports (1 Hz)
+    published after the publisher finished, relayed by the publisher process;
+    taken + counted lost == sent also ends its wait (nothing more can come)."""
     deadline = time.monotonic() + timeout
-    quiet = 0.5  # a baseline reports every 0.1 s: five equal reports
-    last: dict[str, tuple[dict[str, int], float]] = {}
+    changed: dict[str, tuple[Any, float]] = {}
+
+    def quiet(name: str, counts: Any, now: float) -> bool:
+        prev = changed.get(name)
+        if prev is None or prev[0] != counts:
+            changed[name] = prev = (counts, now)
+        return now - prev[1] >= QUIET_S
+
     while time.monotonic() < deadline:
         for c in everyone:
             c.check()
+        now = time.monotonic()
         ok = True
         diags = [ev for ev in pub.events("diag") if ev["stamp"] > done_wall]
-        if not (
-            diags
-            and (
-                diags[-1]["counts"] == sent
-                or (len(diags) >= 2 and diags[-1]["counts"] == diags[-2]["counts"])
-            )
-        ):
+        if not diags:
             ok = False
-        now = time.monotonic()
+        else:
+            got, lost = diags[-1]["counts"], diags[-1].get("lost", {})
+            accounted = all(got.get(t, 0) + lost.get(t, 0) >= n for t, n in sent.items())
+            if not accounted and not quiet("daemon", (got, lost), now):
+                ok = False
         for name, b in baselines.items():
-            got = b.latest("counts")
-            if got is None:
+            latest = b.latest("counts")
+            if latest is None:
                 ok = False
                 continue
-            counts = got[1]["counts"]
-            prev = last.get(name)
-            if prev is None or prev[0] != counts:
-                last[name] = (counts, now)
-            if counts != sent and now - last[name][1] < quiet:
+            counts = latest[1]["counts"]
+            if counts != sent and not quiet(name, counts, now):
                 ok = False
         if ok:
             return True
         time.sleep(0.05)  # polling interval
     return False
+
+
+def daemon_loss(sent: dict[str, int], inputs: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    """What the daemon did not take (sent - received), per category, from its ``stop``
+    record: ``gaps`` (counted lost: gaps in a publisher's sequence numbers),
+    ``before_first`` (numbers below the first one heard, not counted by the daemon:
+    they may predate the match; the bench's publisher starts after matching, so
+    here they are lost) and ``after_last`` (above the last one heard: no later
+    number reveals them; docs/reference/ros-interfaces.md#lost-messages). The bench
+    publishes each topic from one writer numbered from 1, so the categories add up
+    to sent - received exactly; ``agree`` says they did."""
+    total = {"missing": 0, "gaps": 0, "before_first": 0, "after_last": 0}
+    per_topic: dict[str, dict[str, int]] = {}
+    agree = True
+    for name, n in sent.items():
+        st = inputs.get(name, {})
+        streams = st.get("by_publisher") or []
+        row = {
+            "missing": n - int(st.get("messages", 0)) - int(st.get("rejected", 0)),
+            "gaps": int(st.get("lost", 0)),
+            # Nothing heard: every message is above the last number heard (none, 0).
+            "before_first": min((int(p["first"]) for p in streams), default=1) - 1,
+            "after_last": n - max((int(p["last"]) for p in streams), default=0),
+        }
+        cats = row["gaps"] + row["before_first"] + row["after_last"]
+        if cats != row["missing"] or min(row.values()) < 0:
+            agree = False
+        per_topic[name] = row
+        for k, v in row.items():
+            total[k] += v
+    return {**total, "agree": agree, "per_topic": per_topic}
