@@ -249,6 +249,7 @@ requirements:
 mitigations:
   stop: {publish: {topic: /halt, msg: std_msgs/msg/Bool, value: {data: true}}}
   power_off: {log: {message: off}}
+step: {policy: on_message}
 """
 
 
