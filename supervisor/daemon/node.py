@@ -792,6 +792,11 @@ class SupervisorNode:
         self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
 
 
+def _who(caller: dict[str, Any]) -> str:
+    """A caller as the refusal summary names it."""
+    return str(caller.get("user", f"uid {caller.get('uid')}"))
+
+
 def _keep_policies(old: Session, new: Session) -> list[str]:
     """A requirement whose text, formula, policy and actions did not change keeps its
     policy object (latch, episode, incident) across a reload, so a reload neither
@@ -809,11 +814,6 @@ def _keep_policies(old: Session, new: Session) -> list[str]:
             new.policies[i] = old.policies[j]
             kept.append(req.id)
     return kept
-
-
-def _who(caller: dict[str, Any]) -> str:
-    """A caller as the refusal summary names it."""
-    return str(caller.get("user", f"uid {caller.get('uid')}"))
 
 
 def _never(*_args: Any) -> None:
