@@ -50,6 +50,33 @@ def test_fret_malformed_fractional_bounds_are_rejected():
         parse_formula("O[<=1.5] p")
 
 
+def test_older_fret_bounds_are_read():
+    # Older FRET versions print SALT-style bounds: [<=n] is [0,n], [<n] [0,n-1], [=n] [n,n].
+    assert parse_formula("O[<=3] p") == Past("O", Var("p"), 0, 3)
+    assert parse_formula("H[<3] p") == Past("H", Var("p"), 0, 2)
+    assert parse_formula("O[=2] p") == Past("O", Var("p"), 2, 2)
+    assert parse_formula("(Y TRUE) S[<=4] p") == Since("S", Past("Y", TRUE), Var("p"), 0, 4)
+    assert parse_formula("O[<0] p") == FALSE
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "! x = 4",
+        "! a & b -> c | d xor e",
+        "-x ^ 2 * 3 + 1 >= 2 mod 3",
+        "if a then b -> c",
+        "~ a => b <=> c",
+    ],
+)
+def test_one_expression_grammar_for_fretish_and_formula_text(text):
+    # The same text reads the same in a FRETISH sentence and in FRET's formula text.
+    from monitors.frontend.parse import parse_requirement
+
+    req = parse_requirement(f"the sw shall immediately satisfy {text}")
+    assert parse_formula(text) == req.response
+
+
 def test_numbers_and_words():
     f = parse_formula("x mod 4 = 1 & altitude >= 1.5e2 & v * 2 < -3")
     assert variables(f) == ["x", "altitude", "v"]

@@ -18,6 +18,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
+from pathlib import Path
+from typing import TypeVar
 
 from lark import Lark, Token, Transformer, Tree
 
@@ -316,38 +318,52 @@ def to_fret(f: Formula) -> str:
 
 # ---------------------------------------------------------------- parser
 
+# The one grammar of expressions, shared with FRETISH sentences (fretish.lark).
+EXPRESSIONS_GRAMMAR = Path(__file__).with_name("expressions.lark")
+# lark names the rules a grammar imports from expressions.lark with this prefix.
+_IMPORTED = "expressions__"
+_EXPRESSION_RULES = ("ifthen", "binop", "not_", "uminus", "number", "true", "false", "call", "var")
+# The rules of expressions.lark that nest (parentheses alone add no level).
+EXPRESSION_NESTING = frozenset(_IMPORTED + r for r in ("ifthen", "binop", "not_", "uminus", "call"))
+
+_T = TypeVar("_T", bound=type)
+
+
+def expression_parser(grammar: str, **options: object) -> Lark:
+    """An LALR parser of ``grammar``, which may ``%import expressions (...)``."""
+    return Lark(
+        grammar,
+        parser="lalr",
+        import_paths=[str(EXPRESSIONS_GRAMMAR.parent)],
+        maybe_placeholders=False,
+        **options,
+    )
+
+
+def reads_expressions(cls: _T) -> _T:
+    """Class decorator for a lark Transformer: its methods named after the rules
+    of expressions.lark (``binop``, ``var``, ...) also transform those rules as
+    a grammar imports them (lark prefixes them with ``expressions__``)."""
+    for name in _EXPRESSION_RULES:
+        if hasattr(cls, name):
+            setattr(cls, _IMPORTED + name, getattr(cls, name))
+    return cls
+
+
+# FRET's formula text: the shared expressions with the past-time operators.  A
+# unary operator binds like `!`; S and T bind like the implications (loosest,
+# as in FRET's own LTL grammar).  Bounds are `[l,r]`, `[l,inf]` or, as older
+# FRET versions print them, `[<=n]` `[<n]` `[=n]`.
 _GRAMMAR = r"""
-?start: impl
-?impl: equiv | equiv ("->" | "=>") impl        -> implies
-?equiv: disj | equiv ("<->" | "<=>") disj      -> iff
-?disj: xor_ | disj "|" xor_                    -> or_
-?xor_: conj | xor_ "xor" conj                  -> xor
-?conj: since | conj "&" since                  -> and_
-?since: rel | since SINCE_OP bounds? rel       -> since
-?rel: sum | sum REL_OP sum                     -> rel
-?sum: prod | sum ADD_OP prod                   -> arith
-?prod: power | prod MUL_OP power               -> arith
-?power: unary | unary "^" power                -> pow
-?unary: atom
-      | "!" unary                              -> not_
-      | "-" unary                              -> neg
-      | PAST_OP bounds? unary                  -> past
+?start: expr
+%import expressions (expr, impl, disj, neg, NAME, NUMBER, IF, THEN, TRUE_KW, FALSE_KW, MINUS, REL_OP, IMPL_OP, OR_OP, AND_OP, NOT_OP, ADD_OP, MUL_OP, POW_OP)
+%extend neg: PAST_OP bounds? neg           -> past
+%extend impl: impl SINCE_OP bounds? disj   -> since
 bounds: "[" INT "," (INT | "inf") "]"
-      | "[" CMP_BOUND "]"                      -> fret_bad_bounds
-?atom: "(" impl ")"
-     | "TRUE"                                  -> true
-     | "FALSE"                                 -> false
-     | "FTP"                                   -> ftp
-     | NUMBER                                  -> number
-     | NAME                                    -> var
+      | "[" CMP_BOUND "]"                  -> cmp_bounds
 SINCE_OP.2: /[ST](?![A-Za-z0-9_])/
 PAST_OP.2: /[YZHO](?![A-Za-z0-9_])/
-REL_OP: "<=" | ">=" | "!=" | "=" | "<" | ">"
-ADD_OP: "+" | "-"
-MUL_OP: "*" | "/" | /mod(?![A-Za-z0-9_])/
-CMP_BOUND: /[<=>]+[^\]]*/
-NAME: /(?!(TRUE|FALSE|FTP|mod|xor|inf)(?![A-Za-z0-9_]))[A-Za-z_][A-Za-z0-9_]*/
-NUMBER: /\d+(\.\d+)?([eE][+-]?\d+)?/
+CMP_BOUND: /(<=|<|=)[^\]]*/
 INT: /-?\d+/
 %import common.WS
 %ignore WS
@@ -358,21 +374,15 @@ class FormulaSyntaxError(ValueError):
     """A formula string that is not in FRET's past-time syntax."""
 
 
+@reads_expressions
 class _Build(Transformer):
-    def implies(self, a: list) -> Formula:
-        return BinOp("->", a[0], a[1])
+    def ifthen(self, a: list) -> Formula:
+        return BinOp("->", a[-3], a[-1])
 
-    def iff(self, a: list) -> Formula:
-        return BinOp("<->", a[0], a[1])
-
-    def or_(self, a: list) -> Formula:
-        return BinOp("|", a[0], a[1])
-
-    def xor(self, a: list) -> Formula:
-        return BinOp("xor", a[0], a[1])
-
-    def and_(self, a: list) -> Formula:
-        return BinOp("&", a[0], a[1])
+    def binop(self, a: list) -> Formula:
+        left, op, right = a
+        text = str(op).lower()
+        return BinOp({"=>": "->", "<=>": "<->"}.get(text, text), left, right)
 
     def since(self, a: list) -> Formula:
         if len(a) == 4:
@@ -382,22 +392,13 @@ class _Build(Transformer):
             return Since(str(a[1]), a[0], a[3], lo, hi)
         return Since(str(a[1]), a[0], a[2])
 
-    def rel(self, a: list) -> Formula:
-        return BinOp(str(a[1]), a[0], a[2])
-
-    def arith(self, a: list) -> Formula:
-        return BinOp(str(a[1]), a[0], a[2])
-
-    def pow(self, a: list) -> Formula:
-        return BinOp("^", a[0], a[1])
-
     def not_(self, a: list) -> Formula:
-        return Not(a[0])
+        return Not(a[-1])
 
-    def neg(self, a: list) -> Formula:
-        if isinstance(a[0], Const) and not isinstance(a[0].value, bool):
-            return Const(-a[0].value)
-        return Neg(a[0])
+    def uminus(self, a: list) -> Formula:
+        if isinstance(a[-1], Const) and not isinstance(a[-1].value, bool):
+            return Const(-a[-1].value)
+        return Neg(a[-1])
 
     def past(self, a: list) -> Formula:
         op = str(a[0])
@@ -419,19 +420,22 @@ class _Build(Transformer):
             raise FormulaSyntaxError(f"malformed time bounds [{lo},{hi}]")
         return lo, hi
 
-    def fret_bad_bounds(self, a: list) -> tuple[int, int]:
-        raise FormulaSyntaxError(
-            f"malformed time bounds [{a[0]}] (FRET writes these for non-integer durations)"
-        )
+    def cmp_bounds(self, a: list) -> tuple[int, int]:
+        # Older FRET versions: [<=n] is [0,n], [<n] is [0,n-1], [=n] is [n,n].
+        text = str(a[0])
+        op = "<=" if text.startswith("<=") else text[0]
+        n = text[len(op) :].strip()
+        if not n.isdigit() or len(n) > MAX_NUMBER_CHARS:
+            raise FormulaSyntaxError(
+                f"malformed time bounds [{text}] (FRET writes these for non-integer durations)"
+            )
+        return {"<=": (0, int(n)), "<": (0, int(n) - 1), "=": (int(n), int(n))}[op]
 
     def true(self, _: list) -> Formula:
         return TRUE
 
     def false(self, _: list) -> Formula:
         return FALSE
-
-    def ftp(self, _: list) -> Formula:
-        return FTP
 
     def number(self, a: list) -> Formula:
         text = str(a[0])
@@ -442,16 +446,21 @@ class _Build(Transformer):
         return Const(int(text))
 
     def var(self, a: list[Token]) -> Formula:
+        if str(a[0]) == "FTP":  # FRET's "first time point" constant
+            return FTP
         return Var(str(a[0]))
+
+    def call(self, a: list) -> Formula:
+        raise FormulaSyntaxError(f"function {a[0]}(...) is not supported in formula text")
 
 
 # The rules of _GRAMMAR that nest (parentheses alone add no level).
-_NESTING_RULES = frozenset("implies iff or_ xor and_ since rel arith pow not_ neg past".split())
+_NESTING_RULES = EXPRESSION_NESTING | {"since", "past"}
 
 
 @cache
 def _parser() -> Lark:
-    return Lark(_GRAMMAR, parser="lalr", maybe_placeholders=False)
+    return expression_parser(_GRAMMAR)
 
 
 def parse_formula(text: str) -> Formula:
