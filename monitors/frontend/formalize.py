@@ -468,6 +468,4 @@ def describe(req: Requirement, period_ms: float | None = None) -> str:
         text += f"it is not the case that {behaviour} (outside the allowed part)."
     else:
         text += f"{behaviour}."
-    if req.probability:
-        text += f" Probability {req.probability} is recorded but not monitored."
     return text

@@ -11,7 +11,8 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
   rejected, like FRET, but with a message saying where the timing goes.
 - A negative duration (``within -3 ticks``) is rejected; FRET accepts it and
   produces a meaningless formula.
-- ``with probability OP P`` needs 0 <= P <= 1 (FRET says "Illegal probability").
+- ``with probability OP P`` is refused (a monitor sees one run); P outside
+  0..1 is FRET's "Illegal probability".
 - Keywords are only keywords where the grammar expects them, so a mode or a
   variable may be called ``hereafter``, ``beforehand`` or ``auto``.  FRET's
   reserved names (``O H S Y Z X F G U V T A E abs max min mode next``) are
@@ -42,6 +43,7 @@ from lark.exceptions import (
 
 from monitors.errors import UserError
 from monitors.ir.formula import (
+    EXPRESSION_NESTING,
     FALSE,
     FTP,
     MAX_DEPTH,
@@ -56,6 +58,8 @@ from monitors.ir.formula import (
     Since,
     Var,
     and_,
+    expression_parser,
+    reads_expressions,
     too_deep,
 )
 
@@ -101,7 +105,6 @@ class Requirement:
     condition: Condition | None
     timing: Timing
     response: Formula
-    probability: str | None = None
 
 
 def _num(x: Fraction) -> str:
@@ -236,6 +239,7 @@ _UNIT_OF = {
 }
 
 
+@reads_expressions
 class _Build(Transformer):
     def __init__(self, text: str) -> None:
         super().__init__()
@@ -254,7 +258,6 @@ class _Build(Transformer):
         cond = next((x for x in items if isinstance(x, Condition)), None)
         component = next(x for x in items if isinstance(x, _Component))
         timing = next((x for x in items if isinstance(x, Timing)), Timing("null"))
-        prob = next((x for x in items if isinstance(x, _Probability)), None)
         post = next((x for x in items if isinstance(x, _PostTiming)), None)
         if post is not None:
             raise _Located(
@@ -271,7 +274,6 @@ class _Build(Transformer):
             condition=cond,
             timing=timing,
             response=response,
-            probability=prob.text if prob else None,
         )
 
     # -- scope
@@ -290,6 +292,17 @@ class _Build(Transformer):
     def only_before(self, items: list) -> Scope:
         return self._scope("onlyBefore", items)
 
+    def only_notin(self, items: list) -> Scope:
+        # Parsed only to explain: FRET's grammar has no `only` form of `not in`.
+        line, col = _at(items[0])
+        raise _Located(
+            "FRET has no 'only when not in' scope ('only' goes with in, during, while, "
+            "after, before)",
+            line,
+            col,
+            hint="to forbid the response in the mode, write: in M, COMPONENT shall never satisfy R",
+        )
+
     def notin(self, items: list) -> Scope:
         return self._scope("notin", items)
 
@@ -307,17 +320,15 @@ class _Build(Transformer):
 
     # -- condition
     def condition(self, items: list) -> Condition:
-        # 'and' binds tighter than 'or' (commas and plain juxtaposition mean 'and');
-        # the condition is regular as soon as one qualifier is regular (FRET's rule).
+        # FRET combines the qualifiers left to right, one clause at a time, not by
+        # boolean precedence: `when a or when b and when c` is ((a | b) & c)
+        # (docs/reference/fretish.md).  Commas and juxtaposition mean 'and'.  The
+        # condition is regular as soon as one qualifier is regular (FRET's rule).
         quals = [x for x in items if isinstance(x, _Qualifier)]
         joins = [x for x in items if type(x) is str]  # join_and/join_or results, not tokens
-        disjuncts: list[list[Formula]] = [[quals[0].expr]]
+        expr = quals[0].expr
         for j, q in zip(joins, quals[1:], strict=True):
-            if j == "or":
-                disjuncts.append([q.expr])
-            else:
-                disjuncts[-1].append(q.expr)
-        expr = _join(disjuncts)
+            expr = BinOp("|" if j == "or" else "&", expr, q.expr)
         kind = "holding" if all(q.word == "whenever" for q in quals) else "regular"
         return Condition(kind, expr)
 
@@ -346,16 +357,26 @@ class _Build(Transformer):
 
     # -- component, probability
     def component(self, items: list) -> _Component:
-        name = _toks(items, "NAME")[0]
-        return _Component(str(name))
+        name = _toks(items, "NAME", "STRING")[0]
+        return _Component(str(name).strip('"') if name.type == "STRING" else str(name))
 
-    def probability(self, items: list) -> _Probability:
+    def probability(self, items: list) -> None:
         op, num = _toks(items, "REL_OP")[0], _toks(items, "NUMBER")[0]
         value = float(num)
         if not 0.0 <= value <= 1.0:
             line, col = _at(num)
             raise _Located(f"illegal probability {num}: it must be between 0 and 1", line, col)
-        return _Probability(f"{op} {num}")
+        # FRET hands probabilistic requirements to a model checker (PRISM); its ptLTL
+        # formula drops the bound.  One run cannot show a probability, so monitoring
+        # the formula would silently strengthen the requirement: refuse instead.
+        line, col = _at(items[0])
+        raise _Located(
+            f"'with probability {op} {num}' cannot be monitored: FRET checks a probability "
+            "bound by model checking (PRISM), and a monitor sees a single run",
+            line,
+            col,
+            hint="remove 'with probability ...' to require the response on every run",
+        )
 
     # -- timing
     def t_immediately(self, _: list) -> Timing:
@@ -477,17 +498,6 @@ class _Build(Transformer):
         )
 
 
-def _join(disjuncts: list[list[Formula]]) -> Formula:
-    out: Formula | None = None
-    for d in disjuncts:
-        conj = d[0]
-        for x in d[1:]:
-            conj = BinOp("&", conj, x)
-        out = conj if out is None else BinOp("|", out, conj)
-    assert out is not None
-    return out
-
-
 def _number_text(tok: Token) -> str:
     """A number's text; longer than any int64 or double needs is an error (Python
     refuses to convert integers of thousands of digits)."""
@@ -531,11 +541,6 @@ class _Component:
 
 
 @dataclass(frozen=True)
-class _Probability:
-    text: str
-
-
-@dataclass(frozen=True)
 class _PostTiming:
     words: str
     line: int
@@ -545,14 +550,15 @@ class _PostTiming:
 # ---------------------------------------------------------------- entry point
 
 
-# The rules of fretish.lark that nest (parentheses alone add no level).
-_NESTING_RULES = frozenset({"ifthen", "binop", "not_", "uminus", "call"})
+# The rules of fretish.lark that nest: those of its expressions.
+_NESTING_RULES = EXPRESSION_NESTING
 
 
 @cache
 def _parser() -> Lark:
     grammar = (Path(__file__).with_name("fretish.lark")).read_text()
-    return Lark(grammar, parser="lalr", propagate_positions=True, maybe_placeholders=False)
+    # The expression rules are monitors/ir/expressions.lark, shared with FRET's formula text.
+    return expression_parser(grammar, propagate_positions=True)
 
 
 def parse_requirement(
