@@ -202,6 +202,8 @@ def check_variables(
             errors.append(_located(e, cfg.path, v.line))
     if ros:
         for v in cfg.inputs:
+            if v.topic is None:
+                continue  # imported from FRET without a topic: judged with the unused below
             try:
                 assert v.msg is not None
                 check_field(v.msg, v.field, v.type)
@@ -220,9 +222,28 @@ def check_variables(
     for entry in cfg.requirements:  # a policy's confirmation reads its variable too
         if entry.policy_config.confirm is not None:
             used.add(entry.policy_config.confirm.variable)
+    for v in cfg.inputs:
+        if v.topic is None and v.name in used:
+            errors.append(
+                UserError(
+                    f"variable '{v.name}' from {v.imported_from} has no topic",
+                    file=cfg.path,
+                    line=v.line,
+                    hint="give it one in variables: (topic:, msg:) or in an OGMA database "
+                    "under variables_from:",
+                )
+            )
     if all(r.ok for r in reqs):  # unused is only meaningful when every requirement was read
-        for v in cfg.variables.values():
-            if v.name not in used:
+        for v in list(cfg.variables.values()):
+            if v.name not in used and v.imported_from is not None:
+                # A FRET or OGMA file shared by many components declares more than
+                # this one reads: a note, and the monitor leaves it out.
+                warnings.append(
+                    f"{cfg.path}:{v.line}: note: variable '{v.name}' from {v.imported_from} "
+                    "is not used by any requirement; it is left out"
+                )
+                del cfg.variables[v.name]
+            elif v.name not in used:
                 errors.append(
                     UserError(
                         f"variable '{v.name}' is declared but no requirement uses it",

@@ -68,6 +68,7 @@ class Variable:
     initial: Any = None
     stale_after_ms: float | None = None
     range: tuple[float, float] | None = None
+    imported_from: str | None = None  # the FRET or OGMA file that declared it, if any
 
 
 @dataclass

@@ -8,18 +8,39 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
-from monitors.ir.spec import TYPE_ALIASES
 
 _OGMA_LINE = re.compile(r'^\(\s*"([^"]+)"\s*,\s*"([^"]+)"\s*,\s*"([^"]*)"\s*,\s*"([^"]+)"\s*\)\s*$')
-# OGMA's old topic datatypes (thesis Table 11) -> ROS 2 message types.
-_OGMA_TOPIC_TYPES = {
-    "int64_t": ("std_msgs/msg/Int64", "int64"),
-    "int32_t": ("std_msgs/msg/Int32", "int64"),
-    "bool": ("std_msgs/msg/Bool", "bool"),
-    "double": ("std_msgs/msg/Float64", "double"),
-    "float": ("std_msgs/msg/Float32", "double"),
-    "uint8_t": ("std_msgs/msg/UInt8", "int64"),
+# The C and ROS type names OGMA's databases use, as monitor types: the integers
+# widen to int64 and the floats to double (docs/reference/config.md).
+_INTS = ("int8", "int16", "int32", "int64", "uint8", "uint16", "uint32", "uint64")
+OGMA_TYPES = {
+    **{n: "bool" for n in ("bool", "_bool", "boolean")},
+    **{n: "int64" for n in _INTS},
+    **{n + "_t": "int64" for n in _INTS},
+    **{n: "int64" for n in ("int", "short", "long", "char", "byte", "unsigned", "integer")},
+    **{n: "double" for n in ("float", "double", "float32", "float64", "real")},
 }
+# OGMA's old topic datatypes (thesis Table 11): std_msgs' type of each C type.
+_STD_MSGS = {
+    **{n: n.capitalize() for n in _INTS},
+    "bool": "Bool",
+    "float": "Float32",
+    "double": "Float64",
+}
+
+
+def ogma_type(name: str) -> str | None:
+    """A C or ROS type name (``uint8_t``, ``std::int32_t``, ``float64``) as a monitor type."""
+    t = str(name).strip().lower().removeprefix("std::")
+    return OGMA_TYPES.get(t) or OGMA_TYPES.get(" ".join(t.split()[-1:]))
+
+
+def _topic_type(name: str) -> tuple[str | None, str | None]:
+    t = str(name).strip().lower().removesuffix("_t")
+    msg = _STD_MSGS.get(t)
+    if msg is None:
+        return None, None
+    return f"std_msgs/msg/{msg.replace('Uint', 'UInt')}", ogma_type(t)
 
 
 def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
@@ -47,11 +68,13 @@ def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
                 continue
             topic = conns[0].get("topic")
             msg = str(topics.get(topic, {}).get("type", "")).replace("::", "/")
-            vtype = TYPE_ALIASES.get(str(ctype).replace("_t", "").lower()) or TYPE_ALIASES.get(
-                str(ctype)
-            )
+            vtype = ogma_type(ctype)
             if vtype is None:
-                raise UserError(f"variable '{name}' has unsupported type '{ctype}'", file=file)
+                raise UserError(
+                    f"variable '{name}' has type '{ctype}', which is not a C or ROS number or bool",
+                    file=file,
+                    hint="known: " + ", ".join(OGMA_TYPES),
+                )
             out.append(
                 {
                     "name": name,
@@ -71,15 +94,15 @@ def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
         if not m:
             raise UserError('expected ("name","type","/topic","TopicType")', file=file, line=lineno)
         name, ctype, topic, ttype = m.groups()
-        msg, vtype = _OGMA_TOPIC_TYPES.get(ttype.lower(), (None, None))
+        msg, vtype = _topic_type(ttype)
         if msg is None:
             raise UserError(
                 f"unknown topic type '{ttype}'",
                 file=file,
                 line=lineno,
-                hint="known: " + ", ".join(_OGMA_TOPIC_TYPES),
+                hint="known: " + ", ".join(f"{n}_t" for n in _INTS) + ", bool, float, double",
             )
-        declared = TYPE_ALIASES.get(ctype.replace("_t", "").lower(), TYPE_ALIASES.get(ctype))
+        declared = ogma_type(ctype)
         if declared is not None and declared != vtype:
             raise UserError(
                 f"variable '{name}' is {ctype} but its topic carries {ttype}",

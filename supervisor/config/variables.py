@@ -20,6 +20,7 @@ from supervisor.config.fields import (
     typed_value,
     whole_number,
 )
+from supervisor.config.fret import load_fret_export
 from supervisor.config.model import Variable
 from supervisor.config.ogma import load_ogma_variables
 from supervisor.config.yamlload import LineDict
@@ -77,21 +78,57 @@ def parse_define(text: str, file: str, line: int | None) -> Formula:
         raise UserError(f"cannot parse define '{text}': {e}", file=file, line=line) from None
 
 
-def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
+def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
+    """Variables from FRET's files, then OGMA's databases: a later source refines an
+    earlier one, and ``variables:`` refines both (docs/reference/config.md)."""
     out: dict[str, Variable] = {}
+    declared = doc.get("variables") if isinstance(doc.get("variables"), dict) else {}
+    line = doc.key_line("requirements_from")
+    for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
+        fret_file = relative_to(path, entry_path)
+        _reqs, internal, other = load_fret_export(fret_file)
+        for v in other + internal:
+            check_name(v["name"], doc, "requirements_from")
+            var = Variable(
+                name=v["name"],
+                type=v["type"],
+                role=v.get("role", "input"),
+                line=line,
+                depth=DEFAULT_DEPTH,
+                imported_from=str(entry_path),
+            )
+            # A define the config declares again is the config's: FRET's Lustre
+            # assignments need not parse then.
+            if v.get("define") and v["name"] not in declared:
+                var.role = "internal"
+                var.define_text = str(v["define"])
+                try:
+                    var.define = parse_define(var.define_text, str(fret_file), None)
+                except UserError as e:
+                    e.message = f"internal variable '{v['name']}': {e.message}"
+                    e.hint = "declare it under variables: with a define: in FRETISH's syntax"
+                    raise
+            out[v["name"]] = var
     for entry_path in file_names(doc.get("variables_from"), doc, "variables_from"):
         for v in load_ogma_variables(relative_to(path, entry_path)):
             check_name(v["name"], doc, "variables_from")
+            fret = out.get(v["name"])
             out[v["name"]] = Variable(
                 name=v["name"],
                 type=v["type"],
-                role="input",
+                role=fret.role if fret is not None and fret.role != "internal" else "input",
                 line=doc.key_line("variables_from"),
                 topic=v["topic"],
                 msg=v["msg"],
                 field=v["field"],
                 depth=DEFAULT_DEPTH,
+                imported_from=str(entry_path),
             )
+    return out
+
+
+def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
+    out = _imported(doc, path)
     raw = doc.get("variables")
     if raw is None:
         return out
@@ -116,7 +153,10 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
                 "use bool, int64 or double",
             )
         define_text = spec.get("define")
-        role = str(spec.get("role") or ("internal" if define_text is not None else "input"))
+        if define_text is None and base is not None and not spec.get("topic"):
+            define_text = base.define_text  # refining FRET's internal variable
+        imported_role = base.role if base is not None and base.role != "internal" else "input"
+        role = str(spec.get("role") or ("internal" if define_text is not None else imported_role))
         if role not in ROLES:
             raise error_at(
                 f"variable '{name}': role must be one of {', '.join(ROLES)}", spec, "role"
