@@ -298,10 +298,27 @@ def test_probability_is_refused_not_dropped():
     e = err("The sw shall with probability >= 0.9 always satisfy q.")
     assert "cannot be monitored" in e.message and "PRISM" in e.message and e.col == 14
     assert e.hint and "remove 'with probability" in e.hint
-    e = err("shall sw with probability < 0 eventually satisfy q")
+    e = err("shall sw with probability <= 0.5 eventually satisfy q")
     assert "cannot be monitored" in e.message
     e = err("sw shall with probability > 1.5 always satisfy q")
     assert "illegal probability" in e.message and e.col == 29
+    # FRET's checkReqt also refuses strict bounds no run can meet.
+    assert "illegal probability" in err("sw shall with probability > 1 always satisfy q").message
+    assert "illegal probability" in err("sw shall with probability < 0 always satisfy q").message
+
+
+@pytest.mark.parametrize(
+    "text,col,why",
+    [
+        ("upon at the previous occurrence of p, q sw shall always satisfy r", 6, "not supported"),
+        ("sw shall always satisfy x & at the Previous occurrence of p, q", 29, "not supported"),
+        ("sw shall always satisfy at the next occurrence of p, q", 25, "looks into the future"),
+    ],
+)
+def test_occurrence_expressions_are_named_in_the_error(text, col, why):
+    e = err(text)
+    assert "occurrence of P, Q' cannot be monitored" in e.message and why in e.message
+    assert e.col == col and e.line == 1
 
 
 @pytest.mark.parametrize(

@@ -27,6 +27,7 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from fractions import Fraction
 from functools import cache
@@ -178,7 +179,34 @@ def _near(text: str, pos: int) -> str:
     return rest[0] if rest else ""
 
 
+# FRET's occurrence expressions (its grammar's `AT THE (PREVIOUS | NEXT) OCCURRENCE OF`).
+_OCCURRENCE = re.compile(r"\bat\s+the\s+(previous|next)\s+occurrence\s+of\b", re.IGNORECASE)
+
+
+def _occurrence_error(text: str) -> UserError | None:
+    """A sentence using FRET's occurrence expressions fails to parse somewhere after
+    them; say what the construct is and why it is refused instead."""
+    m = _OCCURRENCE.search(text)
+    if m is None:
+        return None
+    before = text[: m.start()]
+    line, col = before.count("\n") + 1, m.start() - (before.rfind("\n") + 1) + 1
+    if m.group(1).lower() == "next":
+        why = "FRET's past-time semantics has no formula for it (it looks into the future)"
+    else:
+        why = "it is not supported yet (docs/reference/fretish.md)"
+    return UserError(
+        f"'at the {m.group(1).lower()} occurrence of P, Q' cannot be monitored: {why}",
+        line=line,
+        col=col,
+        hint="state it with the timing of the sentence or with occurred(n, p)",
+    )
+
+
 def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
+    occurrence = _occurrence_error(text)
+    if occurrence is not None:
+        return occurrence
     if isinstance(e, UnexpectedEOF) or (isinstance(e, UnexpectedToken) and e.token.type == "$END"):
         expected = set(getattr(e, "expected", ()) or ())
         line, col = _end_position(text)
@@ -363,9 +391,15 @@ class _Build(Transformer):
     def probability(self, items: list) -> None:
         op, num = _toks(items, "REL_OP")[0], _toks(items, "NUMBER")[0]
         value = float(num)
-        if not 0.0 <= value <= 1.0:
+        # FRET's checkReqt: outside 0..1, or a strict bound no run can meet.
+        if not 0.0 <= value <= 1.0 or (op == ">" and value >= 1) or (op == "<" and value <= 0):
             line, col = _at(num)
-            raise _Located(f"illegal probability {num}: it must be between 0 and 1", line, col)
+            raise _Located(
+                f"illegal probability {op} {num}: FRET needs 0 <= P <= 1, P < 1 after '>' "
+                "and P > 0 after '<'",
+                line,
+                col,
+            )
         # FRET hands probabilistic requirements to a model checker (PRISM); its ptLTL
         # formula drops the bound.  One run cannot show a probability, so monitoring
         # the formula would silently strengthen the requirement: refuse instead.
