@@ -245,3 +245,26 @@ def test_config_variables_override_fret(tmp_path):
     assert cfg.variables["kias"].imported_from is None  # declared: unused is an error
     assert cfg.variables["thrust_borne"].define_text == "5"
     assert cfg.variables["wing_borne"].define_text == "3"
+
+
+def test_only_the_components_variables_are_imported(tmp_path):
+    # A project's export holds every component's variables; another component's
+    # 'kias' (here an Internal with a Lustre assignment) is not this one's.
+    data = json.loads(LPC.read_text())
+    other = dict(data["variables"][2], component_name="autopilot", idType="Internal")
+    data["variables"].append({**other, "assignment": "x -> pre kias", "dataType": "integer"})
+    p = tmp_path / "project.json"
+    p.write_text(json.dumps(data))
+    _reqs, internal, others = load_fret_export(p, "vehicle")
+    assert "kias" not in {v["name"] for v in internal}
+    assert ("kias", "double") in {(v["name"], v["type"]) for v in others}
+    _reqs, internal, _others = load_fret_export(p)
+    assert "kias" in {v["name"] for v in internal}
+    cfg = load_config(
+        write(
+            tmp_path,
+            f"component: vehicle\nstep: {{policy: periodic, period_ms: 100}}\n"
+            f"requirements_from: {p}\n{LPC_TOPICS}",
+        )
+    )
+    assert cfg.variables["kias"].type == "double" and cfg.variables["kias"].define is None

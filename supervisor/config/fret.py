@@ -53,10 +53,12 @@ def _variable(name: str, ftype: str, file: str) -> str:
 
 
 def load_fret_export(
-    path: Path,
+    path: Path, component: str | None = None
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
     """Any of FRET's files: its requirements, its internal variables (with a define)
-    and its other variables (inputs and outputs, to be read from topics)."""
+    and its other variables (inputs and outputs, to be read from topics).  With a
+    ``component``, only that component's variables (a project's export holds every
+    component's, and two components may give one name different kinds)."""
     file = str(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -65,12 +67,12 @@ def load_fret_export(
     except json.JSONDecodeError as e:
         raise UserError(f"invalid JSON: {e.msg}", file=file, line=e.lineno, col=e.colno) from None
     if isinstance(data, list):
-        return _database(data, [], file)
+        return _database(data, [], file, component)
     if isinstance(data, dict) and isinstance(data.get("requirements"), list):
         variables = data.get("variables") or []
         if not isinstance(variables, list):
             raise UserError("'variables' of a FRET export must be a list", file=file)
-        return _database(data["requirements"], variables, file)
+        return _database(data["requirements"], variables, file, component)
     if isinstance(data, dict) and len(data) == 1:
         spec = next(iter(data.values()))
         if isinstance(spec, dict) and isinstance(spec.get("Requirements", []), list):
@@ -112,7 +114,7 @@ def _copilot(
 
 
 def _database(
-    requirements: list[Any], variables: list[Any], file: str
+    requirements: list[Any], variables: list[Any], file: str, component: str | None
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
     reqs: list[RequirementEntry] = []
     for r in requirements:
@@ -142,6 +144,8 @@ def _database(
         # Entries without idType are the imported model's ports (modeldoc), and an
         # empty idType is a variable not yet completed in FRET: neither declares one.
         if not isinstance(v, dict) or not v.get("idType") or not v.get("variable_name"):
+            continue
+        if component is not None and v.get("component_name", component) != component:
             continue
         name, kind = str(v["variable_name"]), str(v["idType"])
         if kind == "Function":

@@ -86,7 +86,10 @@ def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
     line = doc.key_line("requirements_from")
     for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
         fret_file = relative_to(path, entry_path)
-        _reqs, internal, other = load_fret_export(fret_file)
+        component = doc.get("component")
+        _reqs, internal, other = load_fret_export(
+            fret_file, str(component) if isinstance(component, str) else None
+        )
         for v in other + internal:
             check_name(v["name"], doc, "requirements_from")
             var = Variable(
