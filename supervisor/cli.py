@@ -81,6 +81,7 @@ def cmd_formalize(args: argparse.Namespace) -> int:
 def cmd_explain(args: argparse.Namespace) -> int:
     from monitors.frontend.formalize import describe
     from monitors.ir.formula import to_fret, variables
+    from monitors.ir.spec import c_name
     from supervisor.config import load_config
     from supervisor.pipeline import build_project
 
@@ -111,12 +112,14 @@ def cmd_explain(args: argparse.Namespace) -> int:
         expanded = []
         for n in names:
             v = project.config.variables.get(n)
+            # A name C cannot hold (a dotted name, a C keyword) is renamed in the
+            # monitor; say to which, as manifest.json does.
+            facts = [f"C name {c_name(n)}"] if c_name(n) != n else []
             if v is not None and v.define_text:
-                expanded.append(f"{n} (= {v.define_text})")
+                facts.insert(0, f"= {v.define_text}")
             elif v is not None:
-                expanded.append(f"{n} ({v.type}, {v.topic})")
-            else:
-                expanded.append(n)
+                facts[:0] = [v.type, str(v.topic)]
+            expanded.append(f"{n} ({', '.join(facts)})" if facts else n)
         _out(f"  reads:     {', '.join(expanded)}")
         _out(f"  handler:   handler{r.id}")
         kind = "assumption (constrains inputs)" if r.entry.assumption else "guarantee"
