@@ -268,3 +268,27 @@ def test_only_the_components_variables_are_imported(tmp_path):
         )
     )
     assert cfg.variables["kias"].type == "double" and cfg.variables["kias"].define is None
+
+
+def test_modes_become_defines_and_functions_nothing(tmp_path):
+    data = json.loads(LPC.read_text())
+    base = {"project": "LPC_mini", "component_name": "vehicle", "assignment": ""}
+    data["variables"] += [
+        {
+            **base,
+            "variable_name": "hovering",
+            "idType": "Mode",
+            "dataType": "boolean",
+            "modeRequirement": "lift_mode = thrust_borne & kgs <= 20.0",
+        },
+        {**base, "variable_name": "absReal", "idType": "Function", "dataType": ""},
+    ]
+    p = tmp_path / "modes.json"
+    p.write_text(json.dumps(data))
+    _reqs, internal, others = load_fret_export(p, "vehicle")
+    assert {
+        "name": "hovering",
+        "type": "bool",
+        "define": "lift_mode = thrust_borne & kgs <= 20.0",
+    } in internal
+    assert "absReal" not in {v["name"] for v in internal + others}

@@ -153,7 +153,10 @@ def _database(
         if kind in ("Internal", "Mode"):
             keys = ("modeRequirement",) if kind == "Mode" else ("copilotAssignment", "assignment")
             define = next((v[k] for k in keys if v.get(k)), None)
-            vtype = "bool" if kind == "Mode" else _variable(name, v.get("dataType", ""), file)
+            # A Mode's data type is fixed by FRET (boolean) and may be left out.
+            vtype = _variable(
+                name, v.get("dataType") or ("boolean" if kind == "Mode" else ""), file
+            )
             internal.append({"name": name, "type": vtype, "define": define or None})
         else:
             # FRET's Output is what the component sets: the analyses' role: output.
