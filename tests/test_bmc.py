@@ -20,6 +20,7 @@ from hypothesis import strategies as st
 
 from monitors.ir.formula import (
     BinOp,
+    Call,
     Const,
     Formula,
     Neg,
@@ -89,6 +90,10 @@ def num_f(draw: st.DrawFn, depth: int, real: bool, cheap: bool = False) -> Formu
         return Neg(draw(num_f(depth - 1, real, cheap)))
     if k == 1 and not real and not cheap:  # integer ^: constant exponent (real pow is refused)
         return BinOp("^", draw(num_f(depth - 1, False)), Const(draw(st.integers(0, 63))))
+    if k == 2:  # the functions z3 encodes exactly (the others are refused)
+        name = draw(st.sampled_from(["abs", "min", "max"] + (["sqrt", "floor", "ceil"] * real)))
+        arity = 2 if name in ("min", "max") else 1
+        return Call(name, tuple(draw(num_f(depth - 1, real, cheap)) for _ in range(arity)))
     op = draw(st.sampled_from(["+", "-"] if cheap else ["+", "-", "*", "/", "mod"]))
     return BinOp(op, draw(num_f(depth - 1, real, cheap)), draw(num_f(depth - 1, real, cheap)))
 
@@ -222,6 +227,12 @@ def test_double_models_read_back_exactly(text):
         ("i0 ^ 63 = i0 * i0 ^ 62", {"i0": 3}),
         ("d0 / 0.0 > 1e308", {"d0": 1.0}),
         ("-0.0 = 0.0", {}),
+        ("abs(i0) = i0", {"i0": I64_MIN}),  # wraps, as the C monitor's abs does
+        ("min(d0, 1.0) != min(d0, 1.0)", {"d0": math.nan}),  # b < a ? b : a keeps a NaN
+        ("max(1.0, d0) = 1.0", {"d0": math.nan}),
+        ("sqrt(d0) != sqrt(d0)", {"d0": -1.0}),
+        ("floor(d0) = -3.0 & ceil(d0) = -2.0", {"d0": -2.5}),
+        ("max(i0, d0) = 3.0", {"i0": 3, "d0": 1.0}),
     ],
 )
 def test_value_semantics_edges(text, row):
@@ -249,6 +260,12 @@ def test_real_power_is_refused_not_approximated():
         evaluate_z3(parse_formula("d0 ^ 2.0 > 1.0"), [{"d0": 3.0}], TYPES)
     with pytest.raises(Unsupported, match="int64"):
         evaluate_z3(parse_formula("i0 < 99999999999999999999"), [{"i0": 1}], TYPES)
+
+
+@pytest.mark.parametrize("fn", ["exp", "log", "sin", "cos", "tan", "asin", "acos", "atan"])
+def test_libm_functions_are_refused_not_approximated(fn):
+    with pytest.raises(Unsupported, match=fn):
+        evaluate_z3(parse_formula(f"{fn}(d0) > 0.5"), [{"d0": 3.0}], TYPES)
 
 
 def test_pure_invariants_and_the_per_tick_encoding():

@@ -8,6 +8,7 @@ hard real-time properties of the generated C and the linking guarantees.
 
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import subprocess
@@ -23,7 +24,19 @@ from monitors.backends.build import build_library
 from monitors.backends.c99 import generate, write_c
 from monitors.backends.load import compile_spec, load_monitor
 from monitors.errors import UserError
-from monitors.ir.formula import BinOp, Const, Formula, Neg, Not, Past, Since, Var, parse_formula
+from monitors.ir.formula import (
+    ARITH_FUNCTIONS,
+    BinOp,
+    Call,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    parse_formula,
+)
 from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl
 
 # a non-temporal define (a C local) and a temporal one (expanded per requirement)
@@ -79,6 +92,10 @@ def num_f(draw: st.DrawFn, depth: int, real: bool) -> Formula:
             )
             return BinOp("^", base, exponent)
         return BinOp("^", base, Const(draw(st.integers(0, 63))))
+    if k == 2:
+        name = draw(st.sampled_from(sorted(ARITH_FUNCTIONS)))
+        args = [draw(num_f(depth - 1, real)) for _ in range(ARITH_FUNCTIONS[name])]
+        return Call(name, tuple(args))
     op = draw(st.sampled_from(["+", "-", "*", "/", "mod"]))
     return BinOp(op, draw(num_f(depth - 1, real)), draw(num_f(depth - 1, real)))
 
@@ -422,3 +439,50 @@ def test_inputs_are_checked_and_libraries_match_their_spec(tmp_path) -> None:
     other = make_spec([parse_formula("i0 < 3"), parse_formula("b0")])
     with pytest.raises(UserError, match="does not match"):
         load_monitor(mon.path, other)
+
+
+# Each arithmetic function at its edge values: NaN and infinities, domain errors,
+# poles, INT64_MIN, -0.0 (the interpreter defines C's results where Python raises).
+FUNCTION_CASES = [
+    "abs(i0) = i1",
+    "abs(d0) = d1",
+    "min(i0, i1) < 0",
+    "max(d0, i1) >= d1",
+    "min(d0, d1) = d0",
+    "max(d0, d1) = d1",
+    *(
+        f"{fn}(d0) {rel} d1"
+        for fn in ("sqrt", "exp", "log", "sin", "cos", "tan", "asin", "acos", "atan")
+        for rel in ("<", "=")
+    ),
+    "floor(d0) = ceil(d1)",
+    "floor(i0) < i1",
+    "sqrt(i0) >= 3",
+]
+
+
+def test_arithmetic_functions_match_interpreter(tmp_path) -> None:
+    spec = make_spec([parse_formula(text) for text in FUNCTION_CASES])
+    mon = compile_spec(spec, tmp_path)
+    edges = [math.nan, math.inf, -math.inf, 0.0, -0.0, -1.0, 1.0, 2.0, 0.5, 1e308, -1e-310]
+    trace = make_trace(7, 400)
+    for k, row in enumerate(trace):
+        row["d0"] = edges[k % len(edges)]
+        row["d1"] = edges[(k // len(edges)) % len(edges)] if k % 3 else row["d1"]
+        if k % 5 == 0:
+            row["i0"] = I64_MIN
+    assert_same(run(mon, spec, trace), oracle(spec, trace), spec, trace, "functions")
+
+
+def test_input_named_like_a_called_math_function_is_refused() -> None:
+    spec = MonitorSpec(
+        "t", (VarDecl("sqrt", "double"),), (RequirementSpec("r", parse_formula("sqrt(sqrt) > 1")),)
+    )
+    with pytest.raises(UserError, match="C math function"):
+        generate(spec)
+    # not called: the name is free
+    generate(
+        MonitorSpec(
+            "t", (VarDecl("sqrt", "double"),), (RequirementSpec("r", parse_formula("sqrt > 1")),)
+        )
+    )

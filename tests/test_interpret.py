@@ -1,5 +1,7 @@
 """The reference interpreter against hand-computed verdicts and textbook identities."""
 
+import math
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -81,3 +83,18 @@ def test_int_real_and_bool_constants_stay_distinct():
     # 1, 1.0 and TRUE must not be merged as one subterm (integer vs real division)
     trace = [{"x": 1}]
     assert evaluate(parse_formula("(x / 2.0 = 0.5) & (x / 2 = 0)"), trace) == [True]
+
+
+def test_functions_have_cs_results_where_python_raises():
+    def at(text: str, **row: object) -> object:
+        return evaluate(parse_formula(text), [row])[0]
+
+    assert math.isnan(at("sqrt(x)", x=-1.0)) and math.isnan(at("log(x)", x=-1.0))
+    assert at("log(x)", x=0.0) == -math.inf and at("exp(x)", x=1e6) == math.inf
+    assert math.isnan(at("sin(x)", x=math.inf)) and math.isnan(at("asin(x)", x=2.0))
+    assert at("floor(x)", x=-math.inf) == -math.inf and at("ceil(x)", x=-2.5) == -2.0
+    assert at("abs(i)", i=-(2**63)) == -(2**63)  # wraps like int64 negation
+    assert at("abs(x)", x=-0.0) == 0.0 and math.copysign(1, at("abs(x)", x=-0.0)) == 1
+    # min(a, b) is b < a ? b : a, so a NaN in first place survives, in second it does not
+    assert math.isnan(at("min(x, 1.0)", x=math.nan)) and at("min(1.0, x)", x=math.nan) == 1.0
+    assert at("max(i, x)", i=3, x=1.0) == 3.0 and isinstance(at("max(i, 2)", i=3), int)

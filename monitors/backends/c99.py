@@ -35,8 +35,11 @@ guard 0 and INT64_MIN / -1, int ``^`` (constant exponent 0..63) is unrolled
 into multiplications, real ``^`` is pow() with Python's math.pow error cases,
 int64-vs-double relations compare exactly (as Python does), not via a lossy
 conversion.  <math.h> is not included (its many names, e.g. ``log``, would
-clash with input names); pow/fmod are declared directly, which C99 7.1.4
-allows.
+clash with input names); pow/fmod and the math functions a formula calls
+(sqrt, sin, ..., fabs for a real abs) are declared directly, which C99 7.1.4
+allows, and an input named like one of those is an error.  int64 abs/min/max
+are branch-free ternaries (abs wraps INT64_MIN to itself); real min/max are
+the same ternaries as the interpreter's, not fmin/fmax.
 """
 
 from __future__ import annotations
@@ -49,8 +52,10 @@ from monitors.errors import UserError
 from monitors.ir.formula import (
     ARITH_OPS,
     BOOL_OPS,
+    INT_FUNCTIONS,
     REL_OPS,
     BinOp,
+    Call,
     Const,
     Formula,
     Neg,
@@ -148,7 +153,25 @@ static double ss__pow(double a, double b)
     return r;
 }""",
 }
+# The C library functions a formula's calls use (declared, not #included).
+_C_MATH = {
+    "abs": "fabs", "sqrt": "sqrt", "exp": "exp", "log": "log", "sin": "sin", "cos": "cos",
+    "tan": "tan", "asin": "asin", "acos": "acos", "atan": "atan", "floor": "floor",
+    "ceil": "ceil",
+}  # fmt: skip
+_HELPERS.update({f"fn_{c}": f"double {c}(double x);" for c in _C_MATH.values()})
 _HELPER_DEPS = {"div": ("wrap",)}
+
+
+def _math_names(spec: MonitorSpec) -> set[str]:
+    """The C math functions the spec's formulas may call on doubles."""
+    formulas = [r.formula for r in spec.requirements] + [d.expr for d in spec.defines]
+    return {
+        _C_MATH[g.name]
+        for f in formulas
+        for g in subterms(f)
+        if isinstance(g, Call) and g.name in _C_MATH
+    }
 
 
 def reset_each_name(spec: MonitorSpec, req: RequirementSpec) -> str:
@@ -247,6 +270,12 @@ class _Gen:
         for r in spec.requirements:
             claim(c_name(r.handler), f"handler of requirement '{r.id}'")
             claim(reset_each_name(spec, r), f"reset function of requirement '{r.id}'")
+        for fn in sorted(_math_names(spec)):
+            if fn in seen:
+                raise UserError(
+                    f"{seen[fn]} has the C name '{fn}', the C math function a formula calls",
+                    hint="rename it",
+                )
 
     def fresh(self) -> str:
         self.n += 1
@@ -265,6 +294,9 @@ class _Gen:
                 return "double" if vals[a][1] == "double" else "int64"
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return "double" if "double" in (vals[a][1], vals[b][1]) else "int64"
+            case Call(name, args):
+                ints = all(vals[a][1] != "double" for a in args)
+                return "int64" if name in INT_FUNCTIONS and ints else "double"
         return "bool"
 
     # ------------------------------------------------------------ values
@@ -310,7 +342,26 @@ class _Gen:
                 return self.relation(op, vals[a], vals[b])
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return self.arith(op, g, vals[a], vals[b], body)
+            case Call(name, args):
+                return self.call(name, [vals[a] for a in args], self.node_type(g, vals))
         raise TypeError(f"not a formula node: {g!r}")
+
+    def call(self, name: str, args: list[tuple[str, str]], result: str) -> str:
+        """An arithmetic function; arguments are variables or constants (no side
+        effects), so a ternary may name one twice."""
+        if result == "int64":
+            xs = [_as_int(*a) for a in args]
+            if name == "abs":
+                self.use("wrap")
+                return f"ss__wrap({xs[0]} < 0 ? 0u - (uint64_t){xs[0]} : (uint64_t){xs[0]})"
+        else:
+            xs = [_as_double(*a) for a in args]
+        if name == "min":
+            return f"({xs[1]} < {xs[0]} ? {xs[1]} : {xs[0]})"
+        if name == "max":
+            return f"({xs[1]} > {xs[0]} ? {xs[1]} : {xs[0]})"
+        self.use(f"fn_{_C_MATH[name]}")
+        return f"{_C_MATH[name]}({xs[0]})"
 
     def relation(self, op: str, a: tuple[str, str], b: tuple[str, str]) -> str:
         (x, tx), (y, ty) = a, b

@@ -23,6 +23,9 @@ they fold constants unsoundly (``x * 0 = 0`` on doubles, Haskell's flooring
 
 Where Copilot cannot match (UserError, not silently different):
 - real ``mod`` (C fmod): Copilot 3.13 has neither fmod nor a double-to-int cast;
+- the arithmetic functions (abs, min, max, sqrt, ...): their exact C semantics
+  (int64 abs wrapping, NaN in min/max) are not written for Copilot yet; the
+  native backend compiles them;
 - an input named like a C library function (``log``, ``abs`` ...): Copilot's C
   includes <math.h>, <stdlib.h> and <string.h>; inputs named like Copilot's
   own symbols (``s0``, ``x_cpy`` ...) are rejected up front.
@@ -54,6 +57,7 @@ from monitors.ir.formula import (
     BOOL_OPS,
     REL_OPS,
     BinOp,
+    Call,
     Const,
     Formula,
     Neg,
@@ -282,6 +286,12 @@ class _Gen:
                 return "bool"
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return self._num_type(a, b)
+            case Call(name, _):
+                raise UserError(
+                    f"the Copilot backend does not compile the function {name}: {to_fret(f)}",
+                    file=_ERR,
+                    hint="compile with the native backend (--backend native)",
+                )
         raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
 
     def _num_type(self, a: Formula, b: Formula) -> str:

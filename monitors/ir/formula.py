@@ -11,6 +11,8 @@ Syntax (FRET's past-time output, fully parenthesized when printed):
   temporal   Y p (previous, false at tick 0)   Z p (weak previous, true at tick 0)
              H p, O p, H[l,r] p, O[l,r] p, a S b, a S[l,r] b, a T b, a T[l,r] b
   constants  TRUE FALSE, integer and real literals; FTP is Z FALSE.
+  functions  abs min max sqrt exp log sin cos tan asin acos atan floor ceil
+             (ARITH_FUNCTIONS: C99's <math.h> meaning; docs/reference/fretish.md)
 """
 
 from __future__ import annotations
@@ -27,6 +29,13 @@ BOOL_OPS = ("&", "|", "xor", "->", "<->")
 REL_OPS = ("=", "!=", "<", "<=", ">", ">=")
 ARITH_OPS = ("+", "-", "*", "/", "mod", "^")
 UNARY_TEMPORAL = ("Y", "Z", "H", "O")
+# Arithmetic functions and their arities.  abs, min and max keep an int64 type
+# when every argument is int64; the others are C's double functions.
+ARITH_FUNCTIONS: dict[str, int] = {
+    "abs": 1, "min": 2, "max": 2, "sqrt": 1, "exp": 1, "log": 1, "sin": 1, "cos": 1,
+    "tan": 1, "asin": 1, "acos": 1, "atan": 1, "floor": 1, "ceil": 1,
+}  # fmt: skip
+INT_FUNCTIONS = ("abs", "min", "max")
 BINARY_TEMPORAL = ("S", "T")
 
 
@@ -95,6 +104,17 @@ class BinOp(Formula):
 
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
+
+
+@dataclass(frozen=True, slots=True)
+class Call(Formula):
+    """An arithmetic function (a key of ARITH_FUNCTIONS) applied to its arguments."""
+
+    name: str
+    args: tuple[Formula, ...]
+
+    def children(self) -> tuple[Formula, ...]:
+        return self.args
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,6 +214,19 @@ def S(a: Formula, b: Formula, lo: int | None = None, hi: int | None = None) -> F
     return Since("S", a, b, lo, hi)
 
 
+def arith_call(name: str, args: list[Formula], error: type[Exception]) -> Call:
+    """``name(args)`` as a Call, or ``error`` saying why it is not an arithmetic function."""
+    arity = ARITH_FUNCTIONS.get(name)
+    if arity is None:
+        raise error(
+            f"unknown function {name}/{len(args)} (arithmetic functions: "
+            f"{', '.join(ARITH_FUNCTIONS)})"
+        )
+    if len(args) != arity:
+        raise error(f"{name} takes {arity} argument{'s' * (arity > 1)}, not {len(args)}")
+    return Call(name, tuple(args))
+
+
 # ---------------------------------------------------------------- traversal
 
 
@@ -259,6 +292,8 @@ def map_children(f: Formula, fn: Callable[[Formula], Formula]) -> Formula:
             return Past(op, fn(a), lo, hi)
         case Since(op, a, b, lo, hi):
             return Since(op, fn(a), fn(b), lo, hi)
+        case Call(name, args):
+            return Call(name, tuple(fn(a) for a in args))
     return f
 
 
@@ -313,6 +348,8 @@ def to_fret(f: Formula) -> str:
             return f"({op}{_bounds(lo, hi)} {to_fret(a)})"
         case Since(op, a, b, lo, hi):
             return f"({to_fret(a)} {op}{_bounds(lo, hi)} {to_fret(b)})"
+        case Call(name, args):
+            return f"{name}({', '.join(to_fret(a) for a in args)})"
     raise TypeError(f"not a formula: {f!r}")
 
 
@@ -451,7 +488,7 @@ class _Build(Transformer):
         return Var(str(a[0]))
 
     def call(self, a: list) -> Formula:
-        raise FormulaSyntaxError(f"function {a[0]}(...) is not supported in formula text")
+        return arith_call(str(a[0]), a[1:], FormulaSyntaxError)
 
 
 # The rules of _GRAMMAR that nest (parentheses alone add no level).

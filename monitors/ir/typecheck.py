@@ -14,8 +14,10 @@ from monitors.errors import UserError
 from monitors.ir.formula import (
     ARITH_OPS,
     BOOL_OPS,
+    INT_FUNCTIONS,
     REL_OPS,
     BinOp,
+    Call,
     Const,
     Formula,
     Neg,
@@ -89,6 +91,14 @@ def type_of(f: Formula, env: Mapping[str, str]) -> str:
                         hint="use a real base (e.g. 2.0 ^ n) for a variable exponent",
                     )
             return result
+        case Call(name, args):
+            types = [type_of(a, env) for a in args]
+            for a, t in zip(args, types, strict=True):
+                if t == "bool":
+                    raise UserError(f"{name} needs numbers, but {to_fret(a)} is bool")
+            if name in INT_FUNCTIONS and all(t == "int64" for t in types):
+                return "int64"
+            return "double"
     raise UserError(f"cannot type {f!r}")
 
 

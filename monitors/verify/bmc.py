@@ -21,7 +21,10 @@ Value encoding, chosen so that the semantics equal the interpreter's bit for bit
 
 Not encodable exactly, hence refused with ``Unsupported`` (the analyses report
 the requirement as not analysed instead of approximating): real ``^`` (C's pow
-has no exact IEEE definition in z3) and integer literals outside int64.
+has no exact IEEE definition in z3), the functions exp, log and the
+trigonometric ones (libm's results are not IEEE-specified) and integer literals
+outside int64.  abs, min, max, sqrt, floor and ceil are exact (sqrt is IEEE's
+correctly rounded square root, floor and ceil round to an integral double).
 """
 
 from __future__ import annotations
@@ -36,8 +39,10 @@ import z3
 from monitors.ir.formula import (
     ARITH_OPS,
     BOOL_OPS,
+    INT_FUNCTIONS,
     REL_OPS,
     BinOp,
+    Call,
     Const,
     Formula,
     Neg,
@@ -254,6 +259,7 @@ class Encoder:
         else:
             extra = (g.op, g.lo, g.hi) if isinstance(g, Past | Since) else ()
             extra = (g.op,) if isinstance(g, BinOp) else extra
+            extra = (g.name,) if isinstance(g, Call) else extra
             key = (type(g).__name__, *extra, *(self._key(c) for c in g.children()))
         self._keys[id(g)] = (g, key)  # keeps g alive, so its id is not reused
         return key
@@ -300,6 +306,13 @@ class Encoder:
                 if "bool" in (ta, tb):
                     raise Unsupported(f"'{op}' on a boolean in {g}")
                 return "double" if "double" in (ta, tb) else "int64"
+            case Call(name, args):
+                types = [self._ty(a) for a in args]
+                if "bool" in types:
+                    raise Unsupported(f"'{name}' on a boolean in {g}")
+                if name in INT_FUNCTIONS and "double" not in types:
+                    return "int64"
+                return "double"
         raise Unsupported(f"cannot encode {g!r}")
 
     # -------------------------------------------------------------- nodes
@@ -329,6 +342,13 @@ class Encoder:
                         raise Unsupported("integer ^ needs a constant exponent from 0 to 63")
                     return [_ipow(x, b.value) for x in t(a)]
                 return [_arith(op, x, ta, y, tb) for x, y in zip(t(a), t(b), strict=True)]
+            case Call(name, args):
+                result = self._ty(g)
+                columns = [
+                    t(a) if result == "int64" else [_to_double(x, self._ty(a)) for x in t(a)]
+                    for a in args
+                ]
+                return [_call(name, result, xs) for xs in zip(*columns, strict=True)]
             case Past("Y", a):
                 return [z3.BoolVal(False)] + t(a)[:-1] if k else []
             case Past("Z", a):
@@ -433,6 +453,23 @@ def _bool(op: str, a: z3.BoolRef, b: z3.BoolRef) -> z3.BoolRef:
         case "->":
             return z3.Implies(a, b)
     return a == b  # <->
+
+
+def _call(name: str, result: str, xs: Sequence[z3.ExprRef]) -> z3.ExprRef:
+    """An arithmetic function as the interpreter defines it (interpret.call)."""
+    if name == "min":
+        less = xs[1] < xs[0] if result == "int64" else z3.fpLT(xs[1], xs[0])
+        return z3.If(less, xs[1], xs[0])
+    if name == "max":
+        more = xs[1] > xs[0] if result == "int64" else z3.fpGT(xs[1], xs[0])
+        return z3.If(more, xs[1], xs[0])
+    if name == "abs":
+        return z3.If(xs[0] < 0, -xs[0], xs[0]) if result == "int64" else z3.fpAbs(xs[0])
+    if name == "sqrt":
+        return z3.fpSqrt(RNE, xs[0])
+    if name in ("floor", "ceil"):
+        return z3.fpRoundToIntegral(z3.RTN() if name == "floor" else z3.RTP(), xs[0])
+    raise Unsupported(f"C's {name} has no exact IEEE definition that z3 could encode")
 
 
 def _to_double(x: z3.ExprRef, t: str) -> z3.FPRef:

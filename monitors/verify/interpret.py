@@ -10,7 +10,12 @@ Value semantics shared with the C backend (documented in the README):
 - integer ``/`` truncates toward zero and ``mod`` takes the sign of the
   dividend (C99); division or mod by zero gives 0;
 - real is IEEE double (x / 0.0 is inf or nan, comparisons with nan are false);
-- ``^`` on ints needs a constant exponent 0..63; on reals it is C's pow().
+- ``^`` on ints needs a constant exponent 0..63; on reals it is C's pow();
+- functions: abs, min, max on int64s stay int64 (abs wraps INT64_MIN to itself),
+  otherwise the arguments are converted to double; ``min(a, b)`` is
+  ``b < a ? b : a`` and ``max(a, b)`` is ``b > a ? b : a`` (so NaN handling is
+  C's ternary, not fmin); the others are C's <math.h> functions, with C's results
+  where Python's math raises (NaN for a domain error, +-inf for a pole or overflow).
 """
 
 from __future__ import annotations
@@ -18,7 +23,19 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from monitors.ir.formula import BinOp, Const, Formula, Neg, Not, Past, Since, Var, subterms
+from monitors.ir.formula import (
+    INT_FUNCTIONS,
+    BinOp,
+    Call,
+    Const,
+    Formula,
+    Neg,
+    Not,
+    Past,
+    Since,
+    Var,
+    subterms,
+)
 
 Value = bool | int | float
 Trace = Sequence[Mapping[str, Value]]
@@ -93,6 +110,47 @@ def _arith(op: str, a: Value, b: Value) -> Value:
     raise ValueError(f"unknown operator {op}")
 
 
+_MATH = {
+    "sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin, "cos": math.cos,
+    "tan": math.tan, "asin": math.asin, "acos": math.acos, "atan": math.atan,
+    "floor": lambda x: float(math.floor(x)), "ceil": lambda x: float(math.ceil(x)),
+}  # fmt: skip
+
+
+def _c_math(name: str, x: float) -> float:
+    """C's double function ``name`` at ``x``: Python's math calls the same libm but
+    raises where C returns a special value."""
+    if math.isnan(x):
+        return x
+    if name in ("floor", "ceil") and math.isinf(x):
+        return x
+    try:
+        return _MATH[name](x)
+    except OverflowError:
+        return math.inf  # exp overflows to +inf
+    except ValueError:
+        if name == "log" and x == 0:
+            return -math.inf  # pole
+        return math.nan  # domain error: sqrt(-1), log(-1), asin(2), sin(inf)
+
+
+def call(name: str, args: Sequence[Value]) -> Value:
+    """Value of the arithmetic function ``name`` (see the module docstring)."""
+    if name in INT_FUNCTIONS and not any(isinstance(a, float) for a in args):
+        xs = [int(a) for a in args]
+        if name == "abs":
+            return wrap64(abs(xs[0]))
+        a, b = xs
+        return (b if b < a else a) if name == "min" else (b if b > a else a)
+    ys = [float(a) for a in args]
+    if name == "abs":
+        return math.fabs(ys[0])
+    if name in ("min", "max"):
+        a, b = ys
+        return (b if b < a else a) if name == "min" else (b if b > a else a)
+    return _c_math(name, ys[0])
+
+
 def _rel(op: str, a: Value, b: Value) -> bool:
     match op:
         case "=":
@@ -163,6 +221,9 @@ def _eval_node(g: Formula, trace: Trace, t: dict[Formula, list[Value]], n: int) 
             if op in ("=", "!=", "<", "<=", ">", ">="):
                 return [_rel(op, x, y) for x, y in zip(xs, ys, strict=True)]
             return [_arith(op, x, y) for x, y in zip(xs, ys, strict=True)]
+        case Call(name, args):
+            columns = [t[a] for a in args]
+            return [call(name, row) for row in zip(*columns, strict=True)]
         case Past("Y", a):
             xs = t[a]
             return [i > 0 and bool(xs[i - 1]) for i in range(n)]
