@@ -300,6 +300,12 @@ def test_probability_is_refused_not_dropped():
     assert e.hint and "remove 'with probability" in e.hint
     e = err("shall sw with probability <= 0.5 eventually satisfy q")
     assert "cannot be monitored" in e.message
+    # FRET's commas around the probability; its query form.
+    e = err("sw shall, with probability > 0.5, always satisfy q")
+    assert "cannot be monitored" in e.message and e.col == 11
+    assert "cannot be monitored" in err("sw shall with probability > 0.5, satisfy q").message
+    e = err("whenever p the sw shall with what probability eventually satisfy q")
+    assert "'with what probability'" in e.message and e.col == 25
     e = err("sw shall with probability > 1.5 always satisfy q")
     assert "illegal probability" in e.message and e.col == 29
     # FRET's checkReqt also refuses strict bounds no run can meet.

@@ -20,8 +20,12 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
 - Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
   n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
   ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
-  read as ``occurred(0, n, p)`` (no FRET example to check it against).
-  Other calls are errors.
+  read as ``occurred(0, n, p)`` (no FRET example to check it against);
+  ``preBool(init, p)`` (p at the previous tick, init at the first) with FRET's
+  formula; the arithmetic functions of monitors/ir/formula.py (ARITH_FUNCTIONS:
+  sqrt, sin, ...; FRET reserves abs, min and max in sentences, as here: they may
+  be used in defines, and FRET's absReal, minInt ... anywhere).  ``preInt`` and
+  ``preReal`` are refused.  Other calls are errors.
 - ``FTP`` in an expression is FRET's first-time-point constant (``Z FALSE``).
 """
 
@@ -44,8 +48,10 @@ from lark.exceptions import (
 
 from monitors.errors import UserError
 from monitors.ir.formula import (
+    ARITH_FUNCTIONS,
     EXPRESSION_NESTING,
     FALSE,
+    FRET_FUNCTION_NAMES,
     FTP,
     MAX_DEPTH,
     MAX_NUMBER_CHARS,
@@ -59,6 +65,7 @@ from monitors.ir.formula import (
     Since,
     Var,
     and_,
+    arith_call,
     expression_parser,
     reads_expressions,
     too_deep,
@@ -389,6 +396,15 @@ class _Build(Transformer):
         return _Component(str(name).strip('"') if name.type == "STRING" else str(name))
 
     def probability(self, items: list) -> None:
+        if _toks(items, "WHAT"):
+            line, col = _at(items[0])
+            raise _Located(
+                "'with what probability' asks a model checker (PRISM) for a probability; "
+                "a monitor sees a single run and cannot compute one",
+                line,
+                col,
+                hint="remove 'with what probability' to require the response on every run",
+            )
         op, num = _toks(items, "REL_OP")[0], _toks(items, "NUMBER")[0]
         value = float(num)
         # FRET's checkReqt: outside 0..1, or a strict bound no run can meet.
@@ -522,13 +538,39 @@ class _Build(Transformer):
             lo, hi = _tick_arg(args[0], fn), _tick_arg(args[1], fn)
             return Since("S", Past("Y", TRUE), args[2], lo, hi)
         line, col = _at(fn)
-        if name in RESERVED:
-            raise _Located(f"'{name}' is reserved in FRETISH and cannot be used", line, col)
+        if name in RESERVED:  # FRET refuses abs, min and max here too
+            raise _Located(
+                f"'{name}' is reserved in FRETISH and cannot be used",
+                line,
+                col,
+                hint=f"{name}(...) may be used in a define (an internal variable)"
+                if name in ARITH_FUNCTIONS
+                else None,
+            )
+        if name == "preBool" and len(args) == 2:
+            # FRET: ((Z FALSE) & init) | ((Y TRUE) & (Y p)), from the trace's start in
+            # every scope (FRET's mode-relative version is not the one it uses).
+            return BinOp(
+                "|", BinOp("&", FTP, args[0]), BinOp("&", Past("Y", TRUE), Past("Y", args[1]))
+            )
+        if name in ("preInt", "preReal"):
+            raise _Located(
+                f"{name} (a number's value at the previous tick) is not supported",
+                line,
+                col,
+                hint="compare at the previous tick instead: preBool(init, x > 3)",
+            )
+        if name in ARITH_FUNCTIONS or name in FRET_FUNCTION_NAMES:  # FRET passes these on
+            try:
+                return arith_call(name, args, ValueError)
+            except ValueError as e:
+                raise _Located(str(e), line, col) from None
         raise _Located(
             f"unknown function {name}/{len(args)}",
             line,
             col,
-            hint="FRETISH functions: persisted(n, p), occurred(n, p), occurred(m, n, p)",
+            hint="FRETISH functions: persisted(n, p), occurred(n, p), occurred(m, n, p), "
+            + ", ".join(f"{f}/{n}" for f, n in ARITH_FUNCTIONS.items()),
         )
 
 

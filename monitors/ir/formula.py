@@ -36,6 +36,12 @@ ARITH_FUNCTIONS: dict[str, int] = {
     "tan": 1, "asin": 1, "acos": 1, "atan": 1, "floor": 1, "ceil": 1,
 }  # fmt: skip
 INT_FUNCTIONS = ("abs", "min", "max")
+# FRET's typed names of abs, min and max (its predefined names; in a sentence FRET
+# reserves the plain ones), read as the same functions.
+FRET_FUNCTION_NAMES = {
+    "absReal": "abs", "absInt": "abs", "minReal": "min", "minInt": "min",
+    "maxReal": "max", "maxInt": "max",
+}  # fmt: skip
 BINARY_TEMPORAL = ("S", "T")
 
 
@@ -216,6 +222,7 @@ def S(a: Formula, b: Formula, lo: int | None = None, hi: int | None = None) -> F
 
 def arith_call(name: str, args: list[Formula], error: type[Exception]) -> Call:
     """``name(args)`` as a Call, or ``error`` saying why it is not an arithmetic function."""
+    name = FRET_FUNCTION_NAMES.get(name, name)
     arity = ARITH_FUNCTIONS.get(name)
     if arity is None:
         raise error(
