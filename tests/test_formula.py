@@ -123,3 +123,12 @@ def _extend(children):
 @given(st.recursive(leaves, _extend, max_leaves=12))
 def test_print_parse_round_trip(f):
     assert parse_formula(to_fret(f)) == f
+
+
+def test_temporal_operators_in_formula_text_bind_as_documented():
+    # docs/reference/fretish.md, "Expressions": Y Z H O bind like !, S and T like ->.
+    a, b, c = Var("a"), Var("b"), Var("c")
+    assert parse_formula("H a & b") == BinOp("&", Past("H", a), b)
+    assert parse_formula("! Y a | b") == BinOp("|", Not(Past("Y", a)), b)
+    assert parse_formula("a -> b S c") == Since("S", BinOp("->", a, b), c)
+    assert parse_formula("a & b T[0,2] c") == Since("T", BinOp("&", a, b), c, 0, 2)
