@@ -292,6 +292,14 @@ def test_component_after_shall(scope, cond):
     assert P(f"{scope}{cond}shall sw, always, satisfy p").timing.kind == "always"
 
 
+@pytest.mark.parametrize("timing", ["always", "within 2 ticks", "until s", "eventually"])
+def test_missing_component_after_shall_is_named(timing):
+    # Without this check the timing word would silently become the component.
+    e = err(f"in m, shall {timing} satisfy p")
+    assert "not a component name: the component is missing" in e.message and e.col == 13
+    assert P(f"in m, shall the always_on {timing} satisfy p").component == "always_on"
+
+
 def test_probability_is_refused_not_dropped():
     # FRET's ptLTL drops the bound; monitoring it would silently strengthen the
     # requirement to "on every run".
@@ -413,6 +421,14 @@ def test_messages():
     assert "must come before 'satisfy'" in e.message and e.col == 24
     assert "'@'" in err("sw shall always satisfy p @ q").message
     assert err("").message == "empty requirement"
+
+
+@pytest.mark.parametrize(
+    "text", ["sw shall always satisfy a and b", "while m or n, sw shall always satisfy p"]
+)
+def test_words_for_operators_get_a_hint(text):
+    e = err(text)
+    assert e.hint and "&" in e.hint and "|" in e.hint
 
 
 def test_error_position_in_a_file():

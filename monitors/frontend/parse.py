@@ -155,6 +155,11 @@ _TIMING_WORDS = {
     "IMMEDIATELY", "INITIALLY", "AT", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR",
     "AFTER", "UNTIL", "BEFORE", "FINALLY",
 }  # fmt: skip
+# Words of the sentence after `shall` that cannot name the component.
+_SENTENCE_WORDS = frozenset(
+    "shall satisfy with always never eventually immediately initially finally within for "
+    "after until before at".split()
+)
 _TIMING_START = {"IMMEDIATELY", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR", "UNTIL"}
 
 
@@ -210,6 +215,29 @@ def _occurrence_error(text: str) -> UserError | None:
     )
 
 
+_AFTER_SHALL = re.compile(r"\bshall\s*,?\s*(?:the\s+)?([A-Za-z_]\w*)\s*,?\s*$", re.IGNORECASE)
+
+
+def _missing_component(e: UnexpectedToken, text: str) -> UserError | None:
+    """`in m, shall within 2 ticks ...`: the timing word was taken as the component
+    after `shall` and the parse failed on what follows it; say so at that word."""
+    # Only right after the component can 'with' (probability) and 'satisfy' both come.
+    if not {"SATISFY", "WITH"} <= set(e.expected) or e.token.start_pos is None:
+        return None
+    m = _AFTER_SHALL.search(text[: e.token.start_pos])
+    if m is None or m.group(1).lower() not in _SENTENCE_WORDS:
+        return None
+    word = m.group(1)
+    before = text[: m.start(1)]
+    line, col = before.count("\n") + 1, m.start(1) - (before.rfind("\n") + 1) + 1
+    return UserError(
+        f"'{word}' is a FRETISH keyword, not a component name: the component is missing",
+        line=line,
+        col=col,
+        hint=f"write: COMPONENT shall {word.lower()} ...",
+    )
+
+
 def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
     occurrence = _occurrence_error(text)
     if occurrence is not None:
@@ -222,6 +250,9 @@ def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
         )
     if isinstance(e, UnexpectedToken):
         tok = e.token
+        missing = _missing_component(e, text)
+        if missing is not None:
+            return missing
         msg = f"expected {_expected_text(set(e.expected))} near '{tok}'"
         hint = None
         if "UNIT" in e.expected:
@@ -234,6 +265,8 @@ def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
         elif tok.type in ("MODE", "NEXT") and "NAME" in e.expected:
             msg = f"'{tok}' is reserved in FRETISH and cannot be used as a name"
             hint = _RESERVED_HINT
+        elif str(tok).lower() in ("and", "or", "not") and e.expected & {"$END", "SHALL"}:
+            hint = "inside an expression FRETISH writes & | ! for and, or, not"
         return UserError(msg, line=tok.line, col=tok.column, hint=hint)
     if isinstance(e, UnexpectedCharacters):
         return UserError(
@@ -393,7 +426,20 @@ class _Build(Transformer):
     # -- component, probability
     def component(self, items: list) -> _Component:
         name = _toks(items, "NAME", "STRING")[0]
-        return _Component(str(name).strip('"') if name.type == "STRING" else str(name))
+        if name.type == "STRING":
+            return _Component(str(name).strip('"'))
+        # Right after `shall` a timing word would be read as the component name
+        # (`in m, shall always satisfy p`); FRET's lexer never takes these words
+        # as names, so the component is missing.
+        if str(name).lower() in _SENTENCE_WORDS:
+            line, col = _at(name)
+            raise _Located(
+                f"'{name}' is a FRETISH keyword, not a component name: the component is missing",
+                line,
+                col,
+                hint=f"write: COMPONENT shall {str(name).lower()} ...",
+            )
+        return _Component(str(name))
 
     def probability(self, items: list) -> None:
         if _toks(items, "WHAT"):
