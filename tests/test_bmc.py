@@ -90,6 +90,11 @@ def num_f(draw: st.DrawFn, depth: int, real: bool, cheap: bool = False) -> Formu
         return Neg(draw(num_f(depth - 1, real, cheap)))
     if k == 1 and not real and not cheap:  # integer ^: constant exponent (real pow is refused)
         return BinOp("^", draw(num_f(depth - 1, False)), Const(draw(st.integers(0, 63))))
+    if k == 3:  # FRET's if-then-else value
+        cond = Var(draw(st.sampled_from(BOOLS)))
+        return Call(
+            "ite", (cond, draw(num_f(depth - 1, real, cheap)), draw(num_f(depth - 1, real, cheap)))
+        )
     if k == 2:  # the functions z3 encodes exactly (the others are refused)
         name = draw(st.sampled_from(["abs", "min", "max"] + (["sqrt", "floor", "ceil"] * real)))
         arity = 2 if name in ("min", "max") else 1
@@ -233,6 +238,8 @@ def test_double_models_read_back_exactly(text):
         ("sqrt(d0) != sqrt(d0)", {"d0": -1.0}),
         ("floor(d0) = -3.0 & ceil(d0) = -2.0", {"d0": -2.5}),
         ("max(i0, d0) = 3.0", {"i0": 3, "d0": 1.0}),
+        ("ite(i0 > 2, i0, d0) = 3.0", {"i0": 3, "d0": 1.0}),  # the int64 branch as a double
+        ("ite(i0 > 2, d0 > 0.0, FALSE)", {"i0": 3, "d0": 1.0}),
     ],
 )
 def test_value_semantics_edges(text, row):

@@ -458,6 +458,9 @@ FUNCTION_CASES = [
     "floor(d0) = ceil(d1)",
     "floor(i0) < i1",
     "sqrt(i0) >= 3",
+    "ite(b0, i0, d0) < d1",
+    "ite(b1, i0, i1) = 3",
+    "ite(d0 > 1.0, b1, b2)",
 ]
 
 

@@ -29,10 +29,20 @@ ENV = {"i": "int64", "j": "int64", "x": "double", "b": "bool"}
         ("sqrt(i)", "double"),
         ("floor(x)", "double"),  # C's floor returns a double
         ("sin(x) < 0.5", "bool"),
+        ("ite(b, i, j)", "int64"),
+        ("ite(b, i, x)", "double"),
+        ("ite(i > 2, b, FALSE)", "bool"),
     ],
 )
 def test_function_types(text, want):
     assert type_of(parse_formula(text), ENV) == want
+
+
+def test_ite_needs_a_boolean_condition_and_like_branches():
+    with pytest.raises(UserError, match="ite's condition must be boolean"):
+        type_of(parse_formula("ite(i, 1, 2) > 0"), ENV)
+    with pytest.raises(UserError, match="branches b .bool. and i .int64. differ"):
+        type_of(parse_formula("ite(b, b, i)"), ENV)
 
 
 def test_a_boolean_argument_is_a_type_error():

@@ -39,7 +39,7 @@ clash with input names); pow/fmod and the math functions a formula calls
 (sqrt, sin, ..., fabs for a real abs) are declared directly, which C99 7.1.4
 allows, and an input named like one of those is an error.  int64 abs/min/max
 are branch-free ternaries (abs wraps INT64_MIN to itself); real min/max are
-the same ternaries as the interpreter's, not fmin/fmax.
+the same ternaries as the interpreter's, not fmin/fmax; ``ite`` is C's ``?:``.
 """
 
 from __future__ import annotations
@@ -294,6 +294,11 @@ class _Gen:
                 return "double" if vals[a][1] == "double" else "int64"
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return "double" if "double" in (vals[a][1], vals[b][1]) else "int64"
+            case Call("ite", (_, a, b)):
+                ta, tb = vals[a][1], vals[b][1]
+                if ta == tb == "bool":
+                    return "bool"
+                return "double" if "double" in (ta, tb) else "int64"
             case Call(name, args):
                 ints = all(vals[a][1] != "double" for a in args)
                 return "int64" if name in INT_FUNCTIONS and ints else "double"
@@ -349,6 +354,10 @@ class _Gen:
     def call(self, name: str, args: list[tuple[str, str]], result: str) -> str:
         """An arithmetic function; arguments are variables or constants (no side
         effects), so a ternary may name one twice."""
+        if name == "ite":
+            conv = {"bool": _as_bool, "int64": _as_int, "double": _as_double}[result]
+            c, a, b = _as_bool(*args[0]), conv(*args[1]), conv(*args[2])
+            return f"({c} ? {a} : {b})"
         if result == "int64":
             xs = [_as_int(*a) for a in args]
             if name == "abs":

@@ -91,6 +91,14 @@ def type_of(f: Formula, env: Mapping[str, str]) -> str:
                         hint="use a real base (e.g. 2.0 ^ n) for a variable exponent",
                     )
             return result
+        case Call("ite", (c, a, b)):
+            _expect(c, env, "bool", "ite's condition must be boolean")
+            ta, tb = type_of(a, env), type_of(b, env)
+            if (ta == "bool") != (tb == "bool"):
+                raise UserError(
+                    f"ite's branches {to_fret(a)} ({ta}) and {to_fret(b)} ({tb}) differ"
+                )
+            return "bool" if ta == "bool" else "double" if "double" in (ta, tb) else "int64"
         case Call(name, args):
             types = [type_of(a, env) for a in args]
             for a, t in zip(args, types, strict=True):

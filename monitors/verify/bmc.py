@@ -306,6 +306,11 @@ class Encoder:
                 if "bool" in (ta, tb):
                     raise Unsupported(f"'{op}' on a boolean in {g}")
                 return "double" if "double" in (ta, tb) else "int64"
+            case Call("ite", (c, a, b)):
+                tc, ta, tb = self._ty(c), self._ty(a), self._ty(b)
+                if tc != "bool" or (ta == "bool") != (tb == "bool"):
+                    raise Unsupported(f"ite needs a boolean condition and like branches in {g}")
+                return ta if ta == tb else "double"
             case Call(name, args):
                 types = [self._ty(a) for a in args]
                 if "bool" in types:
@@ -342,6 +347,14 @@ class Encoder:
                         raise Unsupported("integer ^ needs a constant exponent from 0 to 63")
                     return [_ipow(x, b.value) for x in t(a)]
                 return [_arith(op, x, ta, y, tb) for x, y in zip(t(a), t(b), strict=True)]
+            case Call("ite", (c, a, b)):
+                result = self._ty(g)
+                ta, tb = self._ty(a), self._ty(b)
+                if result == "double":
+                    xs, ys = [_to_double(x, ta) for x in t(a)], [_to_double(y, tb) for y in t(b)]
+                else:
+                    xs, ys = t(a), t(b)
+                return [z3.If(c_, x, y) for c_, x, y in zip(t(c), xs, ys, strict=True)]
             case Call(name, args):
                 result = self._ty(g)
                 columns = [

@@ -11,6 +11,7 @@ Value semantics shared with the C backend (documented in the README):
   dividend (C99); division or mod by zero gives 0;
 - real is IEEE double (x / 0.0 is inf or nan, comparisons with nan are false);
 - ``^`` on ints needs a constant exponent 0..63; on reals it is C's pow();
+- ``ite(c, a, b)``: a where c holds, else b (double if either branch is);
 - functions: abs, min, max on int64s stay int64 (abs wraps INT64_MIN to itself),
   otherwise the arguments are converted to double; ``min(a, b)`` is
   ``b < a ? b : a`` and ``max(a, b)`` is ``b > a ? b : a`` (so NaN handling is
@@ -136,6 +137,14 @@ def _c_math(name: str, x: float) -> float:
 
 def call(name: str, args: Sequence[Value]) -> Value:
     """Value of the arithmetic function ``name`` (see the module docstring)."""
+    if name == "ite":
+        c, a, b = args
+        x = a if c else b
+        if isinstance(a, float) or isinstance(b, float):
+            return float(x)
+        if isinstance(a, bool) and isinstance(b, bool):
+            return x
+        return int(x)  # a bool beside an int64 counts as 0/1, as in the C monitor
     if name in INT_FUNCTIONS and not any(isinstance(a, float) for a in args):
         xs = [int(a) for a in args]
         if name == "abs":
