@@ -251,6 +251,48 @@ def test_conditions_combine_left_to_right_like_fret(cond, fret):
     assert any(not all(verdicts(theirs, t)) for t in traces)
 
 
+# FRET's persisted and occurred count only ticks since the start of the scope's
+# interval: its templates say $Left$, filled with the scope's SMVptExtleft from
+# FRET's semantics.json; in the scope's mode they have no such bound (FRET's
+# "NoBounds" forms).  Each case puts a function into one of FRET's examples, in
+# the sentence and, expanded as FRET expands it, in FRET's formula.
+IN_CRUISE = "(cruise & ((! (Y TRUE)) | (Y (! cruise))))"
+AFTER_TAKEOFF = "(((! takeoff) & (Y takeoff)) & (Y (H (! ((! takeoff) & (Y takeoff))))))"
+NOT_IN_CRUISE = "((! cruise) & ((! (Y TRUE)) | (Y cruise)))"
+SCOPED_FUNCTIONS = [
+    ("var_commas", "p", "persisted(3, hot)", f"((H[0,3] hot) & (H[0,2] (! {IN_CRUISE})))"),
+    ("var_commas", "q", "occurred(1, 3, f)", f"((! {IN_CRUISE}) S[1,3] f)"),
+    (
+        "grid_160_after_regular_always",
+        "emergency",
+        "occurred(2, f)",
+        f"(((! {AFTER_TAKEOFF}) S f) & (O[0,2] f))",
+    ),
+    (
+        "grid_120_onlyIn_regular_immediately",
+        "q",
+        "persisted(2, hot)",
+        f"((H[0,2] hot) & (H[0,1] (! {NOT_IN_CRUISE})))",
+    ),
+    ("grid_042_in_null_within", "landing", "persisted(2, hot)", "(H[0,2] hot)"),
+]
+
+
+@pytest.mark.parametrize("ex_id,word,call,fret", SCOPED_FUNCTIONS)
+def test_functions_count_from_the_scope_start_like_fret(ex_id, word, call, fret):
+    ex = next(d for d in ALL if d["id"] == ex_id)
+    text = re.sub(rf"\b{word}\b", call, ex["fretish"])
+    if word == "landing":  # FRET takes a mode name after 'during', an expression after 'while'
+        text = text.replace("during", "while")
+    ours = formalize(parse_requirement(text)).formula
+    theirs = fret_pt(re.sub(rf"\b{word}\b", fret, ex["pt"]))
+    both = BinOp("<->", ours, theirs)
+    traces = random_traces(ours, theirs, n=300, rng=random.Random(ex_id + word), max_len=30)
+    for trace in traces:
+        assert all(verdicts(both, trace)), (text, trace)
+    assert any(not all(verdicts(theirs, t)) for t in traces)
+
+
 # ---------------------------------------------------------------- the whole grid
 
 SCOPES = {
@@ -357,6 +399,10 @@ def test_describe_mentions_ticks_and_units():
     assert "becomes true" in text
     held = describe(parse_requirement("whenever p sw shall always satisfy q"))
     assert "every tick at which p holds" in held
+    # FRET's $Left$ is named; in the mode itself the functions have no such bound.
+    req = parse_requirement("while persisted(2, h) sw shall always satisfy occurred(3, f)")
+    text = describe(req)
+    assert "(H[0,2] h) holds" in text and "(! interval_start) S[0,3] f" in text
 
 
 MONOTONE = [g for g in GRID if formalize(grid_req(*g)).monotone]

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from monitors.errors import UserError
 from monitors.frontend.formalize import formalize
-from monitors.frontend.parse import Duration, parse_requirement
+from monitors.frontend.parse import INTERVAL_START, Duration, parse_requirement
 from monitors.ir.formula import (
     FTP,
     MAX_DEPTH,
@@ -391,11 +391,12 @@ def test_dotted_names_keep_the_dot():
 
 
 def test_temporal_functions():
+    # Counted from the start of the scope's interval, which formalize puts in.
     assert resp("persisted(3, hot)") == BinOp(
-        "&", Past("H", Var("hot"), 0, 3), Past("H", Past("Y", Const(True)), 0, 2)
+        "&", Past("H", Var("hot"), 0, 3), Past("H", Not(INTERVAL_START), 0, 2)
     )
-    assert resp("occurred(1, 4, f)") == Since("S", Past("Y", Const(True)), Var("f"), 1, 4)
-    assert resp("occurred(4, f)") == Since("S", Past("Y", Const(True)), Var("f"), 0, 4)
+    assert resp("occurred(1, 4, f)") == Since("S", Not(INTERVAL_START), Var("f"), 1, 4)
+    assert resp("occurred(4, f)") == Since("S", Not(INTERVAL_START), Var("f"), 0, 4)
     assert "unknown function" in err("sw shall always satisfy foo(3, x)").message
     assert "tick count" in err("sw shall always satisfy persisted(x, hot)").message
     assert resp("-(x)") == Neg(Var("x"))

@@ -15,11 +15,12 @@ refused instead of producing malformed bounds.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from fractions import Fraction
 
 from monitors.errors import UserError
-from monitors.frontend.parse import Duration, Requirement
+from monitors.frontend.parse import INTERVAL_START, Duration, Requirement
 from monitors.ir.formula import (
     FALSE,
     FTP,
@@ -27,10 +28,12 @@ from monitors.ir.formula import (
     H,
     O,
     S,
+    Var,
     Y,
     Z,
     and_,
     implies,
+    map_children,
     not_,
     or_,
 )
@@ -347,20 +350,27 @@ def formalize(
     """The past-time formula of ``req`` (holds at a tick iff no violation so far
     can be concluded, FRET's reading), whether it is monotone, and why not."""
     n, stop = _duration_ticks(req, period_ms, file, line)
-    timing, p = req.timing.kind, req.response
+    timing = req.timing.kind
     kind = req.scope.kind if req.scope else "null"
     cond = req.condition
 
-    if req.scope is not None and cond is None:
-        special = _special(kind, timing, req.scope.mode, p)
+    # persisted/occurred count from the start of the scope's interval (FRET's $Left$);
+    # in the scope's own mode they count from nothing before (FRET's "NoBounds" forms).
+    m = _starting_at(req.scope.mode, FALSE) if req.scope is not None else None
+    if m is None:
+        left, right, negate = FTP, LAST, False
+    else:
+        left, right, negate = _interval(kind, m)
+    p = _starting_at(req.response, left)
+    stop = _starting_at(stop, left) if stop is not None else None
+    cexpr = _starting_at(cond.expr, left) if cond is not None else None
+
+    if m is not None and cond is None:
+        special = _special(kind, timing, m, p)
         if special is not None:
             return Formalization(simplify(special), True, None)
 
-    if req.scope is None:
-        left, right, negate = FTP, LAST, False
-    else:
-        left, right, negate = _interval(kind, req.scope.mode)
-    base = _Base(left, cond.expr if cond else None, cond is not None and cond.kind == "holding")
+    base = _Base(left, cexpr, cond is not None and cond.kind == "holding")
     form = base.form(timing, negate, p, stop, n)
 
     if right is LAST:
@@ -375,6 +385,13 @@ def formalize(
 
     monotone = (timing, negate) not in _PENDING
     return Formalization(simplify(formula), monotone, None if monotone else _note(timing, negate))
+
+
+def _starting_at(f: Formula, start: Formula) -> Formula:
+    """``f`` with the interval start of its temporal functions set to ``start``."""
+    if f == INTERVAL_START:
+        return start
+    return map_children(f, lambda g: _starting_at(g, start))
 
 
 def _note(timing: str, negate: bool) -> str:
@@ -424,6 +441,20 @@ def _dur_text(req: Requirement, n: int) -> str:
 def describe(req: Requirement, period_ms: float | None = None) -> str:
     """Plain-English reading of a requirement (used by ``explain``)."""
     kind = req.scope.kind if req.scope else "null"
+    start = Var("interval_start")  # how explain shows FRET's $Left$
+    req = dataclasses.replace(
+        req,
+        scope=dataclasses.replace(req.scope, mode=simplify(_starting_at(req.scope.mode, FALSE)))
+        if req.scope
+        else None,
+        condition=dataclasses.replace(req.condition, expr=_starting_at(req.condition.expr, start))
+        if req.condition
+        else None,
+        response=_starting_at(req.response, start),
+        timing=dataclasses.replace(
+            req.timing, stop=_starting_at(req.timing.stop, start) if req.timing.stop else None
+        ),
+    )
     m = str(req.scope.mode) if req.scope else ""
     scope = _SCOPE_TEXT[kind].format(m=m)
     if req.condition is None:

@@ -20,7 +20,8 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
 - Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
   n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
   ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
-  read as ``occurred(0, n, p)`` (no FRET example to check it against);
+  read as ``occurred(0, n, p)`` (no FRET example to check it against); they
+  count from the start of the scope's interval (INTERVAL_START, set by formalize);
   ``preBool(init, p)`` (p at the previous tick, init at the first) with FRET's
   formula; the arithmetic functions of monitors/ir/formula.py (ARITH_FUNCTIONS:
   sqrt, sin, ...; FRET reserves abs, min and max in sentences, as here: they may
@@ -70,6 +71,11 @@ from monitors.ir.formula import (
     reads_expressions,
     too_deep,
 )
+
+# FRET's $Left$: the first tick of the scope's interval.  persisted and occurred
+# count only ticks since it (FRET's templates); formalize puts the scope's start in
+# (docs/reference/fretish.md, "Functions").  No name can contain '$'.
+INTERVAL_START = Var("$Left$")
 
 UNITS = ("tick", "hour", "minute", "second", "millisecond", "microsecond")
 _RESERVED_HINT = "FRET reserves O H S Y Z X F G U V T A E abs max min mode next; rename it"
@@ -577,12 +583,12 @@ class _Build(Transformer):
             # FRET: p held at each of the last n+1 ticks and those ticks exist.
             if n == 0:
                 return args[1]
-            return and_(Past("H", args[1], 0, n), Past("H", Past("Y", TRUE), 0, n - 1))
+            return and_(Past("H", args[1], 0, n), Past("H", Not(INTERVAL_START), 0, n - 1))
         if name == "occurred" and len(args) == 2:
-            return Since("S", Past("Y", TRUE), args[1], 0, _tick_arg(args[0], fn))
+            return Since("S", Not(INTERVAL_START), args[1], 0, _tick_arg(args[0], fn))
         if name == "occurred" and len(args) == 3:
             lo, hi = _tick_arg(args[0], fn), _tick_arg(args[1], fn)
-            return Since("S", Past("Y", TRUE), args[2], lo, hi)
+            return Since("S", Not(INTERVAL_START), args[2], lo, hi)
         line, col = _at(fn)
         if name in RESERVED:  # FRET refuses abs, min and max here too
             raise _Located(
