@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # Non-Python files the commands read at run time.
 PACKAGE_DATA = [
     "monitors/frontend/fretish.lark",
+    "monitors/ir/expressions.lark",
     "supervisor/data/examples/srobot.yaml",
     "supervisor/data/examples/template.yaml",
     "supervisor/data/examples/srobot-from-fret.yaml",
