@@ -14,6 +14,8 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from monitors.ir.formula import parse_formula
 from monitors.verify.analysis import Analysis, Req, VarInfo, analyse
 from monitors.verify.interpret import verdicts
@@ -216,6 +218,7 @@ def test_generated_channels_are_realizable_by_a_causal_controller():
 # ------------------------------------------------------------------ command line
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_check_exit_codes_and_tables():
     r = cli("check", SROBOT)
     assert r.returncode == 0, r.stdout + r.stderr
@@ -240,6 +243,7 @@ def test_explain_shows_role_findings_and_examples():
     assert "satisfied by:" in r.stdout and "violated by:" in r.stdout
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_analysis_section_of_the_config(tmp_path):
     text = (DATA / "timed.yaml").read_text()
     cfg = tmp_path / "timed.yaml"

@@ -150,6 +150,7 @@ def test_many_mutated_configs_are_checked_cleanly(tmp_path_factory: pytest.TempP
     fuzz_once(tmp_path_factory.mktemp("fuzz") / "c", data)
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_run_validates_what_check_validates(tmp_path: Path) -> None:
     """A config check rejects only in its analyses (contradicting requirements) is
     refused by run's start-up as well, at the requirement's line."""

@@ -238,6 +238,7 @@ def test_no_supervisor_listening(tmp_path: Path) -> None:
     assert "no supervisor is listening" in err[0] and "/sRobotClassifier" in err[0]
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_unviolable_requirement_one_line(tmp_path: Path) -> None:
     # level is a uint8 field: no message can carry a value above 255
     extra = "  - id: fits_byte\n    text: sRobot shall always satisfy level <= 255\n"

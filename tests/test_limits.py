@@ -49,6 +49,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(argv, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 @pytest.mark.parametrize("within", ["100000 hours", "36000000000 ticks", "9999999999 seconds"])
 def test_huge_bound_is_refused_at_its_line_with_the_memory_it_needs(
     tmp_path: Path, within: str

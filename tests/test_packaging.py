@@ -574,6 +574,7 @@ def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     )
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_init_writes_configs_that_pass_check(tmp_path: Path) -> None:
     r = _cli("init", cwd=tmp_path)
     assert r.returncode == 0, r.stderr

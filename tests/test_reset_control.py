@@ -122,6 +122,7 @@ def test_control_defaults_and_relative_socket(tmp_path: Path) -> None:
     assert cfg.control.socket == str(tmp_path / "c.sock") and cfg.control.max_resets == 3
 
 
+@pytest.mark.slow  # a full check in a subprocess: full suite only (README, quick tier)
 def test_check_warns_when_the_ros_reset_service_is_enabled(tmp_path: Path) -> None:
     def check(tail: str) -> str:
         r = subprocess.run(
