@@ -321,7 +321,9 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
     reset_warning = reset_service_warning(cfg.ros, cfg.path)
     if reset_warning:
         m_warnings.append(reset_warning)
-    return Project(cfg, reqs, errors + m_errors, warnings + m_warnings)
+    # The loader's notes (requirements an import left out) print like the unused
+    # imported variables' notes above.
+    return Project(cfg, reqs, errors + m_errors, cfg.notes + warnings + m_warnings)
 
 
 def project_for(path: str | Path, *, ros: bool = True) -> Project:

@@ -292,3 +292,82 @@ def test_modes_become_defines_and_functions_nothing(tmp_path):
         "define": "lift_mode = thrust_borne & kgs <= 20.0",
     } in internal
     assert "absReal" not in {v["name"] for v in internal + others}
+
+
+def project_export(tmp_path: Path, parent: bool = False) -> Path:
+    """A FRET project's export holding two components' requirements and variables:
+    FRET's Liquid Mixer (liquid_mixer) and Lift+Cruise (vehicle) files combined
+    (tests/data/fret/README.md).  With ``parent``, a parent requirement (no text)
+    of the liquid mixer's, as FRET writes one that groups others."""
+    lm, lpc = json.loads(LM.read_text()), json.loads(LPC.read_text())
+    requirements = lm["requirements"] + lpc["requirements"]
+    if parent:
+        requirements.insert(0, {**lm["requirements"][0], "reqid": "LM-000", "fulltext": ""})
+    p = tmp_path / "project_reqts_and_vars.json"
+    p.write_text(
+        json.dumps({"requirements": requirements, "variables": lm["variables"] + lpc["variables"]})
+    )
+    return p
+
+
+def mixer_config(tmp_path: Path, export: Path) -> Path:
+    text = (DATA / "fret" / "liquid_mixer.yaml").read_text()
+    return write(tmp_path, text.replace("LM_reqts_and_vars.json", str(export)))
+
+
+def test_a_project_export_keeps_the_components_requirements(tmp_path):
+    p = project_export(tmp_path)
+    notes: list[str] = []
+    reqs, _internal, other = load_fret_export(p, "liquid_mixer", notes)
+    assert {r.id for r in reqs} == {f"LM-{i:03}" for i in range(1, 13)}
+    assert notes == [
+        "19 requirements of other components left out: 'vehicle' (19); "
+        "this config is for 'liquid_mixer'"
+    ]
+    assert "kias" not in {v["name"] for v in other}
+    notes = []
+    reqs, _internal, _other = load_fret_export(p, "vehicle", notes)
+    assert len(reqs) == 19 and notes[0].startswith("12 requirements of other components")
+    reqs, _internal, _other = load_fret_export(p)  # no component: everything
+    assert len(reqs) == 31
+
+
+def test_check_on_a_project_export_notes_the_other_components(tmp_path, monkeypatch, capsys):
+    cfg = mixer_config(tmp_path, project_export(tmp_path))
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["check", str(cfg)]) == 0
+    out = capsys.readouterr().out
+    assert "12 requirements ok, monitor compiled" in out
+    assert (
+        f"{cfg}:6: note: {tmp_path / 'project_reqts_and_vars.json'}: 19 requirements of "
+        "other components left out: 'vehicle' (19)"
+    ) in out
+    assert "error" not in out and "LPC_" not in out
+    spec = project_for(cfg).spec()
+    assert {r.id for r in spec.requirements} == {f"LM-{i:03}" for i in range(1, 13)}
+    assert not {"kias", "lift_mode"} & {v.name for v in spec.inputs}
+
+
+def test_a_requirement_without_text_is_a_note(tmp_path, monkeypatch, capsys):
+    # FRET's parent requirements group others and have no text of their own.
+    export = project_export(tmp_path, parent=True)
+    notes: list[str] = []
+    reqs, _internal, _other = load_fret_export(export, "liquid_mixer", notes)
+    assert "LM-000" not in {r.id for r in reqs}
+    assert "requirement 'LM-000' has no text (a parent requirement in FRET); left out" in notes
+    monkeypatch.chdir(tmp_path)
+    assert cli_main(["check", str(mixer_config(tmp_path, export))]) == 0
+    out = capsys.readouterr().out
+    assert "note: " in out and "requirement 'LM-000' has no text" in out
+    assert "12 requirements ok, monitor compiled" in out
+
+
+def test_an_import_for_another_component_says_which_it_holds(tmp_path):
+    cfg = write(
+        tmp_path,
+        f"component: rover\nstep: {{policy: periodic, period_ms: 100}}\nrequirements_from: {LM}\n",
+    )
+    with pytest.raises(UserError) as e:
+        load_config(cfg)
+    assert "no requirements" in str(e.value)
+    assert "12 requirements of other components left out: 'liquid_mixer' (12)" in str(e.value)

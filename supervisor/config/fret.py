@@ -26,6 +26,9 @@ SHAPES = (
     'the requirements and variables export {"requirements": [...], "variables": [...]}'
 )
 _HTML = re.compile(r"</?[bi]>")
+# The component a FRETISH sentence names stands right before "shall": the fallback
+# for a requirement FRET has not formalized (no semantics.component_name).
+_SHALL = re.compile(r"([A-Za-z_][A-Za-z0-9_.]*)\s+shall\b")
 
 
 def fret_type(name: str) -> str | None:
@@ -53,12 +56,15 @@ def _variable(name: str, ftype: str, file: str) -> str:
 
 
 def load_fret_export(
-    path: Path, component: str | None = None
+    path: Path, component: str | None = None, notes: list[str] | None = None
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
     """Any of FRET's files: its requirements, its internal variables (with a define)
     and its other variables (inputs and outputs, to be read from topics).  With a
-    ``component``, only that component's variables (a project's export holds every
-    component's, and two components may give one name different kinds)."""
+    ``component``, only that component's requirements and variables (a project's
+    export holds every component's, and two components may give one name different
+    kinds).  What is left out is said in ``notes`` (docs/reference/config.md,
+    "variables_from and requirements_from"): the other components' requirements and
+    FRET's parent requirements (no text)."""
     file = str(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -67,12 +73,12 @@ def load_fret_export(
     except json.JSONDecodeError as e:
         raise UserError(f"invalid JSON: {e.msg}", file=file, line=e.lineno, col=e.colno) from None
     if isinstance(data, list):
-        return _database(data, [], file, component)
+        return _database(data, [], file, component, notes)
     if isinstance(data, dict) and isinstance(data.get("requirements"), list):
         variables = data.get("variables") or []
         if not isinstance(variables, list):
             raise UserError("'variables' of a FRET export must be a list", file=file)
-        return _database(data["requirements"], variables, file, component)
+        return _database(data["requirements"], variables, file, component, notes)
     if isinstance(data, dict) and len(data) == 1:
         spec = next(iter(data.values()))
         if isinstance(spec, dict) and isinstance(spec.get("Requirements", []), list):
@@ -113,16 +119,42 @@ def _copilot(
     return reqs, internal, other
 
 
+def requirement_component(r: dict[str, Any]) -> str | None:
+    """The component a FRET requirement record names: FRET's own parse
+    (``semantics.component_name``), else the word before "shall" in its text."""
+    sem = r.get("semantics") if isinstance(r.get("semantics"), dict) else {}
+    if sem.get("component_name"):
+        return str(sem["component_name"])
+    found = _SHALL.search(str(r.get("fulltext") or ""))
+    return found.group(1) if found else None
+
+
 def _database(
-    requirements: list[Any], variables: list[Any], file: str, component: str | None
+    requirements: list[Any],
+    variables: list[Any],
+    file: str,
+    component: str | None,
+    notes: list[str] | None = None,
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
     reqs: list[RequirementEntry] = []
+    others: dict[str, int] = {}  # left out: component -> how many
+    parents: list[str] = []
     for r in requirements:
         if not isinstance(r, dict) or "reqid" not in r or "fulltext" not in r:
             raise UserError(f"not a FRET file: expected {SHAPES}", file=file)
-        if not r["reqid"] or not str(r["fulltext"]).strip():
+        owner = requirement_component(r)
+        if component is not None and owner is not None and owner != component:
+            # A project's export holds every component's requirements; a config
+            # monitors one component (docs/reference/config.md).
+            others[owner] = others.get(owner, 0) + 1
+            continue
+        if not str(r["fulltext"]).strip():
+            # FRET's parent requirements group others and have no text to monitor.
+            parents.append(str(r["reqid"] or "(no id)"))
+            continue
+        if not r["reqid"]:
             raise UserError(
-                f"requirement '{r['reqid']}' in the FRET export has no id or no text", file=file
+                f"a requirement in the FRET export has no reqid: '{r['fulltext']}'", file=file
             )
         sem = r.get("semantics") if isinstance(r.get("semantics"), dict) else {}
         reqs.append(
@@ -138,6 +170,18 @@ def _database(
                 assumption="assumption" in str(r["reqid"]).lower(),
             )
         )
+    if notes is not None:
+        if others:
+            count = sum(others.values())
+            names = ", ".join(f"'{c}' ({n})" for c, n in sorted(others.items()))
+            notes.append(
+                f"{count} requirement{'s' if count != 1 else ''} of other components "
+                f"left out: {names}; this config is for '{component}'"
+            )
+        for rid in parents:
+            notes.append(
+                f"requirement '{rid}' has no text (a parent requirement in FRET); left out"
+            )
     internal: list[dict[str, Any]] = []
     other: list[dict[str, Any]] = []
     for v in variables:

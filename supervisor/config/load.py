@@ -72,7 +72,8 @@ def load_config(path: str | Path) -> Config:
     # The order of the sections is the order their errors are found in.
     step = load_step(doc)
     variables = load_variables(doc, path)
-    requirements = load_requirements(doc, path)
+    notes: list[str] = []
+    requirements = load_requirements(doc, path, notes)
     mitigations = load_mitigations(doc)
     log_path, recent, log_retry_buffer = load_violation_log(doc)
     on_stale = load_on_stale(doc, mitigations)
@@ -100,4 +101,5 @@ def load_config(path: str | Path) -> Config:
         ros=ros,
         control=control,
         limits=limits,
+        notes=notes,
     )

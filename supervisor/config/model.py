@@ -106,6 +106,9 @@ class Config:
     control: ControlConfig = field(default_factory=ControlConfig)
     limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
+    # "file:line: note: ..." lines the loader found worth saying (an import leaving
+    # requirements out); check prints them with its other notes.
+    notes: list[str] = field(default_factory=list)
 
     @property
     def inputs(self) -> list[Variable]:

@@ -34,7 +34,12 @@ REQ_KEYS = {"id", "text", "rationale", "on_violation", "policy", "assumption", "
 DEFAULTS_KEYS = {"on_violation", "policy", "on_pending"}
 
 
-def load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
+def load_requirements(
+    doc: LineDict, path: Path, notes: list[str] | None = None
+) -> list[RequirementEntry]:
+    """The config's requirements, imported ones first.  What an import leaves out
+    (other components' requirements, FRET's parent requirements) is appended to
+    ``notes`` for ``check`` to print (docs/reference/config.md)."""
     defaults = as_mapping(
         doc.get("requirement_defaults") or LineDict(),
         doc,
@@ -45,8 +50,17 @@ def load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
         check_keys(defaults, DEFAULTS_KEYS, "requirement_defaults")
     reqs: list[RequirementEntry] = []
     by_id: dict[str, RequirementEntry] = {}
+    component = doc.get("component")
+    left_out: list[str] = []
     for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
-        imported, _internal, _other = load_fret_export(relative_to(path, entry_path))
+        file_notes: list[str] = []
+        imported, _internal, _other = load_fret_export(
+            relative_to(path, entry_path),
+            str(component) if isinstance(component, str) else None,
+            file_notes,
+        )
+        line = doc.key_line("requirements_from")
+        left_out += [f"{path}:{line}: note: {entry_path}: {n}" for n in file_notes]
         for r in imported:
             if r.id in by_id:
                 raise error_at(
@@ -59,11 +73,17 @@ def load_requirements(doc: LineDict, path: Path) -> list[RequirementEntry]:
             r.id_line = doc.key_line("requirements_from")
             reqs.append(r)
             by_id[r.id] = r
+    if notes is not None:
+        notes.extend(left_out)
     raw = doc.get("requirements")
     if raw is None:
         if not reqs:
             raise error_at(
-                "no requirements: add 'requirements:' or 'requirements_from:'", doc, None
+                "no requirements: add 'requirements:' or 'requirements_from:'",
+                doc,
+                "requirements_from" if left_out else None,
+                # An import for the wrong component leaves everything out.
+                "; ".join(n.split(": note: ", 1)[1] for n in left_out) or None,
             )
         return reqs
     if not isinstance(raw, list):
