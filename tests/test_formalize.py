@@ -293,6 +293,68 @@ def test_functions_count_from_the_scope_start_like_fret(ex_id, word, call, fret)
     assert any(not all(verdicts(theirs, t)) for t in traces)
 
 
+def fret_prev_occ(left: str, p: str, q: str) -> str:
+    """FRET's prevOcc(p, q) template (xform.js, pastTemporalConditions), written out."""
+    quiet = f"((! {left}) & (! {p}))"
+    return f"({left} | (Y (({quiet} S {p}) -> ({quiet} S ({p} & {q})))))"
+
+
+def fret_prev_occ_in_mode(p: str, q: str) -> str:
+    """Its unbounded form, used in the scope's mode (pastTemporalConditionsNoBounds)."""
+    return f"(Y ((! {p}) S ({p} & {q})))"
+
+
+PREV = "at the previous occurrence of a, b"
+# (example, word replaced, its replacement in the sentence, FRET's formula for it)
+PREVIOUS_OCCURRENCES = [
+    ("var_commas", "q", PREV, fret_prev_occ(IN_CRUISE, "a", "b")),
+    ("var_commas", "q", "prevOcc(a, b)", fret_prev_occ(IN_CRUISE, "a", "b")),
+    ("grid_160_after_regular_always", "emergency", PREV, fret_prev_occ(AFTER_TAKEOFF, "a", "b")),
+    ("grid_120_onlyIn_regular_immediately", "q", PREV, fret_prev_occ(NOT_IN_CRUISE, "a", "b")),
+    ("grid_120_onlyIn_regular_immediately", "q", f"({PREV}) & c", None),
+    ("grid_042_in_null_within", "landing", PREV, fret_prev_occ_in_mode("a", "b")),
+    # No scope: FRET's $Left$ is the first tick, (! (Y TRUE)).
+    ("var_period", "q", PREV, fret_prev_occ("(! (Y TRUE))", "a", "b")),
+]
+
+
+@pytest.mark.parametrize("ex_id,word,text_for,fret", PREVIOUS_OCCURRENCES)
+def test_previous_occurrence_like_fret(ex_id, word, text_for, fret):
+    ex = next(d for d in ALL if d["id"] == ex_id)
+    if fret is None:  # an operand in parentheses, the rest of the response beside it
+        fret = f"({fret_prev_occ(NOT_IN_CRUISE, 'a', 'b')} & c)"
+    text = re.sub(rf"\b{word}\b", text_for, ex["fretish"])
+    if word == "landing":  # FRET takes a mode name after 'during', an expression after 'while'
+        text = text.replace("during", "while")
+    ours = formalize(parse_requirement(text)).formula
+    theirs = fret_pt(re.sub(rf"\b{word}\b", fret, ex["pt"]))
+    both = BinOp("<->", ours, theirs)
+    traces = random_traces(ours, theirs, n=300, rng=random.Random(ex_id + text_for), max_len=30)
+    for trace in traces:
+        assert all(verdicts(both, trace)), (text, trace)
+    assert any(not all(verdicts(theirs, t)) for t in traces)
+
+
+@pytest.mark.parametrize(
+    "ex_id,word,wrong",
+    [
+        # Counting from the trace's start instead of the scope's (no $Left$).
+        ("var_commas", "q", fret_prev_occ("FALSE", "a", "b")),
+        # In the mode, the bounded template without a start is not FRET's form.
+        ("grid_042_in_null_within", "landing", fret_prev_occ("FALSE", "a", "b")),
+    ],
+)
+def test_previous_occurrence_needs_the_scope_start(ex_id, word, wrong):
+    # Neither shortcut is FRET's formula: the random traces tell them apart.
+    ex = next(d for d in ALL if d["id"] == ex_id)
+    text = re.sub(rf"\b{word}\b", PREV, ex["fretish"]).replace("during", "while")
+    ours = formalize(parse_requirement(text)).formula
+    other = fret_pt(re.sub(rf"\b{word}\b", wrong, ex["pt"]))
+    both = BinOp("<->", ours, other)
+    traces = random_traces(ours, other, n=300, rng=random.Random(ex_id), max_len=30)
+    assert any(not all(verdicts(both, t)) for t in traces)
+
+
 # ---------------------------------------------------------------- the whole grid
 
 SCOPES = {
@@ -417,3 +479,12 @@ def test_monotone_sweep(combo):
     for trace in random_traces(f, n=60, rng=random.Random(str(combo)), max_len=14):
         v = verdicts(f, trace)
         assert not _goes_false_then_true(v), (combo, trace, v)
+
+
+def test_describe_shows_the_previous_occurrence_as_fret_writes_it():
+    text = describe(parse_requirement(f"in m upon {PREV} sw shall always satisfy r"))
+    assert "(interval_start | (Y ((((! interval_start) & (! a)) S a) ->" in text
+    assert "TRUE" not in text
+    # In the mode itself: FRET's unbounded form.
+    text = describe(parse_requirement(f"while {PREV} sw shall always satisfy r"))
+    assert "in which (Y ((! a) S (a & b))) holds" in text

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from monitors.errors import UserError
 from monitors.frontend.formalize import formalize
-from monitors.frontend.parse import INTERVAL_START, Duration, parse_requirement
+from monitors.frontend.parse import BOUNDED, INTERVAL_START, Duration, parse_requirement
 from monitors.ir.formula import (
     FTP,
     MAX_DEPTH,
@@ -27,6 +27,7 @@ from monitors.ir.formula import (
     Var,
     depth,
     parse_formula,
+    subterms,
 )
 
 EXAMPLES = Path(__file__).resolve().parent / "data" / "fret-examples.jsonl"
@@ -324,15 +325,41 @@ def test_probability_is_refused_not_dropped():
 @pytest.mark.parametrize(
     "text,col,why",
     [
-        ("upon at the previous occurrence of p, q sw shall always satisfy r", 6, "not supported"),
-        ("sw shall always satisfy x & at the Previous occurrence of p, q", 29, "not supported"),
         ("sw shall always satisfy at the next occurrence of p, q", 25, "looks into the future"),
+        ("upon at the next occurrence of p, q sw shall always satisfy r", 6, "looks into"),
     ],
 )
-def test_occurrence_expressions_are_named_in_the_error(text, col, why):
+def test_next_occurrence_is_named_in_the_error(text, col, why):
     e = err(text)
     assert "occurrence of P, Q' cannot be monitored" in e.message and why in e.message
     assert e.col == col and e.line == 1
+
+
+def test_previous_occurrence_is_an_expression():
+    # FRET's prevOcc(p, q), with the scope's start left for formalize to put in.
+    prev = resp("at the previous occurrence of p, q")
+    assert INTERVAL_START in subterms(prev) and BOUNDED in subterms(prev)
+    assert resp("prevOcc(p, q)") == prev
+    assert resp("AT  the Previous\noccurrence OF p, q") == prev
+    # The second expression runs to the end, as after `then` (FRET's precedence).
+    assert resp("at the previous occurrence of p, q & r") == resp(
+        "at the previous occurrence of p, (q & r)"
+    )
+    assert resp("(at the previous occurrence of p, q) & r") == BinOp("&", prev, Var("r"))
+    # In a condition and as the mode of a scope.
+    parse_requirement("upon at the previous occurrence of p, q sw shall always satisfy r")
+    parse_requirement("while at the previous occurrence of p, q sw shall always satisfy r")
+    # `at`, `the` and `previous` stay names.
+    assert resp("at & the & previous") == BinOp(
+        "&", BinOp("&", Var("at"), Var("the")), Var("previous")
+    )
+
+
+def test_previous_occurrence_as_an_operand_says_to_parenthesize():
+    e = err("sw shall always satisfy x & at the Previous occurrence of p, q")
+    assert "whole expression" in e.message and e.col == 29 and "parentheses" in (e.hint or "")
+    with pytest.raises(FormulaSyntaxError, match="FRETISH sentence"):
+        parse_formula("at the previous occurrence of p, q")
 
 
 @pytest.mark.parametrize(

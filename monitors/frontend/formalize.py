@@ -20,12 +20,15 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from monitors.errors import UserError
-from monitors.frontend.parse import INTERVAL_START, Duration, Requirement
+from monitors.frontend.parse import BOUNDED, INTERVAL_START, Duration, Requirement
 from monitors.ir.formula import (
     FALSE,
     FTP,
+    TRUE,
+    BinOp,
     Formula,
     H,
+    Not,
     O,
     S,
     Var,
@@ -354,9 +357,9 @@ def formalize(
     kind = req.scope.kind if req.scope else "null"
     cond = req.condition
 
-    # persisted/occurred count from the start of the scope's interval (FRET's $Left$);
-    # in the scope's own mode they count from nothing before (FRET's "NoBounds" forms).
-    m = _starting_at(req.scope.mode, FALSE) if req.scope is not None else None
+    # persisted/occurred/prevOcc count from the start of the scope's interval (FRET's
+    # $Left$); in the scope's own mode they have no such start (FRET's "NoBounds" forms).
+    m = _starting_at(req.scope.mode, FALSE, bounded=False) if req.scope is not None else None
     if m is None:
         left, right, negate = FTP, LAST, False
     else:
@@ -387,11 +390,17 @@ def formalize(
     return Formalization(simplify(formula), monotone, None if monotone else _note(timing, negate))
 
 
-def _starting_at(f: Formula, start: Formula) -> Formula:
-    """``f`` with the interval start of its temporal functions set to ``start``."""
+def _starting_at(f: Formula, start: Formula, *, bounded: bool = True) -> Formula:
+    """``f`` with the interval start of its temporal functions set to ``start``;
+    ``bounded`` False gives FRET's forms without an interval (the scope's mode)."""
     if f == INTERVAL_START:
         return start
-    return map_children(f, lambda g: _starting_at(g, start))
+    if isinstance(f, BinOp) and f.op == "|" and f.left == Not(BOUNDED):
+        # Folded here so that `explain` shows FRET's formula, not `(! TRUE) | ...`.
+        return _starting_at(f.right, start) if bounded else TRUE
+    if f == BOUNDED:
+        return TRUE if bounded else FALSE
+    return map_children(f, lambda g: _starting_at(g, start, bounded=bounded))
 
 
 def _note(timing: str, negate: bool) -> str:
@@ -444,7 +453,9 @@ def describe(req: Requirement, period_ms: float | None = None) -> str:
     start = Var("interval_start")  # how explain shows FRET's $Left$
     req = dataclasses.replace(
         req,
-        scope=dataclasses.replace(req.scope, mode=simplify(_starting_at(req.scope.mode, FALSE)))
+        scope=dataclasses.replace(
+            req.scope, mode=simplify(_starting_at(req.scope.mode, FALSE, bounded=False))
+        )
         if req.scope
         else None,
         condition=dataclasses.replace(req.condition, expr=_starting_at(req.condition.expr, start))

@@ -22,6 +22,8 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
   ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
   read as ``occurred(0, n, p)`` (no FRET example to check it against); they
   count from the start of the scope's interval (INTERVAL_START, set by formalize);
+  ``at the previous occurrence of p, q`` (also ``prevOcc(p, q)``) likewise, with
+  FRET's unbounded form in the scope's mode (BOUNDED, set by formalize);
   ``preBool(init, p)`` (p at the previous tick, init at the first) with FRET's
   formula; the arithmetic functions of monitors/ir/formula.py (ARITH_FUNCTIONS:
   sqrt, sin, ...; FRET reserves abs, min and max in sentences, as here: they may
@@ -76,6 +78,10 @@ from monitors.ir.formula import (
 # count only ticks since it (FRET's templates); formalize puts the scope's start in
 # (docs/reference/fretish.md, "Functions").  No name can contain '$'.
 INTERVAL_START = Var("$Left$")
+# TRUE except in the scope's mode, where FRET uses its unbounded ("NoBounds") forms;
+# only `at the previous occurrence of` needs it, as its unbounded form is not its
+# bounded one with no interval start.  formalize puts it in.
+BOUNDED = Var("$Bounded$")
 
 UNITS = ("tick", "hour", "minute", "second", "millisecond", "microsecond")
 _RESERVED_HINT = "FRET reserves O H S Y Z X F G U V T A E abs max min mode next; rename it"
@@ -156,7 +162,7 @@ _TERMINAL_TEXT = {
     "THEN": "'then'",
     "$END": "end of sentence",
 }
-_EXPR_START = {"NAME", "NUMBER", "LPAR", "NOT_OP", "MINUS", "TRUE_KW", "FALSE_KW"}
+_EXPR_START = {"NAME", "NUMBER", "LPAR", "NOT_OP", "MINUS", "TRUE_KW", "FALSE_KW", "PREV_OCC"}
 _TIMING_WORDS = {
     "IMMEDIATELY", "INITIALLY", "AT", "EVENTUALLY", "ALWAYS", "NEVER", "WITHIN", "FOR",
     "AFTER", "UNTIL", "BEFORE", "FINALLY",
@@ -197,24 +203,21 @@ def _near(text: str, pos: int) -> str:
     return rest[0] if rest else ""
 
 
-# FRET's occurrence expressions (its grammar's `AT THE (PREVIOUS | NEXT) OCCURRENCE OF`).
-_OCCURRENCE = re.compile(r"\bat\s+the\s+(previous|next)\s+occurrence\s+of\b", re.IGNORECASE)
+# FRET's `AT THE NEXT OCCURRENCE OF` (the previous one is an expression of the grammar).
+_OCCURRENCE = re.compile(r"\bat\s+the\s+next\s+occurrence\s+of\b", re.IGNORECASE)
 
 
 def _occurrence_error(text: str) -> UserError | None:
-    """A sentence using FRET's occurrence expressions fails to parse somewhere after
-    them; say what the construct is and why it is refused instead."""
+    """A sentence using FRET's next-occurrence expression fails to parse somewhere
+    after it; say what the construct is and why it is refused instead."""
     m = _OCCURRENCE.search(text)
     if m is None:
         return None
     before = text[: m.start()]
     line, col = before.count("\n") + 1, m.start() - (before.rfind("\n") + 1) + 1
-    if m.group(1).lower() == "next":
-        why = "FRET's past-time semantics has no formula for it (it looks into the future)"
-    else:
-        why = "it is not supported yet (docs/reference/fretish.md)"
+    why = "FRET's past-time semantics has no formula for it (it looks into the future)"
     return UserError(
-        f"'at the {m.group(1).lower()} occurrence of P, Q' cannot be monitored: {why}",
+        f"'at the next occurrence of P, Q' cannot be monitored: {why}",
         line=line,
         col=col,
         hint="state it with the timing of the sentence or with occurred(n, p)",
@@ -244,8 +247,33 @@ def _missing_component(e: UnexpectedToken, text: str) -> UserError | None:
     )
 
 
+_PREVIOUS = re.compile(r"\bat\s+the\s+previous\s+occurrence\s+of\b", re.IGNORECASE)
+
+
+def _previous_misplaced(e: UnexpectedInput, text: str) -> UserError | None:
+    """The parse failed inside `at the previous occurrence of`: it stands where only an
+    operand may (`x & at the ...`), and it is a whole expression, like if-then."""
+    pos = getattr(getattr(e, "token", None), "start_pos", None)
+    if pos is None:
+        pos = getattr(e, "pos_in_stream", None)
+    if pos is None:
+        return None
+    for m in _PREVIOUS.finditer(text):
+        if m.start() < pos < m.end():
+            before = text[: m.start()]
+            line, col = before.count("\n") + 1, m.start() - (before.rfind("\n") + 1) + 1
+            return UserError(
+                "'at the previous occurrence of P, Q' is a whole expression here: "
+                "it cannot be an operand",
+                line=line,
+                col=col,
+                hint="put it in parentheses: x & (at the previous occurrence of p, q)",
+            )
+    return None
+
+
 def _syntax_error(e: UnexpectedInput, text: str) -> UserError:
-    occurrence = _occurrence_error(text)
+    occurrence = _occurrence_error(text) or _previous_misplaced(e, text)
     if occurrence is not None:
         return occurrence
     if isinstance(e, UnexpectedEOF) or (isinstance(e, UnexpectedToken) and e.token.type == "$END"):
@@ -574,10 +602,16 @@ class _Build(Transformer):
             return FTP
         return Var(_name(items[0]))
 
+    def prev_occ(self, items: list) -> Formula:
+        p, q = _formulas(items[1:])
+        return previous_occurrence(p, q)
+
     def call(self, items: list) -> Formula:
         fn = items[0]
         args = _formulas(items[1:])
         name = str(fn)
+        if name == "prevOcc" and len(args) == 2:  # FRET's name for the same thing
+            return previous_occurrence(args[0], args[1])
         if name == "persisted" and len(args) == 2:
             n = _tick_arg(args[0], fn)
             # FRET: p held at each of the last n+1 ticks and those ticks exist.
@@ -622,8 +656,21 @@ class _Build(Transformer):
             line,
             col,
             hint="FRETISH functions: persisted(n, p), occurred(n, p), occurred(m, n, p), "
-            + ", ".join(f"{f}/{n}" for f, n in ARITH_FUNCTIONS.items()),
+            "prevOcc(p, q), " + ", ".join(f"{f}/{n}" for f, n in ARITH_FUNCTIONS.items()),
         )
+
+
+def previous_occurrence(p: Formula, q: Formula) -> Formula:
+    """FRET's ``prevOcc(p, q)``: q held at the last tick p held before this one, counted
+    from the scope's interval start (true at that start, and while p has not held
+    since it); in the scope's mode, FRET's unbounded form ``Y(!p S (p & q))``.  With
+    BOUNDED true this is FRET's bounded template
+    ``Left | Y(((!Left & !p) S p) -> ((!Left & !p) S (p & q)))``, with BOUNDED and
+    Left false its unbounded one (docs/reference/fretish.md, "Functions")."""
+    quiet = BinOp("&", Not(INTERVAL_START), Not(p))
+    seen = BinOp("|", Not(BOUNDED), Since("S", quiet, p))
+    held = Since("S", quiet, BinOp("&", p, q))
+    return BinOp("|", INTERVAL_START, Past("Y", BinOp("->", seen, held)))
 
 
 def _number_text(tok: Token) -> str:

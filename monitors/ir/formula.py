@@ -368,9 +368,22 @@ def to_fret(f: Formula) -> str:
 EXPRESSIONS_GRAMMAR = Path(__file__).with_name("expressions.lark")
 # lark names the rules a grammar imports from expressions.lark with this prefix.
 _IMPORTED = "expressions__"
-_EXPRESSION_RULES = ("ifthen", "binop", "not_", "uminus", "number", "true", "false", "call", "var")
+_EXPRESSION_RULES = (
+    "ifthen",
+    "prev_occ",
+    "binop",
+    "not_",
+    "uminus",
+    "number",
+    "true",
+    "false",
+    "call",
+    "var",
+)
 # The rules of expressions.lark that nest (parentheses alone add no level).
-EXPRESSION_NESTING = frozenset(_IMPORTED + r for r in ("ifthen", "binop", "not_", "uminus", "call"))
+EXPRESSION_NESTING = frozenset(
+    _IMPORTED + r for r in ("ifthen", "prev_occ", "binop", "not_", "uminus", "call")
+)
 
 _T = TypeVar("_T", bound=type)
 
@@ -424,6 +437,13 @@ class FormulaSyntaxError(ValueError):
 class _Build(Transformer):
     def ifthen(self, a: list) -> Formula:
         return BinOp("->", a[-3], a[-1])
+
+    def prev_occ(self, a: list) -> Formula:
+        # Its formula depends on the scope's interval start, which formula text does
+        # not have; FRET prints it expanded (docs/reference/fretish.md, "Functions").
+        raise FormulaSyntaxError(
+            "'at the previous occurrence of' belongs in a FRETISH sentence, not in formula text"
+        )
 
     def binop(self, a: list) -> Formula:
         left, op, right = a
