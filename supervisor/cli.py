@@ -80,7 +80,7 @@ def cmd_formalize(args: argparse.Namespace) -> int:
 
 def cmd_explain(args: argparse.Namespace) -> int:
     from monitors.frontend.formalize import describe
-    from monitors.ir.formula import to_fret, variables
+    from monitors.ir.formula import fret_name, to_fret, variables
     from monitors.ir.spec import c_name
     from supervisor.config import load_config
     from supervisor.pipeline import build_project
@@ -113,8 +113,10 @@ def cmd_explain(args: argparse.Namespace) -> int:
         for n in names:
             v = project.config.variables.get(n)
             # A name C cannot hold (a dotted name, a C keyword) is renamed in the
-            # monitor; say to which, as manifest.json does.
-            facts = [f"C name {c_name(n)}"] if c_name(n) != n else []
+            # monitor, and one formula text cannot hold (`T`, `left wheel`) is
+            # written as FRET writes a quoted name; say to which, as manifest.json does.
+            facts = [f"formula name {fret_name(n)}"] if fret_name(n) != n else []
+            facts += [f"C name {c_name(n)}"] if c_name(n) != n else []
             if v is not None and v.define_text:
                 facts.insert(0, f"= {v.define_text}")
             elif v is not None:

@@ -78,6 +78,40 @@ def test_explain_shows_formula_reading_variables_handler():
     assert "reading:" in out
 
 
+QUOTED_CONFIG = """\
+component: sw
+step: {policy: periodic, period_ms: 100}
+variables:
+  T: {type: bool, topic: /t, msg: std_msgs/msg/Bool}
+  left wheel: {type: int64, topic: /lw, msg: std_msgs/msg/Int64}
+  MODE: {type: bool, topic: /m, msg: std_msgs/msg/Bool}
+  fast: {type: bool, define: "_DQT_left_SPC_wheel_DQT_ > 5"}
+requirements:
+  - id: r1
+    text: in "MODE" mode, when "T" & "left wheel" > 3, sw shall within 2 ticks satisfy !"T" | fast
+    on_violation: [halt]
+mitigations:
+  halt: {publish: {topic: /halt, msg: std_msgs/msg/Bool, value: {data: true}}}
+"""
+
+
+@pytest.mark.slow
+def test_quoted_and_keyword_like_names_check_and_explain(tmp_path):
+    # docs/reference/fretish.md, "Names": sentence -> formula -> C -> explain.
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(QUOTED_CONFIG)
+    r = cli("check", cfg)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "monitor compiled" in r.stdout
+    r = cli("explain", cfg, "r1")
+    assert r.returncode == 0, r.stderr
+    assert "_DQT_left_SPC_wheel_DQT_ > 3" in r.stdout
+    assert "T (bool, /t, formula name _DQT_T_DQT_)" in r.stdout
+    assert "left wheel (int64, /lw, formula name _DQT_left_SPC_wheel_DQT_, C name left_wheel)" in (
+        r.stdout
+    )
+
+
 def test_explain_unknown_requirement():
     r = cli("explain", SROBOT, "state_req999")
     assert r.returncode == 1 and "no requirement 'state_req999'" in r.stderr
@@ -109,8 +143,8 @@ def test_compile_writes_sources_library_manifest(tmp_path):
         (("satisfy p | halt", "satisfy halt + 1 > 0"), 9, "'+' needs numbers"),
         # int used as a condition
         (("satisfy p | halt", "satisfy p & x"), 9, "x is int64"),
-        # reserved name
-        (("  p: {type: bool", "  O: {type: bool"), 4, "reserved"),
+        # reserved name unquoted in a sentence (FRET refuses it; "O" would do)
+        (("satisfy p | halt", "satisfy O | halt"), 9, "reserved"),
         # duplicate id
         (("  - id: r2", "  - id: r1"), 10, "duplicate requirement id 'r1'"),
         # unparseable sentence

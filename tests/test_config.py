@@ -114,6 +114,16 @@ def test_ogma_bad_line_is_located(tmp_path):
     assert str(e.value).startswith(f"{p}:2: ")
 
 
+def test_keyword_like_and_spaced_names_are_variables(tmp_path):
+    # FRET takes them quoted; formula text writes them as FRET does (docs/reference/config.md).
+    text = BASE.replace("  p: {type: bool", "  T: {type: bool").replace(
+        "  x: {type: int64", "  left wheel: {type: int64"
+    )
+    text = text.replace("satisfy p", 'satisfy "T" | "left wheel" > 2')
+    cfg = load_config(write(tmp_path, text))
+    assert {"T", "left wheel"} <= set(cfg.variables)
+
+
 def test_config_from_fret_and_ogma_files():
     cfg = load_config(ROOT / "config" / "srobot-from-fret.yaml")
     assert len(cfg.requirements) == 13
@@ -128,7 +138,7 @@ def test_config_from_fret_and_ogma_files():
     [
         (("  x: {type: int64", "  x: {typ: int64"), 5, "unknown key 'typ'"),
         (("    on_violation: [halt]", "    on_violation: [hlt]"), 9, "undefined mitigation 'hlt'"),
-        (("  p: {type: bool", "  S: {type: bool"), 4, "reserved word"),
+        (("  p: {type: bool", "  _DQT_p_DQT_: {type: bool"), 4, "not a usable variable name"),
         (
             ("  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}", "  x: {type: int64}"),
             5,

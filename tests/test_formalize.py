@@ -33,6 +33,8 @@ from monitors.ir.formula import (
     max_bound,
     parse_formula,
     subterms,
+    to_fret,
+    variables,
 )
 from monitors.verify.interpret import verdicts
 
@@ -488,3 +490,29 @@ def test_describe_shows_the_previous_occurrence_as_fret_writes_it():
     # In the mode itself: FRET's unbounded form.
     text = describe(parse_requirement(f"while {PREV} sw shall always satisfy r"))
     assert "in which (Y ((! a) S (a & b))) holds" in text
+
+
+# Quoted names and keyword-like ones (docs/reference/fretish.md, "Names"): the
+# sentence keeps the user's name, formula text spells it as FRET does.
+QUOTED = {"flight mode": "fm", "T": "t1", "left wheel": "lw", "MODE": "m1"}
+
+
+def test_quoted_names_formalize_like_plain_ones():
+    quoted = (
+        'in "flight mode" mode, when "T" & "left wheel" > 3, '
+        'sw shall within 2 ticks satisfy !"MODE"'
+    )
+    plain = "in fm mode, when t1 & lw > 3, sw shall within 2 ticks satisfy !m1"
+    ours = formalize(parse_requirement(quoted)).formula
+    back = {v: k for k, v in QUOTED.items()}
+    same = rename(formalize(parse_requirement(plain)).formula, lambda n: back.get(n, n))
+    text = to_fret(ours)
+    assert "_DQT_left_SPC_wheel_DQT_" in text and "_DQT_T_DQT_" in text
+    assert "_DQT_flight_SPC_mode_DQT_" in text and "_DQT_MODE_DQT_" in text
+    assert parse_formula(text) == ours  # the formula text reads back as the same names
+    assert set(variables(ours)) == set(QUOTED)
+    both = BinOp("<->", ours, same)
+    traces = random_traces(ours, same, n=300, rng=random.Random(7), max_len=25)
+    for trace in traces:
+        assert all(verdicts(both, trace)), trace
+    assert any(not all(verdicts(ours, t)) for t in traces)

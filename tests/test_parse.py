@@ -434,6 +434,24 @@ def test_temporal_functions():
 def test_reserved_words(word):
     e = err(f"sw shall always satisfy {word} > 1")
     assert "reserved" in e.message and word in e.message and e.col == 25
+    assert e.hint and '"T"' in e.hint  # quoted, FRET takes it
+
+
+@pytest.mark.parametrize("word", ["T", "Z", "A", "MODE", "mode", "next", "left wheel", "a-b"])
+def test_quoted_names(word):
+    # FRET's quoted names (docs/reference/fretish.md, "Names"): variables and modes.
+    r = P(f'in "{word}" mode, when "{word}" > 1, sw shall always satisfy "{word}"')
+    assert r.scope.mode == Var(word) and r.response == Var(word)
+    assert r.condition.expr == BinOp(">", Var(word), Const(1))
+
+
+@pytest.mark.parametrize(
+    ("name", "why"),
+    [("", "empty"), ("_DQT_x_DQT_", "_DQT_"), ("x_SPC ", "renaming"), ("a\\", "printable")],
+)
+def test_quoted_names_formula_text_cannot_hold(name, why):
+    e = err(f'sw shall always satisfy "{name}"')
+    assert "cannot be used as a name" in e.message and why in e.message and e.col == 25
 
 
 # ---------------------------------------------------------------- errors

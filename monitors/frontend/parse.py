@@ -16,7 +16,8 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
 - Keywords are only keywords where the grammar expects them, so a mode or a
   variable may be called ``hereafter``, ``beforehand`` or ``auto``.  FRET's
   reserved names (``O H S Y Z X F G U V T A E abs max min mode next``) are
-  refused everywhere a name is expected.
+  refused unquoted everywhere a name is expected; quoted (``"T"``) they are names,
+  as FRET's quoted names are (docs/reference/fretish.md, "Names").
 - Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
   n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
   ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
@@ -70,6 +71,7 @@ from monitors.ir.formula import (
     and_,
     arith_call,
     expression_parser,
+    name_problem,
     reads_expressions,
     too_deep,
 )
@@ -84,7 +86,10 @@ INTERVAL_START = Var("$Left$")
 BOUNDED = Var("$Bounded$")
 
 UNITS = ("tick", "hour", "minute", "second", "millisecond", "microsecond")
-_RESERVED_HINT = "FRET reserves O H S Y Z X F G U V T A E abs max min mode next; rename it"
+_RESERVED_HINT = (
+    "FRET reserves O H S Y Z X F G U V T A E abs max min mode next unquoted; "
+    'quote it ("T") or rename it'
+)
 RESERVED = frozenset("O H S Y Z X F G U V T A E abs max min mode next".split())
 
 
@@ -601,6 +606,16 @@ class _Build(Transformer):
         if str(items[0]) == "FTP":  # FRET's "first time point" constant
             return FTP
         return Var(_name(items[0]))
+
+    def quoted_var(self, items: list) -> Formula:
+        # FRET's quoted name: any name, keyword-like ones too ("T", "mode");
+        # formula text writes it in FRET's renaming (monitors/ir/formula.py, fret_name).
+        tok = items[0]
+        name = str(tok)[1:-1]
+        why = name_problem(name)
+        if why is not None:
+            raise _Located(f"{tok} cannot be used as a name: {why}", *_at(tok))
+        return Var(name)
 
     def prev_occ(self, items: list) -> Formula:
         p, q = _formulas(items[1:])

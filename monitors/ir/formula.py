@@ -17,6 +17,7 @@ Syntax (FRET's past-time output, fully parenthesized when printed):
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
@@ -340,13 +341,75 @@ def _const(v: bool | int | float) -> str:
     return repr(v)
 
 
+# FRET's renaming of the characters of a quoted name in its formulas (its
+# support/utils.js special_char_map); the quotes themselves become _DQT_.
+FRET_CHAR_CODES: dict[str, str] = {
+    ".": "_DOT_", "%": "_PRC_", "#": "_HSH_", "$": "_DOL_", "&": "_AMP_",
+    "@": "_ATS_", "!": "_BNG_", "?": "_QUS_", "-": "_HYP_", "*": "_AST_",
+    "=": "_EQU_", "^": "_CRT_", " ": "_SPC_", "+": "_PLS_", ";": "_SEM_",
+    ":": "_CLN_", ",": "_CMA_", "/": "_FSL_", "\\": "_BSL_", "|": "_VBR_",
+    "~": "_TLD_", "<": "_LAN_", ">": "_RAN_", "(": "_LPR_", ")": "_RPR_",
+    "{": "_LCB_", "}": "_RCB_", "[": "_LSQ_", "]": "_RSQ_", "'": "_SQT_",
+    '"': "_DQT_", "`": "_BQT_",
+}  # fmt: skip
+_CODE_CHARS = {code: c for c, code in FRET_CHAR_CODES.items()}
+_CODE_RE = re.compile("|".join(re.escape(c) for c in _CODE_CHARS))
+_PLAIN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*")
+# Names the formula text would read as something else (an operator, a literal, a
+# keyword), and FRET's reserved letter combinations: written as FRET writes a
+# quoted name, so `T` and `"left wheel"` print as _DQT_T_DQT_ and
+# _DQT_left_SPC_wheel_DQT_ (docs/reference/fretish.md, "Names").
+FORMULA_WORDS = frozenset("O H S Y Z X F G U V T A E abs max min FTP xor mod inf".split())
+# Keywords in any case, as the lexers read them.
+FORMULA_KEYWORDS = frozenset("mode next true false if then".split())
+
+
+def name_problem(name: str) -> str | None:
+    """Why a variable or mode name cannot be used (None if it can): the formula
+    text must spell it in FRET's renaming and read it back as the same name."""
+    if not name:
+        return "an empty name"
+    if not all(" " <= c <= "~" for c in name) or '"' in name or "\\" in name:
+        return "a name is printable ASCII without '\"' or '\\'"
+    if name.startswith("$"):
+        return "'$' starts the supervisor's own names"
+    if name.startswith("_DQT_") and name.endswith("_DQT_"):
+        return "_DQT_..._DQT_ is how formula text writes a quoted name"
+    if user_name(fret_name(name)) != name:
+        return (
+            "FRET's renaming of quoted names (_SPC_ for a space ...) would read it back differently"
+        )
+    return None
+
+
+def _mangled(name: str) -> bool:
+    return (
+        not _PLAIN_NAME.fullmatch(name) or name in FORMULA_WORDS or name.lower() in FORMULA_KEYWORDS
+    )
+
+
+def fret_name(name: str) -> str:
+    """A variable's name in formula text: itself, or, when formula text cannot
+    hold it as is, FRET's spelling of the quoted name.  user_name undoes it."""
+    if name.startswith("$") or not _mangled(name):  # $Left$: the supervisor's own
+        return name
+    return "_DQT_" + "".join(FRET_CHAR_CODES.get(c, c) for c in name) + "_DQT_"
+
+
+def user_name(text: str) -> str:
+    """The name a formula's identifier stands for (the inverse of fret_name)."""
+    if len(text) > 10 and text.startswith("_DQT_") and text.endswith("_DQT_"):
+        return _CODE_RE.sub(lambda m: _CODE_CHARS[m[0]], text[5:-5])
+    return text
+
+
 def to_fret(f: Formula) -> str:
     """Print in FRET's past-time syntax, fully parenthesized like FRET does."""
     match f:
         case Const(v):
             return _const(v)
         case Var(n):
-            return n
+            return fret_name(n)
         case Not(a):
             return f"(! {to_fret(a)})"
         case Neg(a):
@@ -379,6 +442,7 @@ _EXPRESSION_RULES = (
     "false",
     "call",
     "var",
+    "quoted_var",
 )
 # The rules of expressions.lark that nest (parentheses alone add no level).
 EXPRESSION_NESTING = frozenset(
@@ -514,7 +578,10 @@ class _Build(Transformer):
     def var(self, a: list[Token]) -> Formula:
         if str(a[0]) == "FTP":  # FRET's "first time point" constant
             return FTP
-        return Var(str(a[0]))
+        return Var(user_name(str(a[0])))
+
+    def quoted_var(self, a: list[Token]) -> Formula:
+        return Var(str(a[0])[1:-1])
 
     def call(self, a: list) -> Formula:
         return arith_call(str(a[0]), a[1:], FormulaSyntaxError)

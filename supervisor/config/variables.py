@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
-from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula
+from monitors.ir.formula import Formula, FormulaSyntaxError, name_problem, parse_formula
 from monitors.ir.spec import TYPE_ALIASES
 from supervisor.config.fields import (
     as_mapping,
@@ -32,11 +32,6 @@ QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
 # the loop's 20 ms turn budget (docs/reference/config.md, ``depth``).
 DEFAULT_DEPTH = 1000
 MAX_DEPTH = 1_000_000  # messages queued per topic; more is a typo, not a plan
-# FRET's reserved words plus our formula keywords: a variable may not be called so.
-RESERVED = frozenset(
-    "O H S Y Z X F G U V T A E abs max min mode next FTP TRUE FALSE xor mod inf".split()
-)
-NAME_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_.]*$")
 VAR_KEYS = {
     "type",
     "topic",
@@ -53,20 +48,11 @@ VAR_KEYS = {
 
 
 def check_name(name: str, where: Any, key: str | None = None) -> None:
-    if not NAME_RE.match(name):
-        raise error_at(
-            f"'{name}' is not a usable variable name",
-            where,
-            key,
-            "use letters, digits, '_' and '.'",
-        )
-    if name in RESERVED:
-        raise error_at(
-            f"'{name}' is a reserved word in FRETISH and cannot name a variable",
-            where,
-            key,
-            f"rename it, e.g. '{name}_'",
-        )
+    # Any name FRET takes quoted is usable (`T`, `left wheel`): sentences write it
+    # quoted, formula text in FRET's renaming (docs/reference/config.md, "Names").
+    why = name_problem(name)
+    if why is not None:
+        raise error_at(f"'{name}' is not a usable variable name", where, key, why)
 
 
 def parse_define(text: str, file: str, line: int | None) -> Formula:
