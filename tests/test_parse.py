@@ -18,11 +18,13 @@ from monitors.ir.formula import (
     FTP,
     MAX_DEPTH,
     BinOp,
+    Call,
     Const,
     FormulaSyntaxError,
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     depth,
@@ -424,7 +426,13 @@ def test_temporal_functions():
     )
     assert resp("occurred(1, 4, f)") == Since("S", Not(INTERVAL_START), Var("f"), 1, 4)
     assert resp("occurred(4, f)") == Since("S", Not(INTERVAL_START), Var("f"), 0, 4)
-    assert "unknown function" in err("sw shall always satisfy foo(3, x)").message
+    # Other calls are kept, as FRET keeps them, for the config's functions to define.
+    assert resp("foo(3, x)") == Call("foo", (Const(3), Var("x")))
+    assert resp("preReal(0.0, x) < x") == BinOp("<", Pre("preReal", Const(0.0), Var("x")), Var("x"))
+    for future in ("persists(3, hot)", "occurs(3, hot)", "nextOcc(p, q)"):
+        assert "future-time" in err(f"sw shall always satisfy {future}").message
+    assert "persisted takes 2 arguments" in err("sw shall always satisfy persisted(hot)").message
+    assert "preInt takes 2 arguments" in err("sw shall always satisfy preInt(x) > 1").message
     assert "tick count" in err("sw shall always satisfy persisted(x, hot)").message
     assert resp("-(x)") == Neg(Var("x"))
     assert resp("FTP") == FTP

@@ -28,8 +28,10 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
   ``preBool(init, p)`` (p at the previous tick, init at the first) with FRET's
   formula; the arithmetic functions of monitors/ir/formula.py (ARITH_FUNCTIONS:
   sqrt, sin, ...; FRET reserves abs, min and max in sentences, as here: they may
-  be used in defines, and FRET's absReal, minInt ... anywhere).  ``preInt`` and
-  ``preReal`` are refused.  Other calls are errors.
+  be used in defines, and FRET's absReal, minInt ... anywhere); ``preInt`` and
+  ``preReal`` (a number's previous value).  Any other call is kept as FRET keeps
+  it, for the config's ``functions`` to define; FRET's future-time predicates
+  (``persists``, ``occurs``, ``nextOcc``) are refused.
 - ``FTP`` in an expression is FRET's first-time-point constant (``Z FALSE``).
 """
 
@@ -55,7 +57,6 @@ from monitors.ir.formula import (
     ARITH_FUNCTIONS,
     EXPRESSION_NESTING,
     FALSE,
-    FRET_FUNCTION_NAMES,
     FTP,
     MAX_DEPTH,
     MAX_NUMBER_CHARS,
@@ -654,25 +655,28 @@ class _Build(Transformer):
             return BinOp(
                 "|", BinOp("&", FTP, args[0]), BinOp("&", Past("Y", TRUE), Past("Y", args[1]))
             )
-        if name in ("preInt", "preReal"):
+        if name in _FRET_TEMPORAL:  # the right name with the wrong number of arguments
             raise _Located(
-                f"{name} (a number's value at the previous tick) is not supported",
+                f"{name} takes {_FRET_TEMPORAL[name]}, not {len(args)} argument"
+                f"{'s' * (len(args) != 1)}",
                 line,
                 col,
-                hint="compare at the previous tick instead: preBool(init, x > 3)",
             )
-        if name in ARITH_FUNCTIONS or name in FRET_FUNCTION_NAMES:  # FRET passes these on
-            try:
-                return arith_call(name, args, ValueError)
-            except ValueError as e:
-                raise _Located(str(e), line, col) from None
-        raise _Located(
-            f"unknown function {name}/{len(args)}",
-            line,
-            col,
-            hint="FRETISH functions: persisted(n, p), occurred(n, p), occurred(m, n, p), "
-            "prevOcc(p, q), " + ", ".join(f"{f}/{n}" for f, n in ARITH_FUNCTIONS.items()),
-        )
+        # Arithmetic functions, preInt/preReal, and any other name: FRET passes calls
+        # on, and the config defines them (docs/reference/config.md, "functions").
+        try:
+            return arith_call(name, args, ValueError)
+        except ValueError as e:
+            raise _Located(str(e), line, col) from None
+
+
+# FRET's temporal functions this reader expands, and the arguments they take.
+_FRET_TEMPORAL = {
+    "persisted": "2 arguments (n, p)",
+    "occurred": "2 or 3 arguments (n, p) or (m, n, p)",
+    "prevOcc": "2 arguments (p, q)",
+    "preBool": "2 arguments (init, p)",
+}
 
 
 def previous_occurrence(p: Formula, q: Formula) -> Formula:

@@ -46,6 +46,12 @@ FRET_FUNCTION_NAMES = {
     "maxReal": "max", "maxInt": "max",
 }  # fmt: skip
 BINARY_TEMPORAL = ("S", "T")
+# FRET's previous-value functions for numbers (preBool is a formula, see
+# monitors/frontend/parse.py): a number's value at the previous tick, init at the first.
+PRE_FUNCTIONS = {"preInt": "int64", "preReal": "double"}
+# FRET's future-time predicates: FRET formalizes them only in future time, and a
+# runtime monitor sees only the past.
+FUTURE_FUNCTIONS = ("persists", "occurs", "nextOcc")
 
 
 class Formula:
@@ -117,7 +123,9 @@ class BinOp(Formula):
 
 @dataclass(frozen=True, slots=True)
 class Call(Formula):
-    """An arithmetic function (a key of ARITH_FUNCTIONS) applied to its arguments."""
+    """A function applied to its arguments: an arithmetic function (a key of
+    ARITH_FUNCTIONS), or any other name as FRET passes it on, which the config
+    must define (monitors/ir/functions.py expands those before typing)."""
 
     name: str
     args: tuple[Formula, ...]
@@ -155,6 +163,19 @@ class Since(Formula):
 
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
+
+
+@dataclass(frozen=True, slots=True)
+class Pre(Formula):
+    """FRET's ``preInt(init, x)`` / ``preReal(init, x)`` (name): x's value at the
+    previous tick, and init's value at the first tick (Lustre's ``init -> pre x``)."""
+
+    name: str  # a key of PRE_FUNCTIONS
+    init: Formula
+    arg: Formula
+
+    def children(self) -> tuple[Formula, ...]:
+        return (self.init, self.arg)
 
 
 TRUE = Const(True)
@@ -223,15 +244,24 @@ def S(a: Formula, b: Formula, lo: int | None = None, hi: int | None = None) -> F
     return Since("S", a, b, lo, hi)
 
 
-def arith_call(name: str, args: list[Formula], error: type[Exception]) -> Call:
-    """``name(args)`` as a Call, or ``error`` saying why it is not an arithmetic function."""
+def arith_call(name: str, args: list[Formula], error: type[Exception]) -> Formula:
+    """``name(args)``: a Call (checked when ``name`` is an arithmetic function, left
+    for the config's functions otherwise, as FRET passes calls on), a Pre for
+    preInt/preReal, or ``error`` saying why the call is wrong."""
+    if name in FUTURE_FUNCTIONS:
+        raise error(
+            f"{name} is one of FRET's future-time predicates, which FRET formalizes only "
+            "in future time; a runtime monitor sees only the past (use persisted, "
+            "occurred or prevOcc)"
+        )
+    if name in PRE_FUNCTIONS:
+        if len(args) != 2:
+            raise error(f"{name} takes 2 arguments (init, value), not {len(args)}")
+        return Pre(name, args[0], args[1])
     name = FRET_FUNCTION_NAMES.get(name, name)
     arity = ARITH_FUNCTIONS.get(name)
     if arity is None:
-        raise error(
-            f"unknown function {name}/{len(args)} (arithmetic functions: "
-            f"{', '.join(ARITH_FUNCTIONS)})"
-        )
+        return Call(name, tuple(args))
     if len(args) != arity:
         raise error(f"{name} takes {arity} argument{'s' * (arity > 1)}, not {len(args)}")
     return Call(name, tuple(args))
@@ -304,6 +334,8 @@ def map_children(f: Formula, fn: Callable[[Formula], Formula]) -> Formula:
             return Since(op, fn(a), fn(b), lo, hi)
         case Call(name, args):
             return Call(name, tuple(fn(a) for a in args))
+        case Pre(name, init, a):
+            return Pre(name, fn(init), fn(a))
     return f
 
 
@@ -422,6 +454,8 @@ def to_fret(f: Formula) -> str:
             return f"({to_fret(a)} {op}{_bounds(lo, hi)} {to_fret(b)})"
         case Call(name, args):
             return f"{name}({', '.join(to_fret(a) for a in args)})"
+        case Pre(name, init, a):
+            return f"{name}({to_fret(init)}, {to_fret(a)})"
     raise TypeError(f"not a formula: {f!r}")
 
 
