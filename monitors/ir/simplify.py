@@ -16,6 +16,7 @@ from monitors.ir.formula import (
     Formula,
     Not,
     Past,
+    Pre,
     Since,
     map_children,
 )
@@ -42,6 +43,11 @@ def _rewrite(f: Formula) -> Formula:
             return _past(op, a, lo, hi)
         case Since(op, a, b, lo, hi):
             return _since(op, a, b, lo, hi)
+        case Pre():
+            # A previous value is state (its argument one tick late, init at tick 0):
+            # folding it into its argument would drop that tick, so only its
+            # children are simplified (above).
+            return g
     return g
 
 

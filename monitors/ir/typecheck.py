@@ -12,6 +12,7 @@ from collections.abc import Mapping
 
 from monitors.errors import UserError
 from monitors.ir.formula import (
+    ARITH_FUNCTIONS,
     ARITH_OPS,
     BOOL_OPS,
     INT_FUNCTIONS,
@@ -23,6 +24,7 @@ from monitors.ir.formula import (
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     to_fret,
@@ -99,6 +101,16 @@ def type_of(f: Formula, env: Mapping[str, str]) -> str:
                     f"ite's branches {to_fret(a)} ({ta}) and {to_fret(b)} ({tb}) differ"
                 )
             return "bool" if ta == "bool" else "double" if "double" in (ta, tb) else "int64"
+        case Pre(name, init, a):
+            return _pre_type(name, init, a, env)
+        case Call(name, args) if name not in ARITH_FUNCTIONS:
+            # The parsers keep calls of any name, as FRET passes them on; the config
+            # stage expands the user's functions before typing, so one that is
+            # left here was never declared (docs/reference/config.md, "functions").
+            raise UserError(
+                f"function {name}/{len(args)} is not defined",
+                hint="declare it under 'functions:' in the config (docs/reference/config.md)",
+            )
         case Call(name, args):
             types = [type_of(a, env) for a in args]
             for a, t in zip(args, types, strict=True):
@@ -108,6 +120,25 @@ def type_of(f: Formula, env: Mapping[str, str]) -> str:
                 return "int64"
             return "double"
     raise UserError(f"cannot type {f!r}")
+
+
+def _pre_type(name: str, init: Formula, a: Formula, env: Mapping[str, str]) -> str:
+    """FRET's preInt/preReal (docs/reference/fretish.md, "Functions"): the previous
+    value has the function's type; preReal converts an int64, as arithmetic does,
+    while preInt takes int64 only (a double would need a rounding nobody asked for)."""
+    for x in (init, a):
+        t = type_of(x, env)
+        if t == "bool":
+            raise UserError(
+                f"{name} needs a number, but {to_fret(x)} is bool",
+                hint="use preBool(init, p) for a condition's previous value",
+            )
+        if name == "preInt" and t != "int64":
+            raise UserError(
+                f"preInt needs int64 values, but {to_fret(x)} is {t}",
+                hint="use preReal(init, x) for a real value",
+            )
+    return "int64" if name == "preInt" else "double"
 
 
 def _expect(f: Formula, env: Mapping[str, str], want: str, why: str) -> None:
