@@ -37,6 +37,7 @@ from collections.abc import Iterable, Mapping, Sequence
 import z3
 
 from monitors.ir.formula import (
+    ARITH_FUNCTIONS,
     ARITH_OPS,
     BOOL_OPS,
     INT_FUNCTIONS,
@@ -48,6 +49,7 @@ from monitors.ir.formula import (
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     subterms,
@@ -259,7 +261,7 @@ class Encoder:
         else:
             extra = (g.op, g.lo, g.hi) if isinstance(g, Past | Since) else ()
             extra = (g.op,) if isinstance(g, BinOp) else extra
-            extra = (g.name,) if isinstance(g, Call) else extra
+            extra = (g.name,) if isinstance(g, Call | Pre) else extra
             key = (type(g).__name__, *extra, *(self._key(c) for c in g.children()))
         self._keys[id(g)] = (g, key)  # keeps g alive, so its id is not reused
         return key
@@ -311,6 +313,14 @@ class Encoder:
                 if tc != "bool" or (ta == "bool") != (tb == "bool"):
                     raise Unsupported(f"ite needs a boolean condition and like branches in {g}")
                 return ta if ta == tb else "double"
+            case Pre(name, init, a):
+                types = [self._ty(init), self._ty(a)]
+                if "bool" in types or (name == "preInt" and "double" in types):
+                    raise Unsupported(f"{name} on {' and '.join(types)} values in {g}")
+                return "int64" if name == "preInt" else "double"
+            case Call(name, args) if name not in ARITH_FUNCTIONS:
+                # the config expands user functions before any analysis
+                raise Unsupported(f"function {name}/{len(args)} is not defined")
             case Call(name, args):
                 types = [self._ty(a) for a in args]
                 if "bool" in types:
@@ -362,6 +372,15 @@ class Encoder:
                     for a in args
                 ]
                 return [_call(name, result, xs) for xs in zip(*columns, strict=True)]
+            case Pre(_, init, a):
+                # init at tick 0 (Lustre's init -> pre x), the argument one tick late
+                if not k:
+                    return []
+                first, xs = t(init)[0], t(a)[:-1]
+                if self._ty(g) == "double":
+                    first = _to_double(first, self._ty(init))
+                    xs = [_to_double(x, self._ty(a)) for x in xs]
+                return [first, *xs]
             case Past("Y", a):
                 return [z3.BoolVal(False)] + t(a)[:-1] if k else []
             case Past("Z", a):
@@ -603,7 +622,8 @@ def _arith(op: str, a: z3.ExprRef, ta: str, b: z3.ExprRef, tb: str) -> z3.ExprRe
 
 
 def is_propositional(f: Formula) -> bool:
-    return not any(isinstance(g, Past | Since) for g in subterms(f))
+    """No temporal operator and no previous value (preInt/preReal): a per-tick fact."""
+    return not any(isinstance(g, Past | Since | Pre) for g in subterms(f))
 
 
 def pure_invariant(f: Formula) -> Formula | None:

@@ -12,6 +12,10 @@ Value semantics shared with the C backend (documented in the README):
 - real is IEEE double (x / 0.0 is inf or nan, comparisons with nan are false);
 - ``^`` on ints needs a constant exponent 0..63; on reals it is C's pow();
 - ``ite(c, a, b)``: a where c holds, else b (double if either branch is);
+- ``preInt(init, x)`` / ``preReal(init, x)`` (FRET's ``init -> pre x``): init's
+  value at tick 0, x's value at tick i - 1 afterwards, as an int64 / a double (an
+  int64 converted as C converts it); counted from the trace's start, so a fresh
+  trace (a reset) is at tick 0 again;
 - functions: abs, min, max on int64s stay int64 (abs wraps INT64_MIN to itself),
   otherwise the arguments are converted to double; ``min(a, b)`` is
   ``b < a ? b : a`` and ``max(a, b)`` is ``b > a ? b : a`` (so NaN handling is
@@ -24,7 +28,9 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
+from monitors.errors import UserError
 from monitors.ir.formula import (
+    ARITH_FUNCTIONS,
     INT_FUNCTIONS,
     BinOp,
     Call,
@@ -33,6 +39,7 @@ from monitors.ir.formula import (
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     subterms,
@@ -137,6 +144,10 @@ def _c_math(name: str, x: float) -> float:
 
 def call(name: str, args: Sequence[Value]) -> Value:
     """Value of the arithmetic function ``name`` (see the module docstring)."""
+    if name not in ARITH_FUNCTIONS:
+        # the config expands user functions before anything is evaluated (as typing
+        # refuses them, monitors/ir/typecheck.py); say so instead of a KeyError
+        raise UserError(f"function {name}/{len(args)} is not defined")
     if name == "ite":
         c, a, b = args
         x = a if c else b
@@ -233,6 +244,11 @@ def _eval_node(g: Formula, trace: Trace, t: dict[Formula, list[Value]], n: int) 
         case Call(name, args):
             columns = [t[a] for a in args]
             return [call(name, row) for row in zip(*columns, strict=True)]
+        case Pre(name, init, a):
+            # init is read at tick 0 only (Lustre's init -> pre x)
+            conv = int if name == "preInt" else float
+            xs, first = t[a], t[init]
+            return [conv(first[0] if i == 0 else xs[i - 1]) for i in range(n)]
         case Past("Y", a):
             xs = t[a]
             return [i > 0 and bool(xs[i - 1]) for i in range(n)]

@@ -10,7 +10,16 @@ from dataclasses import dataclass
 
 import z3
 
-from monitors.ir.formula import REL_OPS, BinOp, Formula, Var, map_children, variables
+from monitors.ir.formula import (
+    REL_OPS,
+    BinOp,
+    Formula,
+    Pre,
+    Var,
+    map_children,
+    subterms,
+    variables,
+)
 from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.requirements import VarInfo
 from monitors.verify.bmc import Encoder, Row, fp_const, fresh_row, fresh_rows, tick_encoding
@@ -86,6 +95,10 @@ def abstract_arena(
                 return f
             if vs & in_set and vs & out_set:
                 raise NoAbstraction(f"{f} compares inputs with outputs")
+            if any(isinstance(g, Pre) for g in subterms(f)):
+                # a previous value ties this tick's comparison to the last tick's
+                # values: not an independent choice per tick
+                raise NoAbstraction(f"{f} compares a previous value (preInt/preReal)")
             return Var(atoms.setdefault(f, f"cmp{len(atoms)}"))
         return map_children(f, go)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from monitors.ir.formula import Formula, Past, Since, subterms
+from monitors.ir.formula import Formula, Past, Pre, Since, subterms
 from monitors.verify.analysis import range_formula
 from monitors.verify.bmc import Encoder, Unsupported, fresh_rows
 from supervisor.analysis_report import project_requirements
@@ -26,7 +26,9 @@ def lookback(f: Formula) -> int:
     for g in subterms(f):  # children first
         kids = [depth[c] for c in g.children()]
         own = 0
-        if isinstance(g, Past):
+        if isinstance(g, Pre):
+            own = 1  # the previous tick's value (init only at tick 0)
+        elif isinstance(g, Past):
             own = 1 if g.op in ("Y", "Z") else (g.hi if g.hi is not None else (g.lo or 0) + 1)
         elif isinstance(g, Since):
             own = g.hi if g.hi is not None else (g.lo or 0) + 1
