@@ -28,6 +28,12 @@ Temporal operators (arguments taken as booleans, i = current tick):
   delay_L x       a 64-bit shift register when L <= 64, else a ring buffer of L
                   bytes with a fill counter (reset = two assignments).
   H[..], T[..]    by duality with O[..] and S[..].
+  preInt(init, x), preReal(init, x)
+                  a typed member holding x of the previous tick and a first-tick
+                  flag (initially, and after every reset, 1): the value is
+                  ``first ? init : prev``, then prev := x, first := 0.  A define
+                  using one is expanded into each requirement, as a temporal
+                  define is, so each requirement owns (and resets) its own.
 
 Values follow monitors/interpret.py exactly: int64 arithmetic is done in
 uint64_t and wrapped back without undefined behaviour, ``/`` and ``mod``
@@ -61,6 +67,7 @@ from monitors.ir.formula import (
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     is_temporal,
@@ -75,7 +82,10 @@ INT64_MAX = (1 << 63) - 1
 # the config allows is the memory limit checked before generation (``state_bytes``).
 MAX_DELAY = (1 << 32) - 1
 # (size, alignment) of each state member's C type on the LP64 and ILP32 ABIs we build for.
-_C_SIZE = {"bool": (1, 1), "uint8_t": (1, 1), "uint32_t": (4, 4), "uint64_t": (8, 8)}
+_C_SIZE = {
+    "bool": (1, 1), "uint8_t": (1, 1), "uint32_t": (4, 4), "uint64_t": (8, 8),
+    "int64_t": (8, 8), "double": (8, 8),
+}  # fmt: skip
 
 # Identifiers the generated C (or the host shim) declares itself.
 _RESERVED = re.compile(
@@ -302,6 +312,8 @@ class _Gen:
             case Call(name, args):
                 ints = all(vals[a][1] != "double" for a in args)
                 return "int64" if name in INT_FUNCTIONS and ints else "double"
+            case Pre(name):
+                return "int64" if name == "preInt" else "double"
         return "bool"
 
     # ------------------------------------------------------------ values
@@ -354,6 +366,9 @@ class _Gen:
     def call(self, name: str, args: list[tuple[str, str]], result: str) -> str:
         """An arithmetic function; arguments are variables or constants (no side
         effects), so a ternary may name one twice."""
+        if name not in _C_MATH and name not in ("min", "max", "ite"):
+            # user functions are expanded by the config before C is generated
+            raise UserError(f"function {name}/{len(args)} is not defined")
         if name == "ite":
             conv = {"bool": _as_bool, "int64": _as_int, "double": _as_double}[result]
             c, a, b = _as_bool(*args[0]), conv(*args[1]), conv(*args[2])
@@ -518,6 +533,23 @@ class _Gen:
             return self.since(req, a, b, lo, g.hi)
         return self.local(req, f"!{self.since(req, f'(!{a})', f'(!{b})', lo, g.hi)}")
 
+    def pre(self, req: _Req, g: Pre, vals: dict[Formula, tuple[str, str]]) -> str:
+        """preInt/preReal: init at the first tick after a reset, the argument's
+        previous value afterwards (see the module docstring)."""
+        t = "int64" if g.name == "preInt" else "double"
+        (x, tx), (i, ti) = vals[g.arg], vals[g.init]
+        if t == "int64" and "double" in (tx, ti):
+            # converting a double to int64 is undefined for NaN and large values
+            raise UserError(f"preInt needs int64 values: {to_fret(g)}", hint="use preReal")
+        conv = _as_int if t == "int64" else _as_double
+        prev = self.member(req, C_TYPES[t], "0" if t == "int64" else "0.0")
+        first = self.member(req, "bool", "true")
+        out = self.fresh()
+        req.body.append(f"const {C_TYPES[t]} {out} = {first} ? {conv(i, ti)} : {prev};")
+        req.body.append(f"{prev} = {conv(x, tx)};")
+        req.body.append(f"{first} = false;")
+        return out
+
     # ------------------------------------------------------------ requirements
     def node(
         self, g: Formula, vals: dict[Formula, tuple[str, str]], req: _Req | None, body: list[str]
@@ -532,6 +564,10 @@ class _Gen:
             case Past() | Since():
                 assert req is not None
                 return self.temporal(req, g, vals), "bool"
+            case Pre(name):
+                # _define_plan expands stateful defines into the requirements
+                assert req is not None
+                return self.pre(req, g, vals), "int64" if name == "preInt" else "double"
         t = self.node_type(g, vals)
         e = self.expr(g, vals, body)
         v = self.fresh()
@@ -545,11 +581,17 @@ class _Gen:
         return vals[f]
 
 
+def _stateful(f: Formula) -> bool:
+    """Whether ``f`` keeps state between ticks: a temporal operator or a previous
+    value (preInt/preReal), which a define must not share between requirements."""
+    return is_temporal(f) or any(isinstance(g, Pre) for g in subterms(f))
+
+
 def _define_plan(spec: MonitorSpec) -> tuple[list, list[Formula]]:
     """(non-temporal defines used, in dependency order; requirement formulas with the
     temporal defines expanded, so that each requirement owns their state)."""
     by_name = {d.name: d for d in spec.defines}
-    temporal = [d for d in spec.defines if is_temporal(expand_defines(d.expr, spec.defines))]
+    temporal = [d for d in spec.defines if _stateful(expand_defines(d.expr, spec.defines))]
     formulas = [expand_defines(r.formula, temporal) for r in spec.requirements]
     order: list = []
     state: dict[str, int] = {}

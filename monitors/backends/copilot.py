@@ -23,6 +23,10 @@ they fold constants unsoundly (``x * 0 = 0`` on doubles, Haskell's flooring
 
 Where Copilot cannot match (UserError, not silently different):
 - real ``mod`` (C fmod): Copilot 3.13 has neither fmod nor a double-to-int cast;
+- ``preInt(init, x)`` / ``preReal(init, x)`` with an init that is not a finite
+  constant: Copilot's ``[init] ++ x`` takes a Haskell value, not a stream (with a
+  constant init they are such a stream, shared by every requirement as the
+  temporal streams are);
 - the arithmetic functions (abs, min, max, sqrt, ...): their exact C semantics
   (int64 abs wrapping, NaN in min/max) are not written for Copilot yet; the
   native backend compiles them;
@@ -63,6 +67,7 @@ from monitors.ir.formula import (
     Neg,
     Not,
     Past,
+    Pre,
     Since,
     Var,
     to_fret,
@@ -286,6 +291,20 @@ class _Gen:
                 return "bool"
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return self._num_type(a, b)
+            case Pre(name, init, _):
+                for c in f.children():
+                    self.type_of(c)
+                if not _finite_number(init):
+                    raise UserError(
+                        f"the Copilot backend needs a constant initial value for {name}: "
+                        f"{to_fret(f)} (Copilot's [init] ++ x takes a number, not a stream)",
+                        file=_ERR,
+                        hint="write a number as init, or compile with the native backend "
+                        "(--backend native)",
+                    )
+                if name == "preInt" and "double" in (self.type_of(init), self.type_of(f.arg)):
+                    raise UserError(f"preInt needs int64 values: {to_fret(f)}", file=_ERR)
+                return "int64" if name == "preInt" else "double"
             case Call(name, _):
                 raise UserError(
                     f"the Copilot backend does not compile the function {name}: {to_fret(f)}",
@@ -341,7 +360,7 @@ class _Gen:
                 return self._rel(op, a, b)
             case BinOp(op, a, b) if op in ARITH_OPS:
                 return self._arith(f, op, a, b)
-            case Past() | Since():
+            case Past() | Since() | Pre():
                 return self._temporal(f)
         raise UserError(f"cannot translate {f!r} to Copilot", file=_ERR)
 
@@ -388,7 +407,14 @@ class _Gen:
         name = self.temporal.get(key)
         if name is not None:
             return name
+        stream = "Bool"
         match f:
+            case Pre(_, Const(v), a):
+                # a number's previous value, v at the first tick (checked in _type_of)
+                t = self.type_of(f)
+                stream = _HS_TYPES[t]
+                lit = f"({v:d} :: Int64)" if t == "int64" else f"({float(v)!r} :: Double)"
+                body = f"[{lit}] ++ {self.expr(a, t)}"
             case Past(op, a, lo, hi):
                 body = self._past(op, self.expr(a, "bool"), lo or 0, hi)
             case Since(op, a, b, lo, hi):
@@ -398,7 +424,7 @@ class _Gen:
                 raise AssertionError(f)
         name = f"t{len(self.temporal)}"
         self.temporal[key] = name
-        self.bindings.append(f"-- {to_fret(f)}\n{name} :: Stream Bool\n{name} = {body}\n")
+        self.bindings.append(f"-- {to_fret(f)}\n{name} :: Stream {stream}\n{name} = {body}\n")
         return name
 
     @staticmethod
@@ -422,6 +448,13 @@ class _Gen:
         if hi is None:
             return f"{fn[0]} {x} {y}" if lo == 0 else f"{fn[1]} {lo} {x} {y}"
         return f"{fn[2]} {lo} {hi - lo} {x} {y}"
+
+
+def _finite_number(f: Formula) -> bool:
+    """A numeric constant Copilot can hold as a Haskell literal (no NaN or inf)."""
+    if not isinstance(f, Const) or isinstance(f.value, bool):
+        return False
+    return isinstance(f.value, int) or math.isfinite(f.value)
 
 
 def output_name(spec: MonitorSpec) -> str:
