@@ -123,6 +123,9 @@ def cmd_explain(args: argparse.Namespace) -> int:
                 facts[:0] = [v.type, str(v.topic)]
             expanded.append(f"{n} ({', '.join(facts)})" if facts else n)
         _out(f"  reads:     {', '.join(expanded)}")
+        for name in r.functions:  # expanded into the formula above
+            fn = project.config.functions[name]
+            _out(f"  function:  {fn.signature()} = {to_fret(fn.body)}")
         _out(f"  handler:   handler{r.id}")
         kind = "assumption (constrains inputs)" if r.entry.assumption else "guarantee"
         _out(f"  role:      {kind}")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import difflib
 import json
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from mitigations.actions.ssh import preflight
@@ -25,6 +25,7 @@ from monitors.errors import UserError
 from monitors.frontend.formalize import Formalization, formalize
 from monitors.frontend.parse import Requirement, parse_requirement
 from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula, variables
+from monitors.ir.functions import expand_functions, user_calls
 from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_name, expand_defines
 from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
@@ -39,6 +40,7 @@ class CompiledRequirement:
     formalization: Formalization | None = None
     error: UserError | None = None
     warnings: list[str] = field(default_factory=list)
+    functions: list[str] = field(default_factory=list)  # the config's functions it calls
 
     @property
     def id(self) -> str:
@@ -111,6 +113,12 @@ def compile_requirement(
                 hint=f"write '{cfg.component} shall ...' or change 'component:'",
             )
         form = formalize(req, period_ms=cfg.step.period_ms, file=entry.file, line=entry.line)
+        out.functions = list(dict.fromkeys(c.name for c in user_calls(form.formula)))
+        try:  # calls FRET passes through are the config's functions
+            form = replace(form, formula=expand_functions(form.formula, cfg.functions))
+        except UserError as e:
+            e.message = f"requirement '{entry.id}' {e.message}"
+            raise _located(e, entry.file, entry.line) from None
         for name in variables(form.formula):
             if name not in env:
                 raise UserError(
@@ -145,6 +153,10 @@ def _cross_check_fret(entry: RequirementEntry, ours: Formula, cfg: Config) -> li
         theirs = parse_formula(entry.fret_ptltl or "")
     except FormulaSyntaxError as e:
         return [f"FRET's ptLTL for '{entry.id}' could not be parsed ({e}); using our formalization"]
+    try:
+        theirs = expand_functions(theirs, cfg.functions)
+    except UserError as e:
+        return [f"FRET's ptLTL for '{entry.id}' {e.message}; not cross-checked"]
     defines = tuple(Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None)
     a, b = expand_defines(ours, defines), expand_defines(theirs, defines)
     names = sorted(set(variables(a)) | set(variables(b)))

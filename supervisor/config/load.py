@@ -14,8 +14,10 @@ import hashlib
 from pathlib import Path
 
 from monitors.errors import UserError
+from monitors.ir.functions import expand_functions
 from supervisor.config.control import load_control
 from supervisor.config.fields import as_mapping, check_keys, error_at
+from supervisor.config.functions import load_functions
 from supervisor.config.limits import load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
@@ -31,6 +33,7 @@ TOP_KEYS = {
     "step",
     "variables",
     "variables_from",
+    "functions",
     "requirements",
     "requirements_from",
     "requirement_defaults",
@@ -72,6 +75,15 @@ def load_config(path: str | Path) -> Config:
     # The order of the sections is the order their errors are found in.
     step = load_step(doc)
     variables = load_variables(doc, path)
+    functions = load_functions(doc)
+    for v in variables.values():  # a define may call the config's functions
+        if v.define is not None:
+            try:
+                v.define = expand_functions(v.define, functions)
+            except UserError as e:
+                raise UserError(
+                    f"define of '{v.name}' {e.message}", file=file, line=v.line, hint=e.hint
+                ) from None
     notes: list[str] = []
     requirements = load_requirements(doc, path, notes)
     mitigations = load_mitigations(doc)
@@ -91,6 +103,7 @@ def load_config(path: str | Path) -> Config:
         component=str(component),
         step=step,
         variables=variables,
+        functions=functions,
         requirements=requirements,
         mitigations=mitigations,
         log_path=log_path,

@@ -12,6 +12,7 @@ from typing import Any
 from mitigations.settings import Mitigation, PolicyConfig
 from monitors.errors import UserError
 from monitors.ir.formula import Formula
+from monitors.ir.functions import Function
 from supervisor.config.limits import Limits
 from supervisor.names import NODE_NAME
 
@@ -104,6 +105,8 @@ class Config:
     analysis: dict[str, Any]
     ros: RosConfig = field(default_factory=RosConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
+    # functions: the definitions of the functions FRET passes through its formulas
+    functions: dict[str, Function] = field(default_factory=dict)
     limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
     # "file:line: note: ..." lines the loader found worth saying (an import leaving
