@@ -10,8 +10,9 @@ from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.results import Finding
 
 
-def consistency(ctx: Context, findings: list[Finding]) -> tuple[bool, str]:
-    """(consistent, summary); each conflict found becomes a finding."""
+def consistency(ctx: Context, findings: list[Finding]) -> tuple[bool | None, str]:
+    """(consistent, summary), consistent None when z3 could not decide; each
+    conflict found becomes a finding."""
     items = ctx.all_items()
     k = ctx.k
     lits = [ctx.ok_lit(i, k) for i in items]
@@ -19,7 +20,7 @@ def consistency(ctx: Context, findings: list[Finding]) -> tuple[bool, str]:
     if r == z3.sat:
         return True, f"consistent: a {k}-tick trace satisfies all {len(ctx.reqs)} requirements"
     if r != z3.unsat:
-        return False, f"unknown: z3 gave up ({ctx.solver.reason_unknown()})"
+        return None, f"unknown: z3 gave up ({ctx.solver.reason_unknown()})"
     active = list(items)
     for _ in range(5):  # report independent conflicts, not only the first
         core = ctx.minimal_core(active, k)

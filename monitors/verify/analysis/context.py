@@ -14,6 +14,7 @@ from monitors.verify.analysis.requirements import Req, VarInfo, range_formula
 from monitors.verify.analysis.results import Trace
 from monitors.verify.bmc import (
     Encoder,
+    OutOfTime,
     Row,
     Unsupported,
     check_deadline,
@@ -117,8 +118,15 @@ class Context:
         return self.lit(("fired", rid, n), lambda: z3.Or(xs[:n]) if n > 1 else xs[0])
 
     def check(self, lits: Sequence[z3.BoolRef]) -> z3.CheckSatResult:
-        self.solver.set(timeout=self.timeout_ms)
-        return self.solver.check(*lits)
+        """z3's answer; OutOfTime when z3 gave up because the budget ran out (its own
+        timer may stop it a little before the deadline), so the analysis is reported
+        as stopped by the budget rather than as undecided."""
+        timeout = self.timeout_ms
+        self.solver.set(timeout=timeout)
+        r = self.solver.check(*lits)
+        if r == z3.unknown and self.deadline is not None and timeout < self.per_call_ms:
+            raise OutOfTime()
+        return r
 
     def minimal_core(
         self, items: Sequence[str], n: int, fixed: Sequence[z3.BoolRef] = ()

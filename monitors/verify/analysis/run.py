@@ -125,10 +125,15 @@ def analyse(
     vacuous = step("vacuity", lambda: vacuity(ctx, findings, bool(consistent)), set())
     if consistent:
         step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
-    elif consistent is None and "redundancy" not in skipped:
-        skipped["redundancy"] = skipped.get("consistency", "consistency was not decided")
+    undecided = skipped.get("consistency") or (
+        f"consistency was not decided: the time budget of {budget_s:g} s ran out during it"
+        if deadline is not None and time.monotonic() >= deadline
+        else "consistency was not decided (z3 gave up)"
+    )
+    if consistent is None and "redundancy" not in skipped:
+        skipped["redundancy"] = undecided
     if consistent is None and "realizability" not in skipped:
-        skipped["realizability"] = skipped.get("consistency", "consistency was not decided")
+        skipped["realizability"] = undecided
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])
