@@ -121,7 +121,9 @@ def _arith(op: str, a: Value, b: Value) -> Value:
 _MATH = {
     "sqrt": math.sqrt, "exp": math.exp, "log": math.log, "sin": math.sin, "cos": math.cos,
     "tan": math.tan, "asin": math.asin, "acos": math.acos, "atan": math.atan,
-    "floor": lambda x: float(math.floor(x)), "ceil": lambda x: float(math.ceil(x)),
+    # C's floor/ceil keep x's sign on a zero result (ceil(-0.5) is -0.0); Python's int does not
+    "floor": lambda x: math.copysign(math.floor(x), x),
+    "ceil": lambda x: math.copysign(math.ceil(x), x),
 }  # fmt: skip
 
 
