@@ -584,7 +584,7 @@ class _Gen:
 def _stateful(f: Formula) -> bool:
     """Whether ``f`` keeps state between ticks: a temporal operator or a previous
     value (preInt/preReal), which a define must not share between requirements."""
-    return is_temporal(f) or any(isinstance(g, Pre) for g in subterms(f))
+    return is_temporal(f)
 
 
 def _define_plan(spec: MonitorSpec) -> tuple[list, list[Formula]]:

@@ -355,7 +355,8 @@ def max_bound(f: Formula) -> int:
 
 
 def is_temporal(f: Formula) -> bool:
-    return any(isinstance(g, Past | Since) for g in subterms(f))
+    """True when ``f``'s value depends on earlier ticks (it keeps state)."""
+    return any(isinstance(g, Past | Since | Pre) for g in subterms(f))
 
 
 # ---------------------------------------------------------------- printer
