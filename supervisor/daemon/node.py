@@ -53,18 +53,17 @@ from mitigations.actions import PublisherKey, build_action
 from mitigations.actions.base import Outcome
 from mitigations.actions.publish import PublishAction
 from mitigations.engine import Engine, Request
-from mitigations.policy import Note
 from mitigations.rosmsg import get_field, message_class
-from mitigations.supervision import Supervision
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
 from supervisor.daemon.control import ControlServer, Refusals, ResetGate
+from supervisor.daemon.core import Core
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.loss import OwnWrites, RecordingPublisher, SequenceStreams
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.qos import graph_type_name, matching_qos, qos_for
-from supervisor.daemon.runtime import InputEvent, Runtime, StepResult
+from supervisor.daemon.runtime import Runtime
 from supervisor.daemon.session import Session
 from supervisor.names import (
     DIAGNOSTICS_TOPIC,
@@ -74,13 +73,10 @@ from supervisor.names import (
 )
 
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
-STALE_CHECK_MAX_NS = 50_000_000
 STATUS_EVERY_NS = 1_000_000_000
 # Longest a loop turn spends taking messages before its timed work (watchdog,
 # heartbeat, timers) runs: a flood never starves them (docs/reference/ros-interfaces.md).
 TURN_BUDGET_NS = 20_000_000
-REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
-REJECT_REPORT_EVERY = 1000
 
 
 def warn(text: str) -> None:
@@ -121,7 +117,6 @@ class SupervisorNode:
         self.watchdog_ns = int(watchdog_s * 1e9) if watchdog_s else None
         self._stop = threading.Event()
         self._rebuild = False  # leave the inner loop: subscriptions changed
-        self.violations = 0
         self.reloads = 0
         self._done: list[tuple[Request, str, Outcome]] = []  # engine -> loop
         self._done_lock = threading.Lock()
@@ -165,7 +160,14 @@ class SupervisorNode:
         # Kept across reloads: what a publisher latched stays latched.
         self._publish_actions: dict[PublisherKey, PublishAction] = {}
         self.engine = self._make_engine(cfg)
-        self.supervision = Supervision(session.runtime, session.policies, self)
+        # Messages and timers -> records and actions, as replay does it (core.py).
+        self.core = Core(
+            session,
+            log,
+            lambda request: self.engine.submit(request),
+            published=self._unpublished.append,
+            warn=warn,
+        )
 
     # ------------------------------------------------------------ building
 
@@ -245,7 +247,8 @@ class SupervisorNode:
     def run(self) -> None:
         """Receive until :meth:`stop`."""
         now = time.monotonic_ns()
-        self._next = {"stale": now, "heartbeat": now, "diagnostics": now, "status": now}
+        self.core.start(now)
+        self._next = {"heartbeat": now, "diagnostics": now, "status": now}
         if self.watchdog_ns:  # only a real deadline: a stale one would make the wait spin
             self._next["watchdog"] = now
         self._heartbeats = 0
@@ -290,12 +293,8 @@ class SupervisorNode:
                 self._timed_work(time.monotonic_ns())
 
     def _deadline(self, now: int) -> int:
-        rt = self.session.runtime
         times = [now + MAX_WAIT_NS, *self._next.values()]
-        due = rt.due(now)
-        if due is not None:
-            times.append(due)
-        d = self.supervision.next_deadline()
+        d = self.core.next_deadline(now)
         if d is not None:
             times.append(d)
         return min(times)
@@ -330,34 +329,21 @@ class SupervisorNode:
         try:
             value = get_field(msg, s.var.field)
         except AttributeError as e:  # cannot happen after check; report
-            self._input_events([InputEvent("input_rejected", s.name, t, str(e))])
+            self.core.reject(s.name, t, str(e))
             return True
-        result, events = rt.on_message(s.name, value, t)
-        if events:
-            self._input_events(events)
-        if result is not None:
-            self.supervision.after_step(result)
-            if self._unpublished:
-                self._publish_reports()
+        self.core.message(s.name, value, t)
+        if self._unpublished:
+            self._publish_reports()
         return True
 
     def _timed_work(self, now: int) -> None:
-        rt = self.session.runtime
-        due = rt.due(now)
-        if due is not None and due <= now:
-            self.supervision.after_step(rt.on_timer(now))
-        self.supervision.on_time(now)
+        self.core.advance(now)  # steps, stale inputs, policy deadlines: each at its time
         if self._unpublished:
             self._publish_reports()
         if self._done:
             self._outcomes()
         self._control_work(now)
         nxt = self._next
-        if now >= nxt["stale"]:
-            events = rt.check_stale(now, self._stale_after_ns())
-            if events:
-                self._input_events(events)
-            nxt["stale"] = now + self._stale_every_ns()
         if now >= nxt["heartbeat"]:
             self._heartbeats += 1
             self.heartbeat.publish(_msg("std_msgs/msg/UInt64")(data=self._heartbeats))
@@ -407,22 +393,14 @@ class SupervisorNode:
                 by_publisher=s.streams.by_publisher() if s.streams else [],
             )
 
-    def _stale_after_ns(self) -> int | None:
-        ms = self.session.config.step.stale_after_ms
-        return int(ms * 1e6) if ms else None
-
-    def _stale_every_ns(self) -> int:
-        ms = self.session.config.step.period_ms
-        return min(int(ms * 1e6), STALE_CHECK_MAX_NS) if ms else STALE_CHECK_MAX_NS
-
     def status_line(self) -> str:
         rt = self.session.runtime
         stale = rt.stale_inputs()
         missing = rt.missing_inputs()
-        latched = [self.session.requirements[i].id for i in self.supervision.latched()]
+        latched = [self.session.requirements[i].id for i in self.core.supervision.latched()]
         parts = [
             f"ticks={rt.tick}",
-            f"violations={self.violations}",
+            f"violations={self.core.violations}",
             f"stale={','.join(stale) if stale else 'none'}",
         ]
         stats = rt.input_stats()
@@ -448,32 +426,6 @@ class SupervisorNode:
             out[name]["by_publisher"] = seqs.by_publisher() if seqs else []
         return out
 
-    # ------------------------------------------------------------ violations
-
-    # Sink of mitigations.supervision: effects, in the policy's order.
-
-    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None:
-        s = self.session
-        req = s.requirements[index]
-        rt = s.runtime
-        record = {
-            "requirement": req.id,
-            "text": req.entry.text,
-            "formula": s.formulas[index],
-            "tick": result.tick,
-            "inputs": dict(result.inputs),
-            "recent": list(rt.recent),
-            "stale": rt.stale_inputs(),
-            "policy_state": policy_state,
-        }
-        # On disk (fsynced) before any action of this step is submitted: a record
-        # of every violation exists even if an action hangs the machine.
-        self.log.violation(**record)
-        self.violations += 1
-        # The JSON copy for /safety_supervisor/violations goes out after this
-        # step's actions were queued: the halt must not wait for it.
-        self._unpublished.append(record)
-
     def _publish_reports(self) -> None:
         records, self._unpublished = self._unpublished, []
         for record in records:
@@ -484,62 +436,12 @@ class SupervisorNode:
             except Exception as e:  # noqa: BLE001 - e.g. the context is shutting down
                 warn(f"cannot publish on {VIOLATIONS_TOPIC}: {e}")
 
-    def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
-        req = self.session.requirements[index]
-        self.engine.submit(Request(req.id, actions, t_ns, stage))
-
-    def reset(self, index: int, reason: str) -> None:
-        req = self.session.requirements[index]
-        self.log.reset(req.id, reason=reason, tick=self.session.runtime.tick)
-
-    def note(self, index: int, note: Note, t_ns: int) -> None:
-        req = self.session.requirements[index]
-        pol = self.session.policies[index]
-        ok = note.what == "confirmed"
-        since = pol.incident_ns
-        self.log.mitigation(
-            req.id,
-            action=f"confirm:{note.detail.get('variable')}",
-            kind="confirm",
-            ok=ok,
-            error=None
-            if ok
-            else (
-                f"{note.detail.get('variable')} = {note.detail.get('actual')!r}, "
-                f"expected {note.detail.get('expected')!r} within {note.detail.get('within_ms')} ms"
-            ),
-            latency_ms=0.0 if since is None else round((t_ns - since) / 1e6, 3),
-        )
-        if not ok:
-            warn(f"mitigation of {req.id} did not take effect: {note.detail}")
-
     def _outcomes(self) -> None:
         with self._done_lock:
             done, self._done = self._done, []
         for request, action, outcome in done:
             if not outcome.ok:
                 warn(f"mitigation {action} for {request.requirement} failed: {outcome.error}")
-
-    def _input_events(self, events: list[InputEvent]) -> None:
-        rt = self.session.runtime
-        for ev in events:
-            if ev.what in ("input_rejected", "input_nan"):
-                key = "rejected" if ev.what == "input_rejected" else "nan"
-                n = rt.input_stats()[ev.name][key]
-                if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
-                    continue  # a flood is counted, and reported every 1000th
-                verb = "rejected" if key == "rejected" else "accepted"
-                warn(f"input '{ev.name}': {verb} {ev.detail} ({n} so far)")
-                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail, count=n)
-                continue
-            self.log.supervisor(ev.what, input=ev.name, detail=ev.detail)
-            if ev.what == "input_stale":
-                warn(f"input '{ev.name}' is stale: {ev.detail}")
-                on_stale = self.session.config.on_stale
-                if on_stale:
-                    self.engine.submit(
-                        Request(f"on_stale:{ev.name}", tuple(on_stale), ev.t_ns, "stale")
-                    )
 
     # ------------------------------------------------------------ operator reset
 
@@ -617,12 +519,10 @@ class SupervisorNode:
                 "(control.max_resets, control.interval_ms); try again",
                 "rate",
             )
-        ids = [r.id for r in self.session.requirements]
-        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
         extra: dict[str, Any] = {"via": via}
         if caller is not None:
             extra["caller"] = caller
-        self.log.reset("*", reason="operator reset", refused=refused, **extra)
+        refused = self.core.operator_reset(now, **extra)
         if refused:
             self._refusals.add("still_violated", who)
             return False, "not reset: " + ", ".join(refused), "still_violated"
@@ -769,9 +669,7 @@ class SupervisorNode:
         kept = _keep_policies(old, new)
         self.session = new
         self.engine = self._make_engine(new.config)
-        self.supervision = Supervision(new.runtime, new.policies, self)
-        # Kept policies go on where they were: latches stay, repeats keep running.
-        self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
+        self.core.swap(new)  # kept policies go on where they were: latches stay
         self.log.config_sha256 = new.config.sha256
         self.log.retry_buffer = new.config.log_retry_buffer
         self.reloads += 1

@@ -170,7 +170,7 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
         log.supervisor(
             "stop",
             ticks=node.session.runtime.tick,
-            violations=node.violations,
+            violations=node.core.violations,
             reloads=node.reloads,
             inputs=node.stop_stats(),
         )

@@ -260,6 +260,22 @@ class Runtime:
                 return self.step(t_ns)
         return None
 
+    def stale_due(self, default_after_ns: int | None) -> int | None:
+        """When the next input turns stale if nothing arrives: silent for more than
+        its limit, so one nanosecond after ``last + limit``."""
+        times = [
+            inp.last_ns + after + 1
+            for inp in self._in
+            if not inp.stale
+            and inp.last_ns is not None
+            and (after := inp.spec.stale_after_ns or default_after_ns)
+        ]
+        return min(times) if times else None
+
+    def stale_after(self, name: str, default_after_ns: int | None) -> int | None:
+        """Input ``name``'s silence limit in ns (None: never stale)."""
+        return self._in[self._index[name]].spec.stale_after_ns or default_after_ns
+
     def check_stale(self, t_ns: int, default_after_ns: int | None) -> list[InputEvent]:
         events = []
         for inp in self._in:

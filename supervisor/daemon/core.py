@@ -1,0 +1,257 @@
+"""The monitoring core: messages and time in, records and actions out.
+
+No rclpy here.  The receive loop (supervisor/daemon/node.py) and ``replay``
+(supervisor/tools/replay) drive the same Core, so what the daemon decides online
+is what replay decides offline from the same messages and receive times
+(docs/reference/commands.md, "replay").
+
+Time is logical.  Every timer (the periodic step, the synchronized policy's skew,
+an input turning stale, a policy's cooldown, escalation, repeat or confirmation)
+runs at its own deadline, before any message received after that deadline,
+whenever the loop actually gets to it.  So the order of events is a function of
+the messages' receive times alone, not of how busy the loop was: a late loop
+catches up tick by tick instead of merging ticks.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from mitigations.engine import Request
+from mitigations.policy import Note
+from mitigations.supervision import Supervision
+from supervisor.daemon.runtime import InputEvent, StepResult
+from supervisor.daemon.session import Session
+
+REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
+REJECT_REPORT_EVERY = 1000
+_NEVER = 1 << 63  # later than any deadline
+
+
+class Log(Protocol):
+    """What the core writes (mitigations.violationlog.writer.ViolationLog)."""
+
+    def violation(self, requirement: str, **fields: Any) -> bool: ...
+    def mitigation(self, requirement: str, **fields: Any) -> bool: ...
+    def reset(self, requirement: str, *, reason: str, **extra: Any) -> bool: ...
+    def supervisor(self, what: str, **fields: Any) -> bool: ...
+
+
+def warn(text: str) -> None:
+    try:
+        print(f"safety-supervisor: WARNING: {text}", file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
+
+
+class Core:
+    """One session's runtime and policies, driven by :meth:`message` and :meth:`advance`.
+
+    ``submit`` receives the actions the policies decide (the daemon's engine runs
+    them; replay records them); ``published`` each violation record once written
+    (the daemon's violations topic); ``marker`` the external events replay needs
+    to reproduce a run (the start, an operator reset), with their logical time."""
+
+    def __init__(
+        self,
+        session: Session,
+        log: Log,
+        submit: Callable[[Request], None],
+        *,
+        published: Callable[[dict[str, Any]], None] | None = None,
+        marker: Callable[[str, int, dict[str, Any]], None] | None = None,
+        warn: Callable[[str], None] = warn,
+    ) -> None:
+        self.log = log
+        self._submit = submit
+        self._published = published
+        self._marker = marker
+        self.warn = warn
+        self.violations = 0
+        self.now: int | None = None  # the logical time reached
+        self._due = 0  # a lower bound of the next deadline (0: not known)
+        self.session = session
+        self.supervision = Supervision(session.runtime, session.policies, self)
+        self._stale_after_ns = _stale_after_ns(session)
+
+    # ------------------------------------------------------------ driving
+
+    def start(self, t: int) -> None:
+        """Monitoring starts at ``t``: the periodic grid begins here."""
+        self._mark("start", t)
+        self.advance(t)
+
+    def message(self, name: str, value: Any, t: int) -> None:
+        """Input ``name``'s value, received at ``t`` (not before the time reached)."""
+        if t >= self._due:
+            self.advance(t)
+        self.now = t
+        rt = self.session.runtime
+        result, events = rt.on_message(name, value, t)
+        after = rt.stale_after(name, self._stale_after_ns)
+        if after is not None:  # this input's silence limit starts again at t
+            self._due = min(self._due, t + after + 1)
+        due = rt.due(t)
+        if due is not None:  # the synchronized policy's skew may have started
+            self._due = min(self._due, due)
+        if events:
+            self.input_events(events)
+        if result is not None:
+            self._after_step(result)
+
+    def reject(self, name: str, t: int, why: str) -> None:
+        """A message of input ``name`` whose field could not be read."""
+        if t >= self._due:
+            self.advance(t)
+        self.input_events([InputEvent("input_rejected", name, t, why)])
+
+    def advance(self, t: int) -> None:
+        """Run every timer due at or before ``t``, each at its own deadline."""
+        while True:
+            d = self.next_deadline(t)
+            if d is None or d > t:
+                self._due = _NEVER if d is None else d
+                self.now = t if self.now is None else max(self.now, t)
+                return
+            self.now = d
+            self._run_due(d)
+
+    def next_deadline(self, t: int) -> int | None:
+        """The earliest timer, looking from ``t``: a step (a periodic monitor's first
+        one is due at once), an input turning stale, a policy deadline."""
+        rt = self.session.runtime
+        times = [
+            d
+            for d in (
+                rt.due(t),
+                rt.stale_due(self._stale_after_ns),
+                self.supervision.next_deadline(),
+            )
+            if d is not None
+        ]
+        return min(times) if times else None
+
+    def _run_due(self, d: int) -> None:
+        rt = self.session.runtime
+        due = rt.due(d)
+        if due is not None and due <= d:
+            result = rt.on_timer(d)
+            if result is not None:
+                self._after_step(result)
+        stale = rt.stale_due(self._stale_after_ns)
+        if stale is not None and stale <= d:
+            self.input_events(rt.check_stale(d, self._stale_after_ns))
+        deadline = self.supervision.next_deadline()
+        if deadline is not None and deadline <= d:
+            self.supervision.on_time(d)
+
+    def _after_step(self, result: StepResult) -> None:
+        busy = bool(result.violated or self.supervision.active)
+        self.supervision.after_step(result)
+        if busy or self.supervision.active:
+            self._due = 0  # a policy deadline may have moved earlier
+
+    def operator_reset(self, t: int, **extra: Any) -> list[str]:
+        """Reset every requirement's monitor, lift the latches of those that hold;
+        returns the refused ones as ``id (why)``."""
+        self.advance(t)
+        self._mark("operator_reset", t, **extra)
+        ids = [r.id for r in self.session.requirements]
+        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
+        self.log.reset("*", reason="operator reset", refused=refused, **extra)
+        self._due = 0
+        return refused
+
+    def swap(self, new: Session) -> None:
+        """Go on with ``new`` (a reloaded config); kept policies stay active."""
+        self.session = new
+        self.supervision = Supervision(new.runtime, new.policies, self)
+        self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
+        self._stale_after_ns = _stale_after_ns(new)
+        self._due = 0
+        if self.now is not None:
+            self._mark("reload", self.now, config=new.config.path)
+
+    def _mark(self, what: str, t: int, **fields: Any) -> None:
+        if self._marker is not None:
+            self._marker(what, t, fields)
+
+    # ------------------------------------------------------------ Supervision's sink
+
+    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None:
+        s = self.session
+        req = s.requirements[index]
+        rt = s.runtime
+        record = {
+            "requirement": req.id,
+            "text": req.entry.text,
+            "formula": s.formulas[index],
+            "tick": result.tick,
+            "inputs": dict(result.inputs),
+            "recent": list(rt.recent),
+            "stale": rt.stale_inputs(),
+            "policy_state": policy_state,
+        }
+        # On disk (fsynced) before any action of this step is submitted: a record
+        # of every violation exists even if an action hangs the machine.
+        self.log.violation(**record)
+        self.violations += 1
+        if self._published is not None:
+            self._published(record)
+
+    def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        self._submit(Request(req.id, actions, t_ns, stage))
+
+    def reset(self, index: int, reason: str) -> None:
+        req = self.session.requirements[index]
+        self.log.reset(req.id, reason=reason, tick=self.session.runtime.tick)
+
+    def note(self, index: int, note: Note, t_ns: int) -> None:
+        req = self.session.requirements[index]
+        pol = self.session.policies[index]
+        ok = note.what == "confirmed"
+        since = pol.incident_ns
+        self.log.mitigation(
+            req.id,
+            action=f"confirm:{note.detail.get('variable')}",
+            kind="confirm",
+            ok=ok,
+            error=None
+            if ok
+            else (
+                f"{note.detail.get('variable')} = {note.detail.get('actual')!r}, "
+                f"expected {note.detail.get('expected')!r} within {note.detail.get('within_ms')} ms"
+            ),
+            latency_ms=0.0 if since is None else round((t_ns - since) / 1e6, 3),
+        )
+        if not ok:
+            self.warn(f"mitigation of {req.id} did not take effect: {note.detail}")
+
+    # ------------------------------------------------------------ inputs
+
+    def input_events(self, events: list[InputEvent]) -> None:
+        rt = self.session.runtime
+        for ev in events:
+            if ev.what in ("input_rejected", "input_nan"):
+                key = "rejected" if ev.what == "input_rejected" else "nan"
+                n = rt.input_stats()[ev.name][key]
+                if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
+                    continue  # a flood is counted, and reported every 1000th
+                verb = "rejected" if key == "rejected" else "accepted"
+                self.warn(f"input '{ev.name}': {verb} {ev.detail} ({n} so far)")
+                self.log.supervisor(ev.what, input=ev.name, detail=ev.detail, count=n)
+                continue
+            self.log.supervisor(ev.what, input=ev.name, detail=ev.detail)
+            if ev.what == "input_stale":
+                self.warn(f"input '{ev.name}' is stale: {ev.detail}")
+                on_stale = self.session.config.on_stale
+                if on_stale:
+                    self._submit(Request(f"on_stale:{ev.name}", tuple(on_stale), ev.t_ns, "stale"))
+
+
+def _stale_after_ns(session: Session) -> int | None:
+    ms = session.config.step.stale_after_ms
+    return int(ms * 1e6) if ms else None
