@@ -21,6 +21,7 @@ from supervisor.config.functions import load_functions
 from supervisor.config.limits import load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
+from supervisor.config.record import load_record
 from supervisor.config.requirements import check_on_violation, load_requirements, policy_config
 from supervisor.config.ros import load_ros
 from supervisor.config.step import check_trigger, load_step
@@ -44,6 +45,7 @@ TOP_KEYS = {
     "ros",
     "control",
     "limits",
+    "record",
 }
 
 
@@ -97,6 +99,7 @@ def load_config(path: str | Path) -> Config:
     ros = load_ros(doc)
     control = load_control(doc, path)
     limits = load_limits(doc)
+    record = load_record(doc)
     return Config(
         path=file,
         sha256=hashlib.sha256(raw_bytes).hexdigest(),
@@ -114,5 +117,6 @@ def load_config(path: str | Path) -> Config:
         ros=ros,
         control=control,
         limits=limits,
+        record=record,
         notes=notes,
     )

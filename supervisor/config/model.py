@@ -14,6 +14,7 @@ from monitors.errors import UserError
 from monitors.ir.formula import Formula
 from monitors.ir.functions import Function
 from supervisor.config.limits import Limits
+from supervisor.config.record import RecordConfig
 from supervisor.names import NODE_NAME
 
 
@@ -109,6 +110,7 @@ class Config:
     functions: dict[str, Function] = field(default_factory=dict)
     limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
+    record: RecordConfig | None = None  # record: (None: no section; run --record may still record)
     # "file:line: note: ..." lines the loader found worth saying (an import leaving
     # requirements out); check prints them with its other notes.
     notes: list[str] = field(default_factory=list)
