@@ -4,6 +4,14 @@ Hot path: ``LoadedMonitor.tick(values)`` packs the inputs with one
 ``struct.pack`` and makes ONE C call (``ss_tick``) that sets every input,
 steps the monitor and collects the handler calls into a flag array.
 
+Batch path (``replay``; the daemon does not use it): ``tick_batch(rows)``
+steps the monitor over ``n`` packed rows in ONE C call (``ss_tick_batch``)
+and returns the flags of every row and the indices of the rows with a
+violation, so that Python only works on those.  ``pack_columns`` packs one
+array per input into such rows (a numpy structured array whose dtype,
+``row_dtype``, is the ``=``-packed layout of ``tick``'s ``struct``).  numpy
+is imported on first use, so the daemon never loads it.
+
 Values, in ``spec.inputs`` order: ``bool`` inputs take any Python object
 (its truth value, 1 byte); ``int64`` inputs take ``int`` (or bool / objects
 with ``__index__``) in [-2**63, 2**63) exactly; ``double`` inputs take
@@ -28,19 +36,30 @@ from __future__ import annotations
 
 import atexit
 import itertools
+import numbers
+import operator
 import shutil
 import struct
 import tempfile
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from importlib.machinery import ExtensionFileLoader
 from importlib.util import module_from_spec, spec_from_loader
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from monitors.backends.build import STRUCT_CODES, layout
+from monitors.backends.build import STRUCT_CODES, layout, row_size
 from monitors.errors import UserError
 from monitors.ir.spec import MonitorSpec
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+_I64_MAX = (1 << 63) - 1
+# numpy type of each input type in a packed row ("=": native order, no padding).
+_NP_CODES = {"bool": "?", "int64": "=i8", "double": "=f8"}
 
 _lock = threading.Lock()
 _loaded: set[str] = set()  # resolved paths already dlopen'ed in this process
@@ -74,6 +93,71 @@ def _import(path: Path) -> ModuleType:
     return mod
 
 
+class Batch(NamedTuple):
+    """What ``LoadedMonitor.tick_batch`` returns."""
+
+    flags: np.ndarray  # uint8, shape (n, requirements): 1 where violated at that row
+    violating: np.ndarray  # intp, ascending: the rows with at least one flag
+
+
+def row_dtype(spec: MonitorSpec) -> np.dtype:
+    """The numpy structured dtype of one packed input row: fields named like the
+    inputs, in ``spec.inputs`` order, no padding (``ss_layout``'s ``row=``)."""
+    import numpy as np
+
+    dtype = np.dtype(
+        {
+            "names": [v.name for v in spec.inputs],
+            "formats": [_NP_CODES[v.type] for v in spec.inputs],
+        }
+    )
+    if dtype.itemsize != row_size(spec):
+        raise AssertionError(f"row dtype {dtype} is not {row_size(spec)} bytes")
+    return dtype
+
+
+def _column(values: Any, typ: str, name: str, n: int | None) -> npt.NDArray[Any]:
+    """One input's column as a numpy array of its row type, converted exactly as
+    ``tick``'s ``struct.pack`` converts (TypeError where it would refuse)."""
+    import numpy as np
+
+    try:
+        a = np.asarray(values)
+    except (OverflowError, ValueError):  # Python ints beyond 64 bits
+        a = np.array(list(values), dtype=object)
+    if a.ndim != 1 or (n is not None and len(a) != n):
+        raise ValueError(f"input {name}: expected a sequence of {n} values, got shape {a.shape}")
+    if len(a) == 0:  # np.asarray([]) is float64, whatever the input's type
+        return np.empty(0, dtype=_NP_CODES[typ])
+    kind = a.dtype.kind
+    if typ == "bool":
+        if kind == "b":
+            return a
+        if kind in "iuf":
+            return a != 0  # NaN is true, as bool(nan)
+        return np.fromiter(map(bool, a), dtype=np.bool_, count=len(a))
+    if typ == "int64":
+        if kind in "bi":
+            return a.astype(np.int64)
+        if kind == "u":
+            if len(a) and int(a.max()) > _I64_MAX:
+                raise TypeError(f"input {name}: a value is out of the int64 range")
+            return a.astype(np.int64)
+        if kind == "O":
+            try:
+                return np.fromiter(map(operator.index, a), dtype=np.int64, count=len(a))
+            except OverflowError:
+                raise TypeError(f"input {name}: a value is out of the int64 range") from None
+            except TypeError as e:
+                raise TypeError(f"input {name}: int64 needs integers ({e})") from None
+        raise TypeError(f"input {name}: int64 needs integers, got {a.dtype}")
+    if kind in "biuf":
+        return a.astype(np.float64)
+    if kind == "O" and all(isinstance(x, numbers.Real) for x in a):
+        return np.fromiter(map(float, a), dtype=np.float64, count=len(a))
+    raise TypeError(f"input {name}: double needs numbers, got {a.dtype}")
+
+
 class LoadedMonitor:
     """A monitor instance in this process (see the module docstring)."""
 
@@ -83,7 +167,13 @@ class LoadedMonitor:
         self.input_names: tuple[str, ...] = tuple(v.name for v in spec.inputs)
         self.requirement_ids: tuple[str, ...] = tuple(r.id for r in spec.requirements)
         self._index = {rid: i for i, rid in enumerate(self.requirement_ids)}
-        self._pack = struct.Struct("=" + "".join(STRUCT_CODES[v.type] for v in spec.inputs)).pack
+        packing = struct.Struct("=" + "".join(STRUCT_CODES[v.type] for v in spec.inputs))
+        self._pack = packing.pack
+        # One packed row: what ss_tick reads and ss_tick_batch's stride.
+        self.row_size: int = packing.size
+        if self.row_size != row_size(spec):
+            raise AssertionError(f"struct packing {packing.format} is not {row_size(spec)} bytes")
+        self._row_dtype: np.dtype | None = None
         self._zeros = bytes(len(self.requirement_ids))
         self._bind(_import(self.path))
 
@@ -98,6 +188,7 @@ class LoadedMonitor:
         self._flags = ffi.new("uint8_t[]", max(1, len(self.requirement_ids)))
         self._flag_view = ffi.buffer(self._flags, len(self.requirement_ids))
         self._tick = lib.ss_tick
+        self._tick_batch = lib.ss_tick_batch
         self._reset = getattr(lib, "ss_reset", None)
         self._reset_req = getattr(lib, "ss_reset_req", None)
 
@@ -121,6 +212,74 @@ class LoadedMonitor:
         if self._tick(packed, self._flags) == 0:
             return self._zeros
         return self._flag_view[:]
+
+    @property
+    def row_dtype(self) -> np.dtype:
+        """numpy dtype of one packed row (see the module docstring)."""
+        if self._row_dtype is None:
+            self._row_dtype = row_dtype(self.spec)
+        return self._row_dtype
+
+    def pack_rows(self, rows: Iterable[Sequence[bool | int | float]]) -> bytes:
+        """Rows of values (each as ``tick`` takes them) packed for ``tick_batch``."""
+        try:
+            return b"".join([self._pack(*values) for values in rows])
+        except struct.error as e:
+            raise TypeError(f"monitor inputs {self.input_names}: {e}") from None
+
+    def pack_columns(self, columns: Sequence[Any]) -> np.ndarray:
+        """One sequence or 1-D array per input (``spec.inputs`` order, equal
+        lengths) packed into rows for ``tick_batch``: a structured array of
+        ``row_dtype``.  Converts as ``tick`` does; TypeError where it would refuse."""
+        import numpy as np
+
+        if len(columns) != len(self.input_names):
+            raise ValueError(
+                f"expected {len(self.input_names)} columns {self.input_names}, got {len(columns)}"
+            )
+        if not columns:
+            raise ValueError("a monitor without inputs has no columns: give tick_batch n rows")
+        n = len(columns[0])
+        out = np.empty(n, dtype=self.row_dtype)
+        for v, col in zip(self.spec.inputs, columns, strict=True):
+            out[v.name] = _column(col, v.type, v.name, n)
+        return out
+
+    def tick_batch(self, rows: Any) -> Batch:
+        """Step the monitor once per row, in order, in ONE C call: the same
+        flags as calling ``tick`` row by row, and the state carries over to the
+        next call.  ``rows``: a ``row_dtype`` array (``pack_columns``) or packed
+        bytes (``pack_rows``; any buffer of ``n * row_size`` bytes).  Not for two
+        threads at once (one monitor state, as ``tick``)."""
+        import numpy as np
+
+        ffi = self._module.ffi
+        if isinstance(rows, np.ndarray):
+            if rows.dtype != self.row_dtype:
+                raise TypeError(f"rows have dtype {rows.dtype}, expected {self.row_dtype}")
+            if rows.ndim != 1:
+                raise ValueError(f"rows must be 1-D, got shape {rows.shape}")
+            rows = np.ascontiguousarray(rows)
+            n = len(rows)
+        else:
+            nbytes = memoryview(rows).nbytes
+            if self.row_size == 0:
+                raise ValueError("a monitor without inputs takes its rows as a row_dtype array")
+            n, extra = divmod(nbytes, self.row_size)
+            if extra:
+                raise ValueError(
+                    f"{nbytes} bytes is not a whole number of {self.row_size}-byte rows"
+                )
+        nreq = len(self.requirement_ids)
+        flags = np.empty((n, nreq), dtype=np.uint8)
+        found = np.empty(n, dtype=np.uintp)  # size_t
+        count = self._tick_batch(
+            ffi.from_buffer("char[]", rows),
+            n,
+            ffi.from_buffer("uint8_t[]", flags, require_writable=True),
+            ffi.from_buffer("size_t[]", found, require_writable=True),
+        )
+        return Batch(flags, found[:count].astype(np.intp))
 
     def reset(self) -> None:
         """Every requirement back to tick 0 (as if freshly loaded)."""
