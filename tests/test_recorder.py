@@ -316,6 +316,8 @@ def test_kill_9_leaves_an_mcap_file_readable_up_to_the_last_flushed_chunk(tmp_pa
                 rec.message(0, i, b"\\x00\\x01\\x00\\x00" + i.to_bytes(8, "little"))
                 i += 1
             if burst == 5:
+                while rec.stats().written < i:
+                    time.sleep(0.01)
                 time.sleep(0.5)  # more than flush_s: all of it is on disk now
                 print(i, flush=True)
             time.sleep(0.01)
