@@ -359,3 +359,51 @@ def test_incompatible_qos_reported_and_auto_qos_follows(tmp_path: Path, robot_no
         assert stop["inputs"]["a"]["messages"] == 0
     finally:
         d.close()
+
+
+def test_fields_of_one_topic_change_together(tmp_path: Path, robot_node: Any) -> None:
+    """Two variables read from one topic are one subscription: each message sets
+    both at the same instant, so stepping on every message never sees one field
+    new and the other old (and replay, which reads the topic once, agrees)."""
+    config = tmp_path / "twist.yaml"
+    config.write_text(
+        "component: R\n"
+        "step: {policy: on_message}\n"
+        "variables:\n"
+        "  vx: {type: double, topic: /cmd, msg: geometry_msgs/msg/Twist, field: linear.x}\n"
+        "  wz: {type: double, topic: /cmd, msg: geometry_msgs/msg/Twist, field: angular.z}\n"
+        "requirements:\n"
+        "  - id: same_sign\n"
+        "    text: R shall always satisfy vx * wz >= 0.0\n"
+        "    on_violation: [record]\n"
+        "    policy: {reset: after_mitigation}\n"
+        "  - id: marker\n"
+        "    text: R shall always satisfy vx < 100.0\n"
+        "    on_violation: [record]\n"
+        "    policy: {reset: after_mitigation}\n"
+        "mitigations:\n"
+        "  record: {log: {message: violated}}\n"
+    )
+    d = _daemon(tmp_path, config)
+    try:
+        from geometry_msgs.msg import Twist
+
+        pub = robot_node.create_publisher(Twist, "/cmd", 10)
+        wait_matched([pub])
+        for k in range(40):  # the sign of both flips together at every message
+            sign = 1.0 if k % 2 else -1.0
+            msg = Twist()
+            msg.linear.x, msg.angular.z = sign * 1.0, sign * 2.0
+            pub.publish(msg)
+            time.sleep(0.005)
+        end = Twist()
+        end.linear.x = 200.0
+        pub.publish(end)
+        d.wait_record(lambda r: r.get("requirement") == "marker", "the marker violation")
+        broken = [r for r in violations(d) if r["requirement"] == "same_sign"]
+        assert broken == [], [(r["tick"], r["inputs"]) for r in broken[:4]]
+        stats = [r for r in d.records() if r.get("what") == "input_problem"]
+        assert stats == []
+        d.terminate()
+    finally:
+        d.close()

@@ -207,3 +207,19 @@ def test_recent_keeps_the_last_ticks(srobot):
         burst(rt, dict(IDLE, distance_to_target=10 + k), k * 10 * MS)
     assert [r["distance_to_target"] for r in rt.recent] == [12, 13, 14]
     assert [r["tick"] for r in rt.recent] == [2, 3, 4]
+
+
+def test_fields_of_one_message_are_set_together(srobot):
+    """on_values: one message, several inputs, at most one step (on_message)."""
+    rt, _ = make(srobot, "on_message")
+    for name in ORDER[:-2]:
+        rt.on_message(name, IDLE[name], 0)
+    res, events = rt.on_values((("slowdown", False), ("turnoffUVC", True)), 5 * MS)
+    assert res is not None and res.tick == 0 and events == []
+    assert res.inputs["turnoffUVC"] is True and rt.tick == 1
+    # a rejected value does not block the others; nothing accepted, no step
+    res, events = rt.on_values((("classifier", 2.5), ("halt", True)), 6 * MS)
+    assert res is not None and res.inputs["halt"] is True
+    assert [e.what for e in events] == ["input_rejected"]
+    res, events = rt.on_values((("classifier", 2.5),), 7 * MS)
+    assert res is None and rt.tick == 2

@@ -33,7 +33,7 @@ import os
 import sys
 import threading
 from collections import deque
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -123,9 +123,12 @@ class ViolationLog:
         echo: TextIO | bool = True,
         retry_buffer: int = RETRY_BUFFER,
         retry_interval_s: float = RETRY_INTERVAL_S,
+        fsync: bool = True,
     ) -> None:
         """``echo``: True for stderr (looked up at write time), a stream, or False.
-        ``retry_buffer``: records kept in memory while the file cannot be written (>= 1)."""
+        ``retry_buffer``: records kept in memory while the file cannot be written (>= 1).
+        ``fsync``: False for a log written from a recording (``replay``): nothing is at
+        stake while it is written, so it is synced once, at close."""
         self._path = Path(path)
         self._config_sha256 = config_sha256
         self._echo = echo
@@ -157,6 +160,10 @@ class ViolationLog:
         self._unsynced = False  # the last drain wrote durable records but fsync failed
         self._echoes: list[_Entry] = []  # records made under the lock, echoed after
         self._tail = b""
+        self._sync_each = fsync
+        # Each record as rendered (its chain hash not yet filled in), for a copy
+        # elsewhere: the daemon's recording (docs/reference/log.md).
+        self.tee: Callable[[str], None] | None = None
         self._fd = self._open()
         self._load_tail()
 
@@ -467,6 +474,8 @@ class ViolationLog:
                 self._failed += 1
                 self._not_written(event, entry, error)
             ok = ok and not (durable and self._unsynced)
+        if self.tee is not None and entry is not None:
+            self.tee(entry.body.decode("ascii"))
         if self._echo is not False:
             record = json.loads(entry.body) if entry is not None else None
             self._echo_line(record or {"event": event, "ts": ts, **json_safe(fields)})
@@ -558,7 +567,7 @@ class ViolationLog:
             if self._queue or not self._lost:
                 break
             self._queue_lost()
-        if wrote_durable:
+        if wrote_durable and self._sync_each:
             try:
                 os.fsync(self._fd)  # type: ignore[arg-type]
             except OSError as e:

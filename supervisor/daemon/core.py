@@ -16,7 +16,7 @@ catches up tick by tick instead of merging ticks.
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from mitigations.engine import Request
@@ -85,14 +85,20 @@ class Core:
 
     def message(self, name: str, value: Any, t: int) -> None:
         """Input ``name``'s value, received at ``t`` (not before the time reached)."""
+        self.fields(((name, value),), t)
+
+    def fields(self, values: Sequence[tuple[str, Any]], t: int) -> None:
+        """One message received at ``t`` carrying these inputs' values (the fields
+        of one topic that variables read): set together, stepped at most once."""
         if t >= self._due:
             self.advance(t)
         self.now = t
         rt = self.session.runtime
-        result, events = rt.on_message(name, value, t)
-        after = rt.stale_after(name, self._stale_after_ns)
-        if after is not None:  # this input's silence limit starts again at t
-            self._due = min(self._due, t + after + 1)
+        result, events = rt.on_values(values, t)
+        for name, _ in values:
+            after = rt.stale_after(name, self._stale_after_ns)
+            if after is not None:  # this input's silence limit starts again at t
+                self._due = min(self._due, t + after + 1)
         due = rt.due(t)
         if due is not None:  # the synchronized policy's skew may have started
             self._due = min(self._due, due)

@@ -37,8 +37,8 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from rclpy.context import Context
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -48,6 +48,7 @@ from rclpy.qos import (
     QoSProfile,
     qos_check_compatible,
 )
+from rclpy.serialization import deserialize_message
 
 from mitigations.actions import PublisherKey, build_action
 from mitigations.actions.base import Outcome
@@ -72,6 +73,9 @@ from supervisor.names import (
     VIOLATIONS_TOPIC,
 )
 
+if TYPE_CHECKING:  # rosbags loads only when recording is on
+    from supervisor.daemon.recorder import Recorder
+
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STATUS_EVERY_NS = 1_000_000_000
 # Longest a loop turn spends taking messages before its timed work (watchdog,
@@ -88,7 +92,10 @@ def warn(text: str) -> None:
 
 @dataclass
 class _Sub:
-    name: str
+    """One subscription: every variable reading a field of its topic is fed from
+    each message at the same instant (one message is one event, as replay sees it)."""
+
+    name: str  # the first variable's: names the subscription in graph records
     var: Variable
     msg_type: type
     sub: Any  # rclpy Subscription
@@ -96,6 +103,8 @@ class _Sub:
     problem: str | None = None  # last graph problem reported (wrong type, QoS)
     publishers: int | None = None
     streams: SequenceStreams | None = None  # kept when the QoS changes
+    vars: list[Variable] = field(default_factory=list)  # all of them, config order
+    recorded: int | None = None  # the recorder's input index of this topic
 
 
 class SupervisorNode:
@@ -110,9 +119,13 @@ class SupervisorNode:
         notifier: Notifier | None = None,
         watchdog_s: float | None = None,
         control: ControlServer | None = None,
+        recorder: Recorder | None = None,
     ) -> None:
         self.session = session
         self.log = log
+        # run --record: every input message as received, the log's records and the
+        # core's markers, into rosbag2 bags (docs/reference/config.md, record).
+        self.recorder = recorder
         self.notifier = notifier or Notifier()
         self.watchdog_ns = int(watchdog_s * 1e9) if watchdog_s else None
         self._stop = threading.Event()
@@ -166,8 +179,11 @@ class SupervisorNode:
             log,
             lambda request: self.engine.submit(request),
             published=self._unpublished.append,
+            marker=self._marker if recorder is not None else None,
             warn=warn,
         )
+        if recorder is not None:
+            log.tee = lambda line: recorder.record(time.monotonic_ns(), line)
 
     # ------------------------------------------------------------ building
 
@@ -175,13 +191,17 @@ class SupervisorNode:
         """Subscriptions for ``cfg``'s inputs, keeping those that did not change."""
         old = {(s.var.topic, s.var.msg, s.var.qos, s.var.depth): s for s in self._subs}
         subs: list[_Sub] = []
+        by_key: dict[tuple[Any, ...], _Sub] = {}
         for var in cfg.inputs:
             assert var.topic is not None and var.msg is not None
             key = (var.topic, var.msg, var.qos, var.depth)
+            if key in by_key:  # another field of a topic already subscribed
+                by_key[key].vars.append(var)
+                continue
             kept = old.pop(key, None)
             if kept is not None:
-                kept.name, kept.var = var.name, var
-                subs.append(kept)
+                kept.name, kept.var, kept.vars = var.name, var, [var]
+                subs.append(by_key.setdefault(key, kept))
                 continue
             klass = message_class(var.msg)
             qos, warning = qos_for(self.node, var)
@@ -189,14 +209,35 @@ class SupervisorNode:
                 warn(warning)
                 self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
             sub = self.node.create_subscription(klass, var.topic, _never, qos)
-            subs.append(
-                _Sub(
-                    var.name, var, klass, sub, auto_qos=var.qos == "auto", streams=SequenceStreams()
-                )
+            new = _Sub(
+                var.name,
+                var,
+                klass,
+                sub,
+                auto_qos=var.qos == "auto",
+                streams=SequenceStreams(),
+                vars=[var],
             )
+            subs.append(by_key.setdefault(key, new))
         for s in old.values():
             self.node.destroy_subscription(s.sub)
         self._subs = subs
+        if self.recorder is not None:
+            index = {(t, m): i for i, (t, m) in enumerate(self.recorder.inputs)}
+            for s in subs:
+                s.recorded = index.get((s.var.topic or "", s.var.msg or ""))
+                if s.recorded is None:  # a topic a reload added: not in this recording
+                    warn(f"{s.var.topic} is not recorded: it was added by a reload")
+                    self.log.supervisor("record_topic_missing", topic=s.var.topic)
+
+    def _marker(self, what: str, t: int, fields: dict[str, Any]) -> None:
+        assert self.recorder is not None
+        record = {"event": "marker", "what": what, **fields}
+        self.recorder.record(t, json.dumps(json_safe(record), sort_keys=True))
+
+    def _inputs(self) -> list[tuple[_Sub, Variable]]:
+        """Each input variable with the subscription that feeds it."""
+        return [(s, v) for s in self._subs for v in s.vars]
 
     def _make_engine(self, cfg: Config) -> Engine:
         actions = {
@@ -233,6 +274,19 @@ class SupervisorNode:
 
     def close(self) -> None:
         """After :meth:`run`: stop the action workers, destroy the node."""
+        if self.recorder is not None:
+            if self.core.now is not None:  # replay judges up to here, as the loop did
+                self._marker("stop", self.core.now, {})
+            self.log.tee = None
+            stats = self.recorder.close()
+            self.log.supervisor(
+                "record_closed",
+                written=stats.written,
+                dropped=stats.dropped,
+                skipped=stats.skipped,
+                lost=stats.lost,
+                bags=stats.bags,
+            )
         if self.control is not None:
             self.control.close()  # before the guard condition it wakes is destroyed
         busy = self.engine.close(timeout=1.0)
@@ -274,7 +328,10 @@ class SupervisorNode:
             )
             # The step trigger is taken last in each round (see _receive).
             trigger = self.session.config.step.trigger
-            order = {s.sub.handle.pointer: (s.name == trigger, i) for i, s in enumerate(self._subs)}
+            order = {
+                s.sub.handle.pointer: (any(v.name == trigger for v in s.vars), i)
+                for i, s in enumerate(self._subs)
+            }
             while not self._stop.is_set() and not self._rebuild and ctx.ok():
                 rt = self.session.runtime
                 now = time.monotonic_ns()
@@ -312,26 +369,37 @@ class SupervisorNode:
 
     def _take(self, s: _Sub, rt: Runtime) -> bool:
         """One message of ``s`` into the runtime; False when its queue is empty."""
-        taken = s.sub.handle.take_message(s.msg_type, False)
+        raw = self.recorder is not None and s.recorded is not None
+        taken = s.sub.handle.take_message(s.msg_type, raw)
         if taken is None:
             return False
         msg, info = taken
         t = time.monotonic_ns()
+        data = msg
+        if raw:
+            msg = deserialize_message(data, s.msg_type)
         seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
         if seq:
             if self._own.is_own(s.sub.topic_name, seq, info.get("source_timestamp")):
-                rt.count_own(s.name)  # our own mitigation: not the robot's value
+                for v in s.vars:
+                    rt.count_own(v.name)  # our own mitigation: not the robot's value
                 return True
             assert s.streams is not None
             gap = s.streams.on_sequence(seq)
             if gap:
-                rt.count_lost(s.name, gap)
-        try:
-            value = get_field(msg, s.var.field)
-        except AttributeError as e:  # cannot happen after check; report
-            self.core.reject(s.name, t, str(e))
-            return True
-        self.core.message(s.name, value, t)
+                for v in s.vars:
+                    rt.count_lost(v.name, gap)
+        if raw:
+            assert self.recorder is not None and s.recorded is not None
+            self.recorder.message(s.recorded, t, data)
+        values = []
+        for v in s.vars:
+            try:
+                values.append((v.name, get_field(msg, v.field)))
+            except AttributeError as e:  # cannot happen after check; report
+                self.core.reject(v.name, t, str(e))
+        if values:
+            self.core.fields(values, t)
         if self._unpublished:
             self._publish_reports()
         return True
@@ -377,16 +445,16 @@ class SupervisorNode:
         """At most once a second: one ``input_lost`` record per input that lost
         messages since the last one."""
         stats = self.session.runtime.input_stats()
-        for s in self._subs:
-            total = stats[s.name]["lost"]
-            new = total - self._lost_reported.get(s.name, 0)
+        for s, v in self._inputs():
+            total = stats[v.name]["lost"]
+            new = total - self._lost_reported.get(v.name, 0)
             if new <= 0:
                 continue
-            self._lost_reported[s.name] = total
-            warn(f"input '{s.name}': {new} messages lost ({total} so far) on {s.var.topic}")
+            self._lost_reported[v.name] = total
+            warn(f"input '{v.name}': {new} messages lost ({total} so far) on {s.var.topic}")
             self.log.supervisor(
                 "input_lost",
-                input=s.name,
+                input=v.name,
                 topic=s.var.topic,
                 lost=new,
                 total=total,
@@ -418,7 +486,7 @@ class SupervisorNode:
         the first and last number heard, received and lost: what a publisher sent
         outside them is not counted as lost, but whoever knows what it sent can
         (docs/reference/ros-interfaces.md#lost-messages)."""
-        streams = {s.name: s.streams for s in self._subs}
+        streams = {v.name: s.streams for s in self._subs for v in s.vars}
         out: dict[str, dict[str, Any]] = {}
         for name, st in self.session.runtime.input_stats().items():
             out[name] = {k: st[k] for k in ("messages", "rejected", "nan", "lost", "own")}
@@ -609,15 +677,13 @@ class SupervisorNode:
             statuses.append(
                 requirement_status(name, cfg.component, req.id, pol.state(), not pol.holds)
             )
-        for sub in self._subs:
-            st = dict(stats[sub.name])
+        for sub, v in self._inputs():
+            st = dict(stats[v.name])
             st["problem"], st["publishers"] = sub.problem, sub.publishers
-            st["lost_recent"] = st["lost"] - self._lost_at_diag.get(sub.name, 0)
-            self._lost_at_diag[sub.name] = st["lost"]
+            st["lost_recent"] = st["lost"] - self._lost_at_diag.get(v.name, 0)
+            self._lost_at_diag[v.name] = st["lost"]
             st["by_publisher"] = sub.streams.by_publisher() if sub.streams else []
-            statuses.append(
-                input_status(name, cfg.component, sub.name, sub.var.topic or "", st, now)
-            )
+            statuses.append(input_status(name, cfg.component, v.name, sub.var.topic or "", st, now))
         stamp = self.node.get_clock().now().to_msg()
         try:
             self.diagnostics.publish(diagnostic_array(stamp, statuses))

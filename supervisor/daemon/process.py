@@ -22,7 +22,7 @@ import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import rclpy
 from rclpy.context import Context
@@ -31,10 +31,15 @@ from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
 from supervisor.analysis_report import validate
+from supervisor.config import Config
+from supervisor.config.record import RecordConfig
 from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
 from supervisor.daemon.session import Session, build_session
+
+if TYPE_CHECKING:  # rosbags loads only when recording is on
+    from supervisor.daemon.recorder import Recorder
 
 
 def init_ros(domain_id: int | None = None) -> Context:
@@ -74,7 +79,45 @@ def prepare_session(
     return build_session(project, monitor, cleanup=lambda: shutil.rmtree(build, ignore_errors=True))
 
 
-def run_daemon(config: str, log_path: str | None = None, build_dir: str | None = None) -> int:
+def open_recorder(cfg: Config, path: str | None, log: ViolationLog) -> Recorder | None:
+    """The recorder of ``run --record PATH`` or ``record.path``, else None. It
+    reports into the log: what it leaves out, and why it stopped (recording stops,
+    monitoring never does)."""
+    settings = cfg.record or RecordConfig()
+    if path is None and settings.path is None:
+        return None
+    from supervisor.daemon.recorder import Recorder  # rosbags: only when recording
+
+    topics = list(dict.fromkeys((v.topic or "", v.msg or "") for v in cfg.inputs))
+
+    def stopped(reason: str) -> None:
+        print(f"safety-supervisor: WARNING: recording stopped: {reason}", file=sys.stderr)
+        log.supervisor("record_stopped", reason=reason)
+
+    def warning(text: str) -> None:
+        print(f"safety-supervisor: WARNING: recording: {text}", file=sys.stderr)
+        log.supervisor("record_warning", detail=text)
+
+    try:
+        recorder = Recorder.from_config(
+            settings, topics, path=path, on_stopped=stopped, on_warning=warning
+        )
+    except OSError as e:
+        raise UserError(
+            f"cannot record into {path or settings.path}: {e.strerror}",
+            file=cfg.path,
+            line=settings.line,
+        ) from None
+    log.supervisor("record", path=str(recorder.directory), topics=[t for t, _ in topics])
+    return recorder
+
+
+def run_daemon(
+    config: str,
+    log_path: str | None = None,
+    build_dir: str | None = None,
+    record: str | None = None,
+) -> int:
     """Raises UserError for a bad config at start (exit 1 with FILE:LINE)."""
     notifier = Notifier(unset_environment=True)
     stop_requested = threading.Event()
@@ -145,6 +188,7 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
         control = open_control(cfg.control)
         stack.callback(control.close)
         log.supervisor("control_socket", socket=control.path, group=control.group)
+        recorder = open_recorder(cfg, record, log)
         ctx = init_ros()
         stack.callback(_shutdown_ros, ctx)
         node = SupervisorNode(
@@ -154,6 +198,7 @@ def run_daemon(config: str, log_path: str | None = None, build_dir: str | None =
             notifier=notifier,
             watchdog_s=watchdog_interval(),
             control=control,
+            recorder=recorder,
         )
         stack.callback(node.close)
         if stop_requested.is_set():

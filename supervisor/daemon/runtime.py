@@ -199,25 +199,38 @@ class Runtime:
         self, name: str, raw: Any, t_ns: int
     ) -> tuple[StepResult | None, list[InputEvent]]:
         """A message for input ``name`` arrived at ``t_ns``; maybe step."""
-        idx = self._index[name]
-        inp = self._in[idx]
+        return self.on_values(((name, raw),), t_ns)
+
+    def on_values(
+        self, values: Sequence[tuple[str, Any]], t_ns: int
+    ) -> tuple[StepResult | None, list[InputEvent]]:
+        """One message carrying inputs ``values`` (fields of one topic) arrived at
+        ``t_ns``: every value is set, then the policy steps at most once."""
         events: list[InputEvent] = []
-        value, why = coerce(raw, inp.spec.type)
-        if why is not None:
-            inp.rejected += 1
-            events.append(InputEvent("input_rejected", name, t_ns, why))
+        accepted = []
+        for name, raw in values:
+            inp = self._in[self._index[name]]
+            value, why = coerce(raw, inp.spec.type)
+            if why is not None:
+                inp.rejected += 1
+                events.append(InputEvent("input_rejected", name, t_ns, why))
+                continue
+            accepted.append(name)
+            inp.value, inp.has_value, inp.last_ns, inp.fresh = value, True, t_ns, True
+            inp.messages += 1
+            if value != value:  # NaN: a valid double, but almost always a sensor fault
+                inp.nan += 1
+                events.append(
+                    InputEvent("input_nan", name, t_ns, "NaN (every comparison with it is false)")
+                )
+            if inp.stale:
+                inp.stale = False
+                events.append(InputEvent("input_recovered", name, t_ns))
+        if not accepted:
             return None, events
-        inp.value, inp.has_value, inp.last_ns, inp.fresh = value, True, t_ns, True
-        inp.messages += 1
-        if value != value:  # NaN: a valid double, but almost always a sensor fault
-            inp.nan += 1
-            events.append(
-                InputEvent("input_nan", name, t_ns, "NaN (every comparison with it is false)")
-            )
-        if inp.stale:
-            inp.stale = False
-            events.append(InputEvent("input_recovered", name, t_ns))
-        if self.policy == "on_message" or (self.policy == "on_trigger" and name == self.trigger):
+        if self.policy == "on_message" or (
+            self.policy == "on_trigger" and self.trigger in accepted
+        ):
             return self.step(t_ns), events
         if self.policy == "synchronized":
             if self._pending_since is None:
