@@ -343,3 +343,31 @@ def test_copilot_monitor_batches_as_it_ticks(tmp_path: Path) -> None:
         check(rest, want[100:], "copilot, second batch")
         mon.reset()
         assert np.array_equal(one_by_one(mon, trace), want)
+
+
+def test_tick_until_stops_after_the_first_violating_row(tmp_path):
+    """tick_until: the rows up to the first violation, state exactly after it."""
+    import numpy as np
+
+    from monitors.backends.load import compile_spec
+    from monitors.ir.formula import parse_formula
+    from monitors.ir.spec import MonitorSpec, RequirementSpec, VarDecl
+
+    spec = MonitorSpec(
+        "c",
+        (VarDecl("x", "int64"),),
+        (RequirementSpec("small", parse_formula("H (x < 5)")),
+         RequirementSpec("up", parse_formula("x >= preInt(0, x)"))),
+    )  # fmt: skip
+    a, b = compile_spec(spec, tmp_path / "a"), compile_spec(spec, tmp_path / "b")
+    xs = [1, 2, 3, 2, 4, 9, 1]
+    rows = a.pack_columns([np.array(xs, dtype=np.int64)])
+    n, flags = a.tick_until(rows)
+    assert (n, flags) == (4, bytes([0, 1]))  # 3 -> 2 breaks 'up' at the 4th row
+    n2, flags2 = a.tick_until(rows[n:])
+    assert (n2, flags2) == (2, bytes([1, 0]))  # 9 breaks 'small' ('up' holds: 4 -> 9)
+    n3, flags3 = a.tick_until(rows[n + n2 :])
+    assert (n3, flags3) == (1, bytes([1, 1]))  # H stays broken, 9 -> 1 breaks 'up'
+    # the same as one tick at a time
+    assert [b.tick([x]) for x in xs][3] == bytes([0, 1])
+    assert a.tick_until(rows[:0]) == (0, bytes([0, 0]))

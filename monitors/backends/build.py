@@ -28,6 +28,9 @@ Functions the shim exposes to Python (see load.py):
       tick at a time).  ``flags`` receives ``n`` rows of one byte per
       requirement; ``rows`` (``n`` slots, or NULL) receives the indices of
       the rows with a violation, ascending; returns how many there are;
+  ``size_t ss_tick_until(const char *in, size_t n, uint8_t *flags)``: ``ss_tick``
+      for rows in order up to and including the first with a violation; returns
+      the rows stepped, ``flags`` holds the last one's;
   ``void ss_reset(void)`` / ``void ss_reset_req(int i)`` when available;
   ``const char *ss_layout(void)``: the input/requirement layout and the row
       size, so that a library is never driven with another spec's packing.
@@ -68,6 +71,7 @@ _C_TYPES = {"bool": "bool", "int64": "int64_t", "double": "double"}
 CDEF = """
 int ss_tick(const char *in, uint8_t *flags);
 size_t ss_tick_batch(const char *in, size_t n, uint8_t *flags, size_t *rows);
+size_t ss_tick_until(const char *in, size_t n, uint8_t *flags);
 const char *ss_layout(void);
 """
 CDEF_RESET = "void ss_reset(void);\n"
@@ -122,6 +126,7 @@ def host_source(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
     out += [
         "int ss_tick(const char *ss_in, uint8_t *ss_flags);",
         "size_t ss_tick_batch(const char *ss_in, size_t ss_n, uint8_t *ss_flags, size_t *ss_rows);",
+        "size_t ss_tick_until(const char *ss_in, size_t ss_n, uint8_t *ss_flags);",
         "const char *ss_layout(void);",
         "void ss_reset(void);",
         "void ss_reset_req(int i);",
@@ -175,6 +180,24 @@ def host_source(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
         "        }",
         "    }",
         "    return ss_found;",
+        "}",
+        "",
+        # Up to and including the first row with a violation: replay hands that
+        # tick to the policies with the monitor's state exactly after it.
+        "size_t ss_tick_until(const char *ss_in, size_t ss_n, uint8_t *ss_flags)",
+        "{",
+        "    size_t ss_i;",
+        "    ss__out = ss_flags;",
+        "    for (ss_i = 0; ss_i < ss_n; ss_i++) {",
+        "        ss__count = 0;",
+    ]
+    out += [f"        ss_flags[{i}] = 0u;" for i in range(nreq)]
+    out += [
+        f"        ss__load(ss_in + ss_i * {row_size(spec)}u);",
+        f"        {spec.step_name}();",
+        "        if (ss__count != 0) return ss_i + 1;",
+        "    }",
+        "    return ss_n;",
         "}",
         "",
     ]

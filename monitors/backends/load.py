@@ -189,6 +189,7 @@ class LoadedMonitor:
         self._flag_view = ffi.buffer(self._flags, len(self.requirement_ids))
         self._tick = lib.ss_tick
         self._tick_batch = lib.ss_tick_batch
+        self._tick_until = lib.ss_tick_until
         self._reset = getattr(lib, "ss_reset", None)
         self._reset_req = getattr(lib, "ss_reset_req", None)
 
@@ -280,6 +281,21 @@ class LoadedMonitor:
             ffi.from_buffer("size_t[]", found, require_writable=True),
         )
         return Batch(flags, found[:count].astype(np.intp))
+
+    def tick_until(self, rows: Any) -> tuple[int, bytes]:
+        """Step row by row in ONE C call up to and including the first row with a
+        violation: (rows stepped, that last row's flags).  The state is exactly
+        after the last row stepped, so its violation can be handed to the policies
+        before the next row (``replay``)."""
+        import numpy as np
+
+        if not isinstance(rows, np.ndarray) or rows.dtype != self.row_dtype or rows.ndim != 1:
+            raise TypeError(f"rows must be a 1-D array of {self.row_dtype}")
+        rows = np.ascontiguousarray(rows)
+        ffi = self._module.ffi
+        flags = self._module.ffi.new("uint8_t[]", max(1, len(self.requirement_ids)))
+        n = self._tick_until(ffi.from_buffer("char[]", rows), len(rows), flags)
+        return int(n), bytes(ffi.buffer(flags, len(self.requirement_ids)))
 
     def reset(self) -> None:
         """Every requirement back to tick 0 (as if freshly loaded)."""
