@@ -30,6 +30,8 @@ from supervisor.tools.install import add_parser as add_install_parser
 from supervisor.tools.install import cmd_install_service
 from supervisor.tools.logs import add_parser as add_logs_parser
 from supervisor.tools.logs import cmd_logs
+from supervisor.tools.replay.command import add_parser as add_replay_parser
+from supervisor.tools.replay.command import cmd_replay
 from supervisor.tools.reset import add_parser as add_reset_parser
 from supervisor.tools.reset import cmd_reset
 
@@ -216,7 +218,7 @@ def cmd_compile(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from supervisor.daemon.process import run_daemon
 
-    return run_daemon(args.config, log_path=args.log, build_dir=args.build_dir)
+    return run_daemon(args.config, log_path=args.log, build_dir=args.build_dir, record=args.record)
 
 
 # ------------------------------------------------------------------ main
@@ -233,6 +235,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "install-service": cmd_install_service,
     "demo": cmd_demo,
     "inject": cmd_inject,
+    "replay": cmd_replay,
     "bench": cmd_bench,
 }
 
@@ -282,11 +285,18 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="where to build the monitor (default: temp)",
     )
+    r.add_argument(
+        "--record",
+        default=None,
+        metavar="DIR",
+        help="record inputs and records into rosbag2 MCAP bags in DIR (also record.path)",
+    )
     add_logs_parser(sub)
     add_reset_parser(sub)
     add_install_parser(sub)
     add_demo_parser(sub)
     add_inject_parser(sub)
+    add_replay_parser(sub)
     add_bench_parser(sub)
     return p
 
