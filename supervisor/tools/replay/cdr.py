@@ -3,13 +3,15 @@
 A ROS 2 message on the wire is a 4-byte encapsulation header and the fields in
 order, each primitive aligned to its own size counted from the end of the header
 (XCDR1, what rmw and rosbag2 write). Until the first string or sequence every field
-has a fixed offset, so a field before it can be read from each payload at that
-offset: for many messages at once with numpy instead of deserialising each one.
+has a fixed offset; after one, each message's offset follows from the lengths that
+precede the field. Either way the field is read from many payloads at once with
+numpy instead of deserialising each message (``FieldPlan.gather``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from rosbags.interfaces import Nodetype
@@ -38,77 +40,133 @@ PRIMITIVES: dict[str, tuple[int, str]] = {
 
 
 @dataclass(frozen=True)
-class FixedField:
-    """A primitive at a fixed byte offset of every payload (the header included)."""
+class FieldPlan:
+    """How to find a primitive field in a payload: the steps over the fields before
+    it. ``("skip", align, size)`` aligns and skips fixed bytes; ``("string",)`` and
+    ``("seq", elem_size)`` skip a length-prefixed string or primitive sequence, whose
+    length each message says. Without those the field has a fixed offset."""
 
-    offset: int
+    steps: tuple[tuple[Any, ...], ...]
     size: int
     dtype: str  # numpy dtype, little-endian
     ros_type: str
+
+    @property
+    def fixed(self) -> bool:
+        return all(s[0] == "skip" for s in self.steps)
 
     def gather(self, buf: np.ndarray, start: np.ndarray, end: np.ndarray) -> np.ndarray | None:
         """The field of every payload ``buf[start[i]:end[i]]`` at once, or None if
         one is too short or not little-endian (the caller then deserialises them)."""
         if not len(start):
             return np.empty(0, dtype=self.dtype)
-        if ((end - start) < self.offset + self.size).any() or (buf[start + 1] != CDR_LE).any():
+        if ((end - start) < HEADER).any() or (buf[start + 1] != CDR_LE).any():
             return None
-        idx = (start + self.offset)[:, None] + np.arange(self.size)
-        return np.ascontiguousarray(buf[idx]).view(self.dtype).reshape(len(start))
+        body = start + HEADER
+        room = end - body
+        if self.fixed:
+            pos = 0
+            for _, align, size in self.steps:
+                pos = _align(pos, align) + size
+            pos = _align(pos, self.size)
+            if (room < pos + self.size).any():
+                return None
+            return _take(buf, body + pos, self.size, self.dtype)
+        at = np.zeros(len(start), dtype=np.int64)
+        for step in self.steps:
+            if step[0] == "skip":
+                at = _align_a(at, step[1]) + step[2]
+                continue
+            at = _align_a(at, 4)
+            if (room < at + 4).any():
+                return None
+            n = _take(buf, body + at, 4, "<u4").astype(np.int64)
+            at = at + 4
+            if step[0] == "string":
+                at = at + n
+            else:
+                # rosbags aligns a sequence's elements only when it has some
+                at = np.where(n > 0, _align_a(at, step[1]), at) + n * step[1]
+        at = _align_a(at, self.size)
+        if (room < at + self.size).any():
+            return None
+        return _take(buf, body + at, self.size, self.dtype)
 
 
-class _Variable(Exception):
-    """The walk met a string or sequence: nothing after it has a fixed offset."""
+def _take(buf: np.ndarray, at: np.ndarray | int, size: int, dtype: str) -> np.ndarray:
+    idx = np.asarray(at)[..., None] + np.arange(size)
+    return np.ascontiguousarray(buf[idx]).view(dtype).reshape(-1)
 
 
 def _align(pos: int, size: int) -> int:
     return pos + (-pos % size)
 
 
-def _walk(
-    store: Typestore, msgtype: str, pos: int, path: list[str] | None
-) -> tuple[int, FixedField | None]:
-    """Lay out msgtype from body offset pos; returns the end offset and, when path is
-    given, the field it names (None when the path is not in this message)."""
-    found: FixedField | None = None
-    for name, (kind, detail) in store.fielddefs[msgtype][1]:
+def _align_a(pos: np.ndarray, size: int) -> np.ndarray:
+    return pos + (-pos % size)
+
+
+class _Unsupported(Exception):
+    """A field the plan cannot reach (after a sequence of strings or messages)."""
+
+
+MAX_UNROLL = 64  # array elements laid out one by one at most (arrays of strings/messages)
+
+
+def _plan(
+    store: Typestore, msgtype: str, path: list[str] | None, steps: list[tuple[Any, ...]]
+) -> FieldPlan | None:
+    """Append msgtype's steps (all of it, or up to path's field, which it returns)."""
+    fields = store.fielddefs[msgtype][1]
+    for name, (kind, detail) in fields:
         want = path is not None and path[0] == name
+        rest = path[1:] if want and path is not None else None
         if kind == Nodetype.BASE:
             typ = detail[0]
-            if typ not in PRIMITIVES:
-                raise _Variable  # a string
-            size, dtype = PRIMITIVES[typ]
-            pos = _align(pos, size)
-            if want and path is not None and len(path) == 1:
-                return pos + size, FixedField(HEADER + pos, size, dtype, typ)
-            pos += size
+            if typ in PRIMITIVES:
+                size, dtype = PRIMITIVES[typ]
+                if want and not rest:
+                    return FieldPlan(tuple(steps), size, dtype, typ)
+                steps.append(("skip", size, size))
+            elif typ == "string":
+                steps.append(("string",))
+            else:
+                raise _Unsupported  # wstring
         elif kind == Nodetype.NAME:
-            rest = path[1:] if want and path is not None else None
-            pos, sub = _walk(store, detail, pos, rest or None)
+            found = _plan(store, detail, rest or None, steps)
             if want:
-                return pos, sub
+                return found
         elif kind == Nodetype.ARRAY:
             (subkind, subdetail), length = detail
-            if subkind != Nodetype.BASE or subdetail[0] not in PRIMITIVES:
-                raise _Variable  # an array of messages or strings: not worth laying out
-            size = PRIMITIVES[subdetail[0]][0]
-            pos = _align(pos, size) + size * length
+            if subkind == Nodetype.BASE and subdetail[0] in PRIMITIVES:
+                size = PRIMITIVES[subdetail[0]][0]
+                steps.append(("skip", size, size * length))
+            elif length > MAX_UNROLL:
+                raise _Unsupported
+            elif subkind == Nodetype.BASE and subdetail[0] == "string":
+                steps.extend([("string",)] * length)
+            elif subkind == Nodetype.NAME:
+                for _ in range(length):
+                    _plan(store, subdetail, None, steps)
+            else:
+                raise _Unsupported
         else:
-            raise _Variable  # a sequence
+            (subkind, subdetail), _ = detail
+            if subkind == Nodetype.BASE and subdetail[0] in PRIMITIVES:
+                steps.append(("seq", PRIMITIVES[subdetail[0]][0]))
+            else:
+                raise _Unsupported  # a sequence of strings or messages
         if want:
-            return pos, None  # the path goes through a primitive or an array
-    # An empty message is one uint8 in CDR (rosidl's structure_needs_at_least_one_member).
-    if not store.fielddefs[msgtype][1]:
-        pos += 1
-    return pos, found
+            return None  # the path goes through a primitive, array or sequence
+    if not fields:
+        steps.append(("skip", 1, 1))  # an empty message is one uint8 in CDR
+    return None
 
 
-def fixed_field(store: Typestore, msgtype: str, path: str) -> FixedField | None:
-    """The fixed place of the dotted field path in msgtype, or None if a string or
-    sequence comes before it (or the path does not lead to a primitive)."""
+def field_plan(store: Typestore, msgtype: str, path: str) -> FieldPlan | None:
+    """How to read the dotted field path of msgtype from payloads in bulk, or None if
+    a sequence of strings or messages comes before it."""
     try:
-        return _walk(store, msgtype, 0, path.split("."))[1]
-    except _Variable:
-        return None
-    except KeyError:
+        return _plan(store, msgtype, path.split("."), [])
+    except (_Unsupported, KeyError):
         return None
