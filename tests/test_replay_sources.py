@@ -146,6 +146,49 @@ def test_batches_hold_the_same_values_as_columns(tmp_path, plugin):
     assert vx.dtype == np.float64
     x = np.concatenate([b.values["x"][b.rows("/x")] for b in batches])
     assert x.dtype == np.int64 and x.tolist() == [e[2][0][1] for e in expected if e[1] == "/x"]
+    # level lies after a string: read in bulk from each message's string length
+    level = np.concatenate([b.values["level"][b.rows("/status")] for b in batches])
+    assert level.tolist() == [e[2][0][1] for e in expected if e[1] == "/status"]
+
+
+SEQ = "acme_msgs/msg/Samples"
+TS.register(get_types_from_msg("uint8 kind\nfloat64[] samples\nint16 count\nfloat64 mean\n", SEQ))
+
+
+@pytest.mark.parametrize("plugin", [StoragePlugin.SQLITE3, StoragePlugin.MCAP])
+def test_fields_after_a_sequence_decode_in_bulk_as_rosbags_does(tmp_path, plugin):
+    cfg = config(
+        tmp_path,
+        CONFIG.replace(
+            "msg: acme_msgs/msg/Status, field: level", f"msg: {SEQ}, field: mean"
+        ).replace("msg: acme_msgs/msg/Status, field: mode", f"msg: {SEQ}, field: count"),
+    )
+    msgs, expected = [], []
+    for i in range(40):
+        samples = np.arange(i % 3, dtype=np.float64)  # empty ones too
+        msgs.append((i, "/status", SEQ, ser(SEQ, kind=i, samples=samples, count=-i, mean=i / 7)))
+        expected.append((i, "/status", [("level", i / 7), ("mode", -i)]))
+    bag = write_bag(tmp_path / "bag", msgs, 9, plugin)
+    assert read([bag], cfg)[1] == expected
+
+
+def test_messages_written_out_of_order_are_replayed_in_receive_order(tmp_path):
+    cfg = config(tmp_path)
+    msgs, expected = standard_messages(5)
+    bag = write_bag(tmp_path / "bag", msgs, 9, StoragePlugin.MCAP, order=msgs[::-1])
+    assert read([bag], cfg)[1] == expected
+
+
+def test_violations_beside_the_records_topic_are_not_read_twice(tmp_path):
+    cfg = config(tmp_path)
+    rec = {"event": "violation", "requirement": "R1"}
+    text = ser("std_msgs/msg/String", data=json.dumps(rec))
+    msgs = [
+        (1, RECORDS_TOPIC, "std_msgs/msg/String", text),
+        (2, "/safety_supervisor/violations", "std_msgs/msg/String", text),
+    ]
+    assert read([write_bag(tmp_path / "a", msgs)], cfg)[1] == [(1, "record", rec)]
+    assert read([write_bag(tmp_path / "b", msgs[1:])], cfg)[1] == [(2, "record", rec)]
 
 
 def test_storage_files_given_directly_and_an_mcap_without_metadata(tmp_path):

@@ -29,9 +29,9 @@ the position (message number, byte offset or line, last timestamp).
 Speed: the bag readers here read the storage directly: sqlite3 in timestamp order
 through apsw (rosbags' own SQLite binding, a fifth faster than the sqlite3 module at
 fetching rows), the MCAP records with struct and numpy, since rosbags' MCAP reader
-reaches about 0.5 M messages/s and refuses a file without its summary. rosbags supplies the types: the bag's own message definitions, its CDR
-deserialiser for variable-size messages, and its ROS 2 Jazzy types for bags without
-definitions. A primitive field (``cdr.py``: at a fixed CDR offset, or after strings and
+reaches about 0.5 M messages/s and refuses a file without its summary. rosbags
+supplies the types: the bag's own message definitions, its CDR deserialiser for
+variable-size messages, and its ROS 2 Jazzy types for bags without definitions. A primitive field (``cdr.py``: at a fixed CDR offset, or after strings and
 primitive sequences whose lengths each message gives) is decoded for a whole batch with
 numpy; any other field is deserialised message by message.
 """
@@ -68,7 +68,6 @@ RECORDS_TOPIC = "/safety_supervisor/records"
 RECORD_TOPICS = (RECORDS_TOPIC, VIOLATIONS_TOPIC)
 STRING = "std_msgs/msg/String"
 CHUNK = 100_000
-PROGRESS_EVERY = 100_000
 
 ValueEvent = tuple[int, str, list[tuple[str, Any]]]
 RecordEvent = tuple[int, Literal["record"], dict[str, Any]]
@@ -761,6 +760,9 @@ class Recording:
                             hint=f"variable '{v.name}' at {cfg.path}:{v.line}",
                         )
                     recorded[topic] = typ
+                elif topic == VIOLATIONS_TOPIC and RECORDS_TOPIC in src.topics:
+                    # the same violations are on the records topic beside it
+                    self.ignored.setdefault(src.label, set()).add(topic)
                 elif topic in RECORD_TOPICS:
                     if typ != STRING:
                         raise UserError(
@@ -786,6 +788,8 @@ class Recording:
             self.total = sum(
                 n for s in sources for t, n in (s.counts or {}).items() if t in recorded
             )
+        # Fields are checked against the recorded types now, before anything is read.
+        self._topic_readers = [self._readers(s) for s in sources]
 
     def summary(self) -> str:
         """What is read and what is not, a line each."""
@@ -945,13 +949,14 @@ class Recording:
 
     def _source_batches(self, src: _Source, chunk: int) -> Iterator[Batch | UserError]:
         """One source's batches; damage ends them with the located error."""
-        try:
-            readers = self._readers(src)
-        except UserError as e:
-            yield e
-            return
-        ids = {t: self.ids[t] for t in src.topics if t in self.ids}
+        readers = self._topic_readers[self.sources.index(src)]
+        ids = {
+            t: self.ids[t]
+            for t in src.topics
+            if t in self.ids and t not in self.ignored.get(src.label, ())
+        }
         first = 0
+        last = -1
         try:
             for whole in src.chunks(ids, chunk):
                 for i in range(0, len(whole), chunk):
@@ -959,6 +964,9 @@ class Recording:
                     batch, error = self._decode(src, readers, raw, first)
                     first += len(raw)
                     if len(batch):
+                        if int(batch.t_ns[0]) < last:
+                            self._warn_order(src, last)
+                        last = int(batch.t_ns[-1])
                         yield batch
                     if error:
                         yield UserError(error, file=src.label)
@@ -967,6 +975,14 @@ class Recording:
             yield UserError(str(e), file=src.label)
         except UserError as e:
             yield e
+
+    def _warn_order(self, src: _Source, t: int) -> None:
+        text = (
+            f"warning: {src.label}: messages before t_ns {t} come after it in the file; "
+            "they are replayed in file order"
+        )
+        if text.split(" before ")[0] not in "\n".join(self.warnings):
+            self.warnings.append(text)
 
     def batches(self, chunk: int = CHUNK, progress: Progress | None = None) -> Iterator[Batch]:
         """Columns of up to ``chunk`` messages in receive order across all sources;
