@@ -228,6 +228,10 @@ def test_progress_reports_messages_read_and_the_total(tmp_path):
     read([bag], cfg, progress=lambda n, total: seen.append((n, total)))
     wanted = len([m for m in msgs if m[1] != "/extra"])
     assert seen[-1] == (wanted, wanted)
+    # a bare MCAP file: the counts of its summary's statistics
+    seen.clear()
+    read([next(bag.glob("*.mcap"))], cfg, progress=lambda n, total: seen.append((n, total)))
+    assert seen[-1] == (wanted, wanted)
 
 
 def test_a_recorded_type_other_than_the_configs_is_a_one_line_error(tmp_path):
@@ -399,3 +403,42 @@ def test_a_million_fixed_size_messages_decode_in_bulk(tmp_path, plugin):
     x = np.concatenate([b.values["x"] for b in rec.batches()])
     assert np.array_equal(x, np.arange(n))
     shutil.rmtree(tmp_path / "bag")
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_an_mcap_file_from_another_writer_with_compressed_chunks(tmp_path, compression):
+    # mcap_ros2's writer: chunk compression (rosbag2's zstd presets), and schemas,
+    # channels and indexes laid out by a different implementation than rosbags'
+    from mcap.writer import CompressionType
+    from mcap_ros2.writer import Writer as McapWriter
+
+    cfg = config(tmp_path)
+    path = tmp_path / "other.mcap"
+    with path.open("wb") as f:
+        w = McapWriter(f, chunk_size=200, compression=CompressionType[compression.upper()])
+        int64 = w.register_msgdef("std_msgs/msg/Int64", "int64 data")
+        twist = w.register_msgdef(
+            "geometry_msgs/msg/Twist",
+            "Vector3 linear\nVector3 angular\n" + "=" * 80 + "\nMSG: geometry_msgs/Vector3\n"
+            "float64 x\nfloat64 y\nfloat64 z\n",
+        )
+        for i in range(30):
+            w.write_message("/x", int64, {"data": i}, log_time=100 * i)
+            v = {
+                "linear": {"x": i / 2, "y": 0.0, "z": 0.0},
+                "angular": {"x": 0.0, "y": 0.0, "z": -i},
+            }
+            w.write_message("/cmd_vel", twist, v, log_time=100 * i + 50)
+        w.finish()
+    expected = []
+    for i in range(30):
+        expected += [
+            (100 * i, "/x", [("x", i)]),
+            (100 * i + 50, "/cmd_vel", [("vx", i / 2), ("wz", -i)]),
+        ]
+    assert read([path], cfg)[1] == expected
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])  # inside the chunks, before the summary
+    got, err = read_until_error([path], cfg)
+    assert 0 < len(got) < len(expected) and got == expected[: len(got)]
+    assert str(path) in str(err)

@@ -344,6 +344,7 @@ _REC = struct.Struct("<BQ")  # opcode, length
 _MSG = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _MSG_HEAD = 9 + _MSG.size  # record header + message header: the payload's offset
 SCHEMA, CHANNEL, MESSAGE, CHUNK_OP, MESSAGE_INDEX, FOOTER, DATA_END = 3, 4, 5, 6, 7, 2, 15
+STATISTICS = 11
 _INDEX = np.dtype([("t", "<u8"), ("o", "<u8")])
 
 
@@ -385,14 +386,60 @@ class _Mcap(_Source):
         self._schemas: dict[int, tuple[str, str, str]] = {}
         self._channels: dict[int, tuple[str, int]] = {}
         self.topics = dict(topics or {})
-        # The types come first in a file: read records until the first message.
-        try:
-            for _ in self._records({}, head=True):
-                pass
-        except _Damage as e:
-            if not self.topics:
-                raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
+        if not self._summary():
+            # No summary (a recorder killed): a pass over the file finds the channels,
+            # skipping chunks whose indexes name known channels only.
+            try:
+                for _ in self._records({}, head=True):
+                    pass
+            except _Damage as e:
+                if not self.topics:
+                    raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
         self.store = _typestore(list(self._schemas.values()))
+
+    def _summary(self) -> bool:
+        """Every schema and channel (and the message counts) from the summary at the
+        end of the file, if it has an intact one."""
+        try:
+            with self.path.open("rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+                return self._summary_of(mm, len(mm))
+        except (OSError, ValueError):
+            return False  # empty or unreadable: the pass over the file says why
+
+    def _summary_of(self, mm: mmap.mmap, size: int) -> bool:
+        foot = size - len(MAGIC) - 9 - 20
+        if foot < len(MAGIC) or mm[:8] != MAGIC or mm[size - len(MAGIC) :] != MAGIC:
+            return False
+        op, length = _REC.unpack_from(mm, foot)
+        (start,) = struct.unpack_from("<Q", mm, foot + 9)
+        if op != FOOTER or length != 20 or not len(MAGIC) <= start < foot:
+            return False
+        counts: dict[str, int] = {}
+        stats: list[tuple[int, int]] = []
+        pos = start
+        try:
+            while pos + 9 <= foot:
+                op, length = _REC.unpack_from(mm, pos)
+                body = pos + 9
+                if body + length > foot:
+                    return False
+                if op == SCHEMA:
+                    self._schema(mm, body)
+                elif op == CHANNEL:
+                    self._channel(mm, body)
+                elif op == STATISTICS:
+                    (n,) = struct.unpack_from("<I", mm, body + 42)
+                    stats = list(struct.iter_unpack("<HQ", mm[body + 46 : body + 46 + n]))
+                pos = body + length
+        except (struct.error, UnicodeDecodeError):
+            return False
+        for cid, n in stats:
+            if cid in self._channels:
+                topic = self._channels[cid][0]
+                counts[topic] = counts.get(topic, 0) + n
+        if self.counts is None and stats:
+            self.counts = counts
+        return True
 
     def _schema(self, buf: Any, pos: int) -> None:
         (sid,) = struct.unpack_from("<H", buf, pos)
@@ -456,10 +503,11 @@ class _Mcap(_Source):
                     indexes[cid] = np.frombuffer(mm, _INDEX, n // 16, body + 6).copy()
                 else:
                     if pending is not None:
-                        yield from self._chunk(mm, pending, indexes, ids)
+                        if head:
+                            self._head_chunk(mm, pending, indexes)
+                        else:
+                            yield from self._chunk(mm, pending, indexes, ids)
                         pending, indexes = None, {}
-                    if head and op in (MESSAGE, CHUNK_OP) and self._channels:
-                        return
                     if op == SCHEMA:
                         self._schema(mm, body)
                     elif op == CHANNEL:
@@ -516,6 +564,15 @@ class _Mcap(_Source):
             raw = self._scan(buf, ids, pos)
         if len(raw):
             yield raw.in_order()
+
+    def _head_chunk(
+        self, mm: mmap.mmap, at: tuple[int, int], indexes: dict[int, np.ndarray]
+    ) -> None:
+        """The schemas and channels a chunk defines, if its indexes name new ones."""
+        if indexes and all(c in self._channels for c in indexes):
+            return
+        for _ in self._chunk(mm, at, {}, {}):
+            pass
 
     def _indexed(self, buf: bytes, indexes: dict[int, np.ndarray], ids: dict[str, int]) -> _Raw:
         """Every message's time and place from the chunk's indexes, with numpy."""
