@@ -12,7 +12,7 @@ logged (docs/reference/commands.md, "replay").
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
@@ -22,7 +22,8 @@ from monitors.errors import UserError
 from supervisor.config import Config
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import Session
-from supervisor.tools.replay.sources import Event
+from supervisor.tools.replay.fast import forward, quiet
+from supervisor.tools.replay.sources import Batch, Progress, Recording
 
 
 class DryRun:
@@ -106,41 +107,77 @@ class _Log:
 
 def replay(
     session: Session,
-    events: Iterator[Event],
+    recording: Recording,
     out: Any,
     *,
+    progress: Progress | None = None,
+    fast: bool = True,
     warn: Callable[[str], None] = lambda _text: None,
 ) -> Outcome:
-    """Run ``session`` over ``events``; records go to ``out`` (a ViolationLog, or
-    None for counts only).  A damaged recording ends the replay where the damage
-    is: what came before is judged and written, and ``Outcome.error`` says where."""
+    """Run ``session`` over ``recording``; records go to ``out`` (a ViolationLog, or
+    None for counts only).  ``fast``: quiet stretches are stepped in bulk
+    (supervisor/tools/replay/fast.py), with the same result.  A damaged recording
+    ends the replay where the damage is: what came before is judged and written,
+    and ``Outcome.error`` says where."""
     outcome = Outcome(requirements=[r.id for r in session.config.requirements])
     log = _Log(out, outcome)
     core = log.core = Core(session, log, DryRun(log, session.config), warn=warn)
+    names = {
+        recording.ids[t]: [v.name for v in vs]
+        for t, vs in recording.by_topic.items()
+        if t in recording.ids
+    }
     started = False
     t0 = time.perf_counter()
     last = None
     try:
-        for t, kind, payload in events:
-            if kind == "record":
-                if isinstance(payload, dict) and payload.get("event") == "marker":
-                    started = _marker(core, payload, t, outcome, started)
-                continue
-            if not started:  # a bag recorded on the robot: monitoring starts with it
-                core.start(t)
-                outcome.start_ns, started = t, True
-            core.fields(payload, t)
-            outcome.messages += 1
-            last = t
+        for batch in recording.batches(progress=progress):
+            ts = batch.t_ns
+            n = len(ts)
+            marks = sorted(batch.records)
+            m = 0  # the next record row
+            i = 0
+            while i < n:
+                if m < len(marks) and marks[m] == i:
+                    record = batch.records[i]
+                    if isinstance(record, dict) and record.get("event") == "marker":
+                        started = _marker(core, record, int(ts[i]), outcome, started)
+                    m += 1
+                    i += 1
+                    continue
+                end = marks[m] if m < len(marks) else n
+                if not started:  # a bag recorded on the robot: monitoring starts with it
+                    core.start(int(ts[i]))
+                    outcome.start_ns, started = int(ts[i]), True
+                if fast and quiet(core):
+                    j = forward(core, batch, i, end, names)
+                    if j > i:
+                        outcome.messages += j - i
+                        last = int(ts[j - 1])
+                        i = j
+                        continue
+                t = int(ts[i])
+                core.fields(_row(batch, i, names), t)
+                outcome.messages += 1
+                last = t
+                i += 1
     except UserError as e:
         outcome.error = e
-    end = outcome.end_ns if outcome.end_ns is not None else last
-    if end is not None:
-        core.advance(end)  # timers up to the end of the recording
-        outcome.end_ns = end
+    end_ns = outcome.end_ns if outcome.end_ns is not None else last
+    if end_ns is not None:
+        core.advance(end_ns)  # timers up to the end of the recording
+        outcome.end_ns = end_ns
     outcome.ticks = session.runtime.tick
     outcome.seconds = time.perf_counter() - t0
     return outcome
+
+
+def _row(batch: Batch, i: int, names: dict[int, list[str]]) -> list[tuple[str, Any]]:
+    """Row ``i``'s values for its topic's variables, as Recording.events gives them."""
+    vals = [(v, batch.values[v][i].item()) for v in names[int(batch.topic[i])] if v in batch.values]
+    if batch.given:
+        return [(v, x) for v, x in vals if v not in batch.given or batch.given[v][i]]
+    return vals
 
 
 def _marker(core: Core, record: dict[str, Any], t: int, outcome: Outcome, started: bool) -> bool:

@@ -54,7 +54,12 @@ def _is_bag(p: Path) -> bool:
 
 
 def run_one(
-    config: Path, paths: list[Path], output: Path | None, progress: Progress | None
+    config: Path,
+    paths: list[Path],
+    output: Path | None,
+    progress: Progress | None,
+    *,
+    fast: bool = True,
 ) -> tuple[Outcome, list[str]]:
     """Replay ``paths`` with ``config``; the outcome and the notes on what was read."""
     with loaded(config) as session:
@@ -71,7 +76,7 @@ def run_one(
         warnings: list[str] = []
         try:
             outcome = replay(
-                session, recording.events(progress=progress), out, warn=warnings.append
+                session, recording, out, progress=progress, fast=fast, warn=warnings.append
             )
             if out is not None and outcome.error is not None:
                 out.supervisor("replay_damaged", detail=str(outcome.error))
@@ -90,9 +95,14 @@ def _counted(warnings: list[str]) -> list[str]:
 
 
 def replay_files(
-    config: Path, paths: list[Path], output: Path | None, progress: Progress | None
+    config: Path,
+    paths: list[Path],
+    output: Path | None,
+    progress: Progress | None,
+    *,
+    fast: bool = True,
 ) -> dict[str, Any]:
-    outcome, notes = run_one(config, paths, output, progress)
+    outcome, notes = run_one(config, paths, output, progress, fast=fast)
     return {
         **_totals(outcome),
         "notes": notes,
@@ -110,11 +120,13 @@ def replay_files(
     }
 
 
-def compare(a: Path, b: Path, paths: list[Path], progress: Progress | None) -> dict[str, Any]:
+def compare(
+    a: Path, b: Path, paths: list[Path], progress: Progress | None, *, fast: bool = True
+) -> dict[str, Any]:
     """Both configs over the same recordings: per requirement id, the violations only
     one reports (matched by the time of their tick) and the first detections."""
-    ra, notes_a = run_one(a, paths, None, progress)
-    rb, notes_b = run_one(b, paths, None, None)
+    ra, notes_a = run_one(a, paths, None, progress, fast=fast)
+    rb, notes_b = run_one(b, paths, None, None, fast=fast)
     va, vb = _by_requirement(ra), _by_requirement(rb)
     rows = []
     for rid in dict.fromkeys([*va, *vb]):
