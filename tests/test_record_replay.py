@@ -167,3 +167,33 @@ def test_the_recording_opens_with_rosbags_and_mcap(tmp_path: Path, robot_node: A
     with mcaps[0].open("rb") as f:
         seen = {ch.topic for _s, ch, _m in make_reader(f).iter_messages()}
     assert {"/speed", "/halted", "/safety_supervisor/records"} <= seen
+
+
+@pytest.mark.slow
+def test_a_recorded_demo_run_replays_to_the_same_decisions(tmp_path: Path) -> None:
+    """The demo (a walking person, the safety controller with the UV fault made
+    frequent) recorded by its supervisor; replay with the demo's config."""
+    rec = tmp_path / "rec"
+    log = tmp_path / "demo.jsonl"
+    demo = subprocess.run(
+        [sys.executable, "-m", "supervisor", "demo", "--duration", "12", "--no-live",
+         "--fault-rate", "0.3", "--seed", "11", "--rate-hz", "20", "--log", str(log),
+         "--record", str(rec)],
+        capture_output=True, text=True, timeout=240,
+    )  # fmt: skip
+    assert demo.returncode == 0, demo.stdout + demo.stderr
+    assert "replay it with" in demo.stdout
+    config = rec / "srobot-demo.yaml"
+    out = tmp_path / "replay.jsonl"
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "replay", str(config), str(rec), "-o", str(out),
+         "--quiet"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    online, offline = list(iter_records(str(log))), list(iter_records(str(out)))
+    want, got = decisions(online), decisions(offline)
+    assert want["violation"]  # the UV fault
+    assert want["reset"] and want["mitigation"]  # reset after each mitigation
+    for key in want:
+        assert got[key] == want[key], key

@@ -89,6 +89,13 @@ def add_parser(sub: Any) -> None:
     p.add_argument(
         "--no-live", action="store_true", help="one status line per second instead of a live view"
     )
+    p.add_argument(
+        "--record",
+        default=None,
+        metavar="DIR",
+        help="the supervisor records into DIR (run --record), with the demo's config "
+        "beside the bags for replay",
+    )
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -118,6 +125,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
             env = ros_env(domain, log_dir=workdir / "ros-log")  # ROS's own logs: not ~/.ros
             st = DemoState(args.duration, args.fault_rate, seed, domain, log)
             config = demo_config(SHIPPED_CONFIG, workdir, log)
+            if args.record:  # replay needs the config the run used
+                Path(args.record).mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(config, Path(args.record) / config.name)
             run = Run(args, workdir, st, Notify(workdir / "notify.sock"), LogTail(log), out, live)
             run.start(config, env)
             run.loop()
@@ -148,6 +158,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         _err(f"{failed} (process output in {workdir})")
         return 1
     out.write(summary(run.st, walked, interrupted) + "\n")
+    if args.record:
+        rec = Path(args.record)
+        out.write(
+            f"recorded into {rec}; replay it with: safety-supervisor replay "
+            f"{rec / config.name} {rec}\n"
+        )
     out.flush()
     if args.log is not None:  # the log is elsewhere: nothing left worth keeping
         shutil.rmtree(workdir, ignore_errors=True)

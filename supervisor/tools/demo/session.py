@@ -127,12 +127,17 @@ class Run:
                 raise DemoError(f"timed out after {timeout:g} s waiting for {what}")
             time.sleep(0.02)  # polling interval
 
+    def record_args(self) -> list[str]:
+        """``run --record DIR`` when the demo records (``demo --record``)."""
+        record = getattr(self.args, "record", None)
+        return ["--record", str(Path(record).resolve())] if record else []
+
     def start(self, config: Path, env: dict[str, str]) -> None:
         w = self.workdir
         self.children.append(
             Child(
                 "supervisor",
-                daemon_argv(config, self.st.log, w / "build"),
+                daemon_argv(config, self.st.log, w / "build", *self.record_args()),
                 env={**env, **self.notify.socket.env()},
                 cwd=w,
                 stderr=w / "supervisor.stderr",
