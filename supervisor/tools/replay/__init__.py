@@ -1,6 +1,7 @@
-"""``replay``: recorded robot data (rosbag2 bags, MCAP files, JSON-lines traces) read
-back as a time-ordered stream of the config's input values, for a monitor run offline.
+"""``replay``: a config's monitor run offline over recorded robot data (rosbag2 bags,
+MCAP files, JSON-lines traces).
 
-``sources`` opens the recordings and yields the events; ``cdr`` finds where a field of
-a fixed-size message lies, so that many messages decode at once.
+``sources`` reads the recordings into a time-ordered stream of the config's input
+values (events or numpy columns); ``cdr`` finds where a primitive field lies in a CDR
+payload, so that many messages decode at once. The engine and the command use them.
 """

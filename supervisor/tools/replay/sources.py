@@ -97,7 +97,8 @@ class Batch:
 
     Row i is a message on ``topics[topic[i]]`` received at ``t_ns[i]``. ``values[v]``
     holds variable v's value on the rows of v's topic (other rows are 0); ``records``
-    are the rows of ``RECORD_TOPICS`` with their parsed record."""
+    are the rows of ``RECORD_TOPICS`` with their parsed record; ``given`` (JSON-lines
+    traces only) marks the rows of v's topic that set v."""
 
     t_ns: np.ndarray  # int64
     topic: np.ndarray  # int32, index into topics
