@@ -60,7 +60,7 @@ from mitigations.rosmsg import COMPATIBLE
 from monitors.errors import UserError
 from supervisor.config.model import Config, Variable
 from supervisor.names import VIOLATIONS_TOPIC
-from supervisor.tools.replay.cdr import FieldPlan, field_plan
+from supervisor.tools.replay.cdr import PRIMITIVES, FieldPlan, field_plan
 
 # The daemon's JSON records on ROS: the full record stream (with markers) and the
 # violations topic (docs/reference/ros-interfaces.md); both std_msgs/msg/String.
@@ -176,6 +176,10 @@ class _TopicReader:
     variables: list[Variable]
     plans: list[FieldPlan | None]  # None: deserialise each message
     record: bool = False
+    # Per variable, the column's numpy dtype: the field's own type, so that a value
+    # the variable's type cannot hold (a uint64 above 2^63-1) reaches the runtime as
+    # it is and is rejected there, as the daemon rejects it.
+    dtypes: list[Any] = field(default_factory=list)
 
 
 class _Source:
@@ -774,6 +778,14 @@ class _Trace(_Source):
 # --- the recording --------------------------------------------------------------------
 
 
+def _column_dtype(leaf: str, vtype: str) -> Any:
+    """A column for a field of ROS type ``leaf``: its own numpy type (bool for a bool)."""
+    if leaf == "bool":
+        return np.bool_
+    prim = PRIMITIVES.get(leaf)
+    return np.dtype(prim[1].lstrip("<")) if prim is not None else _DTYPES[vtype]
+
+
 def _leaf_type(store: Typestore, msgtype: str, path: str) -> str:
     """The primitive type at a dotted path of msgtype, from the recording's types."""
     typ = msgtype
@@ -867,9 +879,11 @@ class Recording:
             variables = self.by_topic[topic]
             msgtype = src.topics[topic]
             plans: list[FieldPlan | None] = []
+            dtypes: list[Any] = []
             for v in variables:
                 if isinstance(src, _Trace):
                     plans.append(None)
+                    dtypes.append(_DTYPES[v.type])
                     continue
                 try:
                     leaf = _leaf_type(src.store, msgtype, v.field)
@@ -885,7 +899,8 @@ class Recording:
                         file=src.label,
                     )
                 plans.append(field_plan(src.store, msgtype, v.field))
-            out[tid] = _TopicReader(topic, msgtype, variables, plans)
+                dtypes.append(_column_dtype(leaf, v.type))
+            out[tid] = _TopicReader(topic, msgtype, variables, plans, dtypes=dtypes)
         return out
 
     def _decode(
@@ -947,12 +962,13 @@ class Recording:
                 if got is None:
                     slow.append(v)
                     continue
-                col = np.zeros(n, dtype=_DTYPES[v.type])
-                col[rows] = got != 0 if v.type == "bool" else got
+                col = np.zeros(n, dtype=rd.dtypes[j])
+                col[rows] = got != 0 if col.dtype == np.bool_ else got
                 values[v.name] = col
             if slow:
                 # One deserialisation per message for all of the topic's other fields.
-                cols = {v.name: np.zeros(n, dtype=_DTYPES[v.type]) for v in slow}
+                dtype_of = dict(zip((v.name for v in rd.variables), rd.dtypes, strict=True))
+                cols = {v.name: np.zeros(n, dtype=dtype_of[v.name]) for v in slow}
                 for i in rows.tolist():
                     if i >= bad:
                         break
