@@ -16,7 +16,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +37,22 @@ def cpu_seconds(pid: int) -> float:
         return float("nan")
     fields = stat[stat.rindex(")") + 2 :].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _cpu_at_exit(pid: int, timeout: float) -> float:
+    """``cpu_seconds`` of ``pid`` once it has exited and before it is reaped
+    (WNOWAIT leaves it a zombie, whose /proc stat still holds its times); nan when
+    it did not exit within ``timeout`` or was reaped already."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            done = os.waitid(os.P_PID, pid, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        except ChildProcessError:
+            return float("nan")
+        if done is not None:
+            return cpu_seconds(pid)
+        time.sleep(0.01)  # polling for the exit; waitid has no timeout
+    return float("nan")
 
 
 class Helper(Child):
@@ -82,10 +98,15 @@ class Helper(Child):
 
 class Daemon(Helper):
     """``safety-supervisor run CONFIG`` with its log, build dir and a bound
-    NOTIFY_SOCKET in ``workdir``."""
+    NOTIFY_SOCKET in ``workdir``; ``extra``: more arguments of ``run`` (``--record DIR``)."""
 
     def __init__(
-        self, config: Path, workdir: Path, env: dict[str, str], watchdog_usec: int | None = None
+        self,
+        config: Path,
+        workdir: Path,
+        env: dict[str, str],
+        watchdog_usec: int | None = None,
+        extra: Sequence[str] = (),
     ) -> None:
         workdir.mkdir(parents=True, exist_ok=True)
         self.log = workdir / "violations.jsonl"
@@ -96,7 +117,7 @@ class Daemon(Helper):
         wd = {"WATCHDOG_USEC": str(watchdog_usec)} if watchdog_usec else {}
         super().__init__(
             "daemon",
-            daemon_argv(config, self.log, workdir / "build"),
+            daemon_argv(config, self.log, workdir / "build", *extra),
             env={**env, **self.notify.env(), **wd},
             cwd=workdir,
             stderr=workdir / "daemon.stderr",
@@ -135,13 +156,17 @@ class Daemon(Helper):
         marks = [start, *(t for t in self.pings if start < t < end), end]
         return max(b - a for a, b in zip(marks, marks[1:], strict=False)) if self.pings else None
 
-    def stop_cleanly(self, timeout: float = 10.0) -> None:
-        """SIGTERM and wait: the daemon writes its ``stop`` record."""
+    def stop_cleanly(self, timeout: float = 10.0) -> float:
+        """SIGTERM and wait: the daemon writes its ``stop`` record. Returns its CPU
+        seconds at exit (shutdown included: the recorder's last writes), read from
+        /proc while it is a zombie, before it is reaped."""
         self.terminate()
+        cpu = _cpu_at_exit(self.pid, timeout)
         if not self.wait(timeout):
             raise BenchError(f"daemon did not stop within {timeout:g} s")
         if self.returncode != 0:
             raise BenchError(f"daemon exited ({self.returncode}): {self.last_stderr()}")
+        return cpu
 
     def records(self) -> list[dict[str, Any]]:
         return records_since(self.log, 0)[0]
@@ -185,8 +210,14 @@ class Session:
         self.children.append(c)
         return c
 
-    def daemon(self, config: Path, workdir: Path, watchdog_usec: int | None = None) -> Daemon:
-        d = Daemon(config, workdir, self.env, watchdog_usec)
+    def daemon(
+        self,
+        config: Path,
+        workdir: Path,
+        watchdog_usec: int | None = None,
+        extra: Sequence[str] = (),
+    ) -> Daemon:
+        d = Daemon(config, workdir, self.env, watchdog_usec, extra)
         self.children.append(d)
         return d
 

@@ -23,11 +23,15 @@ def throughput(
     *,
     burst: int = 0,
     wd_usec: int | None = None,
+    record: bool = False,
 ) -> dict[str, Any]:
+    """One run; ``record``: the daemon runs with ``--record DIR`` (in the run's dir)."""
     work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
-    daemon = s.daemon(config, work, wd_usec)
+    record_dir = work / "record"
+    extra = ("--record", str(record_dir)) if record else ()
+    daemon = s.daemon(config, work, wd_usec, extra)
     baselines = {
         "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", spec, workdir=work)
     }
@@ -71,8 +75,9 @@ def throughput(
         drained = _wait_drained(pub, baselines, sent, done["wall"], everyone)
         gap = daemon.longest_ping_gap(go, time.monotonic())
         cpu1 = {k: cpu_seconds(p) for k, p in pids.items()}
-        daemon.stop_cleanly()
+        cpu_exit = daemon.stop_cleanly()
         stop = daemon.stop_record()
+        closed = _record_closed(daemon.records()) if record else None
         received = {"daemon": {n: c["messages"] + c["rejected"] for n, c in stop["inputs"].items()}}
         for name, b in baselines.items():
             b.stop()
@@ -97,8 +102,12 @@ def throughput(
         "longest_ping_gap_ms": None if gap is None else 1000 * gap,
         "daemon_counted_lost": sum(int(c.get("lost", 0)) for c in stop["inputs"].values()),
         "daemon_loss": daemon_loss(sent, stop["inputs"]),
+        "record": None,
         "receivers": {},
     }
+    if record:
+        on_disk = sum(p.stat().st_size for p in record_dir.rglob("*") if p.is_file())
+        out["record"] = {**(closed or {}), "mb_on_disk": on_disk / 1e6}
     for name, per_topic in received.items():
         n = sum(int(per_topic.get(t, 0)) for t in sent)
         cpu = cpu1[name] - cpu0[name]
@@ -110,6 +119,11 @@ def throughput(
             "cpu_s": cpu,
             "cpu_us_per_msg": 1e6 * cpu / n if n else None,
         }
+    # The daemon's CPU up to its exit: its shutdown too (the recorder's last writes).
+    d = out["receivers"]["daemon"]
+    d["cpu_s_to_exit"] = cpu_exit - cpu0["daemon"]
+    n = d["received"]
+    d["cpu_us_per_msg_to_exit"] = 1e6 * d["cpu_s_to_exit"] / n if n else None
     fastest = max(baselines, key=lambda k: out["receivers"][k]["received"])
     p_standalone = out["receivers"][fastest]["msg_per_s"]
     p_monitor = out["receivers"]["daemon"]["msg_per_s"]
@@ -117,6 +131,15 @@ def throughput(
     # Eq. 1 of the thesis; the publishing window is the same for both receivers.
     out["overhead_pct"] = 100.0 * (p_standalone - p_monitor) / p_monitor if p_monitor else None
     return out
+
+
+def _record_closed(records: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The numbers of the daemon's ``record_closed`` record (written, dropped, ...)."""
+    for r in reversed(records):
+        if r.get("event") == "supervisor" and r.get("what") == "record_closed":
+            keys = ("written", "dropped", "skipped", "lost", "bags")
+            return {k: r.get(k) for k in keys}
+    return None
 
 
 # A receiver's counts must stay unchanged this long before what it has not taken is
