@@ -29,8 +29,10 @@ def _number(x: Any) -> bool:
 
 def _bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
+    # The recording and replay parts have tests of their own (tests/test_bench_replay.py).
+    skip = ["--skip-record", "--skip-replay"]
     return subprocess.run(
-        [sys.executable, "-m", "supervisor", "bench", *args],
+        [sys.executable, "-m", "supervisor", "bench", *skip, *args],
         cwd=ROOT,
         env=env,
         capture_output=True,

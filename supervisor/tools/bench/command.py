@@ -26,6 +26,13 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    reset and mitigation records of the previous trial, so every trial starts
    from an idle responder in a holding state.  The daemon's log adds where
    its time goes (trigger -> violation record, detection -> halt published).
+3. Recording overhead (:mod:`~supervisor.tools.bench.recording`): the throughput
+   run's daemon at one offered rate without and with ``run --record DIR``.
+4. Replay throughput (:mod:`~supervisor.tools.bench.replay`): generated bags
+   replayed in this process, messages/s per case, and the monitor's ticks/s.
+
+``--quick`` runs every part short; ``--out DIR`` also writes ``bench.json`` and
+``bench.md`` (docs/reference/commands.md#bench).
 
 Every process runs on this machine with localhost-only discovery and a random
 ROS_DOMAIN_ID outside the test suite's range; all of them are killed (process
@@ -40,15 +47,34 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from supervisor import data
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.experiments import run
-from supervisor.tools.bench.report import format_results
+from supervisor.tools.bench.report import format_markdown, format_results
 
 DEFAULT_CONFIG = data.example("srobot.yaml")
 DEFAULT_RATES = "5000,10000,12500,15000,17500,20000"
+# The options left unset, in full and with --quick (every experiment, short: a couple
+# of minutes; docs/reference/commands.md#bench).
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "full": {
+        "rates": DEFAULT_RATES,
+        "seconds": 5.0,
+        "latency_trials": 1000,
+        "record_rates": "20000",
+        "replay_messages": 1_000_000,
+    },
+    "quick": {
+        "rates": "5000,20000",
+        "seconds": 2.0,
+        "latency_trials": 100,
+        "record_rates": "20000",
+        "replay_messages": 200_000,
+    },
+}
 
 
 def _rates(text: str) -> list[float]:
@@ -89,11 +115,13 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rates",
         type=_rates,
-        default=_rates(DEFAULT_RATES),
+        default=None,
         metavar="R,R,...",
-        help=f"total offered msg/s over all topics (default {DEFAULT_RATES})",
+        help=f"total offered msg/s over all topics (default {DEFAULT_RATES}; --quick 5000,20000)",
     )
-    p.add_argument("--seconds", type=_positive(float), default=5.0, help="per rate (default 5)")
+    p.add_argument(
+        "--seconds", type=_positive(float), default=None, help="per rate (default 5; --quick 2)"
+    )
     p.add_argument(
         "--burst",
         type=_bursts,
@@ -108,10 +136,36 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="WATCHDOG_USEC given to the daemon (default 1000000: a ping every 0.5 s)",
     )
     p.add_argument(
-        "--latency-trials", type=_positive(int), default=1000, metavar="N", help="default 1000"
+        "--latency-trials",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="default 1000 (--quick 100)",
+    )
+    p.add_argument(
+        "--record-rates",
+        type=_rates,
+        default=None,
+        metavar="R,R,...",
+        help="offered msg/s of the recording overhead runs (default 20000)",
+    )
+    p.add_argument(
+        "--replay-messages",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="messages per replayed bag (default 1000000; --quick 200000)",
+    )
+    p.add_argument(
+        "--quick", action="store_true", help="every experiment, short (a couple of minutes)"
+    )
+    p.add_argument(
+        "--out", type=Path, default=None, metavar="DIR", help="also write bench.json and bench.md"
     )
     p.add_argument("--skip-throughput", action="store_true")
     p.add_argument("--skip-latency", action="store_true")
+    p.add_argument("--skip-record", action="store_true", help="leave out the recording overhead")
+    p.add_argument("--skip-replay", action="store_true", help="leave out the replay throughput")
     p.add_argument(
         "--naive",
         action="store_true",
@@ -128,7 +182,17 @@ def add_parser(sub: Any) -> None:
     _add_arguments(p)
 
 
+def resolve(args: argparse.Namespace) -> argparse.Namespace:
+    """The options left unset get the defaults of a full or a --quick run."""
+    for key, value in DEFAULTS["quick" if args.quick else "full"].items():
+        if getattr(args, key) is None:
+            parse = _rates if key.endswith("rates") else (lambda v: v)
+            setattr(args, key, parse(value))
+    return args
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
+    resolve(args)
     restore = None
     if threading.current_thread() is threading.main_thread():
         # SIGTERM unwinds like Ctrl-C, so the finally blocks kill the children.
@@ -148,7 +212,23 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(json.dumps(results, indent=2), flush=True)
     else:
         print(format_results(results), flush=True)
+    if args.out is not None:
+        try:
+            written = write_out(args.out, results)
+        except OSError as e:
+            print(f"safety-supervisor bench: --out {args.out}: {e}", file=sys.stderr, flush=True)
+            return 1
+        _progress(f"wrote {', '.join(str(p) for p in written)}")
     return 0
+
+
+def write_out(out: Path, results: dict[str, Any]) -> list[Path]:
+    """``bench.json`` (every figure) and ``bench.md`` (the tables) in ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    js, md = out / "bench.json", out / "bench.md"
+    js.write_text(json.dumps(results, indent=2) + "\n")
+    md.write_text(format_markdown(results))
+    return [js, md]
 
 
 def _raise_interrupt(_signum: int, _frame: Any) -> None:

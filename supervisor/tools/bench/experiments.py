@@ -13,6 +13,8 @@ from typing import Any
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.latency import latency
 from supervisor.tools.bench.plan import Plan
+from supervisor.tools.bench.recording import recording_overhead
+from supervisor.tools.bench.replay import replay_bench
 from supervisor.tools.bench.session import session
 from supervisor.tools.bench.throughput import throughput
 
@@ -46,8 +48,19 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                     results["throughput"].append(
                         throughput(s, plan, rate, args.seconds, args.naive, burst=burst, wd_usec=wd)
                     )
+        if not args.skip_record:
+            results["recording"] = [
+                recording_overhead(s, plan, rate, args.seconds, say, wd_usec=args.watchdog_usec)
+                for rate in args.record_rates
+            ]
         if not args.skip_latency:
             results["latency"] = latency(s, plan, args.latency_trials, say)
+        if not args.skip_replay:
+            # In this process: no ROS, only the session's temp dir.
+            min_s = 0.2 if args.quick else 1.0
+            results["replay"] = replay_bench(
+                plan, args.replay_messages, say, where=s.tmp, min_seconds=min_s
+            )
     results["loadavg_after"] = _loadavg()
     return results
 

@@ -21,9 +21,168 @@ def format_results(r: dict[str, Any]) -> str:
     ]
     if "throughput" in r:
         lines += ["", *_format_throughput(r["throughput"])]
+    if "recording" in r:
+        lines += ["", *_format_recording(r["recording"])]
     if "latency" in r:
         lines += ["", *_format_latency(r["latency"])]
+    if "replay" in r:
+        lines += ["", *_format_replay(r["replay"])]
     return "\n".join(lines)
+
+
+def _format_recording(rows: list[dict[str, Any]]) -> list[str]:
+    lines = [
+        "Recording overhead: the daemon without and with run --record DIR, same offered rate",
+        f"  {'offered':>8} {'record':>6} {'sent':>8} {'received':>8} {'lost':>6} "
+        f"{'CPU us/msg':>10} {'to exit':>8} {'written':>8} {'dropped':>7} {'MB':>6}",
+    ]
+    for row in rows:
+        for label in ("off", "on"):
+            side = row[label]
+            rec = side["record"] or {}
+            lines.append(
+                f"  {row['offered']:>8g} {label:>6} {side['sent']:>8} {side['received']:>8} "
+                f"{side['lost']:>6} {_f(side['cpu_us_per_msg'], '.1f'):>10} "
+                f"{_f(side['cpu_us_per_msg_to_exit'], '.1f'):>8} {rec.get('written', '-'):>8} "
+                f"{rec.get('dropped', '-'):>7} {_f(rec.get('mb_on_disk'), '.1f'):>6}"
+            )
+        diff = row["cpu_diff_pct"]
+        verdict = "" if diff is None else (" (within)" if diff <= row["goal_pct"] else " (above)")
+        lines.append(
+            f"  CPU per message with recording: {_f(diff, '+.1f')} % during the run, "
+            f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')} % up to exit; goal within "
+            f"{row['goal_pct']:g} %{verdict}"
+        )
+    return lines
+
+
+def _format_replay(rep: dict[str, Any]) -> list[str]:
+    lines = [
+        f"Replay throughput: bags of {rep['messages']} messages (recorded at "
+        f"{rep['recorded_rate']:g} msg/s), replayed in this process, replay's own clock",
+        f"  {'case':<44} {'messages':>9} {'ticks':>8} {'violations':>10} {'seconds':>8} "
+        f"{'msg/s':>10} {'bag MB':>7}",
+    ]
+    for c in rep["cases"]:
+        lines.append(
+            f"  {c['case']:<44} {c['messages']:>9} {c['ticks']:>8} {c['violations']:>10} "
+            f"{c['seconds']:>8.3f} {c['rate']:>10.0f} {c['bag_mb']:>7.1f}"
+        )
+    lines.append("  monitor alone (native, random inputs): " + _monitor_rates(rep["monitor"]))
+    return lines
+
+
+def _monitor_rates(m: dict[str, float]) -> str:
+    parts = [f"{k} {v / 1e6:.2f} M/s" for k, v in m.items()]
+    return "ticks/s of " + ", ".join(parts) + " (pack: rows/s)"
+
+
+def format_markdown(r: dict[str, Any]) -> str:
+    """Every figure of the run as Markdown tables (``bench --out``)."""
+    out = [
+        "# safety-supervisor bench",
+        "",
+        "| | |",
+        "| --- | --- |",
+        f"| config | `{r['config']}` ({len(r['topics'])} topics, trigger `{r['trigger']}`) |",
+        f"| CPUs | {r['cpus']} |",
+        f"| load average | {r['loadavg_before']} before, {r['loadavg_after']} after |",
+        f"| Python | {r['python']} |",
+        f"| RMW | {r['rmw']} |",
+        f"| ROS_DOMAIN_ID | {r.get('domain_id')} |",
+    ]
+    if "throughput" in r:
+        out += [
+            "",
+            "## Throughput and overhead (eq. 1)",
+            "",
+            "| burst | offered msg/s | sent | achieved msg/s | receiver | received | loss % "
+            "| msg/s | CPU s | CPU us/msg | overhead % | ping gap ms | lost: gaps / before "
+            "first / after last |",
+            "| ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+            "| --- |",
+        ]
+        for row in r["throughput"]:
+            loss = row["daemon_loss"]
+            for name, rc in row["receivers"].items():
+                daemon = name == "daemon"
+                out.append(
+                    f"| {row.get('burst') or '-'} | {row['offered']:g} | {row['sent']} "
+                    f"| {row['achieved']:.0f} | {name} | {rc['received']} | {rc['loss_pct']:.2f} "
+                    f"| {rc['msg_per_s']:.0f} | {rc['cpu_s']:.2f} "
+                    f"| {_f(rc['cpu_us_per_msg'], '.1f')} "
+                    f"| {_f(row['overhead_pct']) if daemon else ''} "
+                    f"| {_f(row.get('longest_ping_gap_ms'), '.0f') if daemon else ''} "
+                    + (
+                        f"| {loss['gaps']} / {loss['before_first']} / {loss['after_last']} |"
+                        if daemon
+                        else "| |"
+                    )
+                )
+    if "recording" in r:
+        out += [
+            "",
+            "## Recording overhead (run --record)",
+            "",
+            "| offered msg/s | record | sent | received | lost | CPU us/msg | CPU us/msg to exit "
+            "| written | dropped | MB on disk | CPU difference % |",
+            "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for row in r["recording"]:
+            for label in ("off", "on"):
+                side = row[label]
+                rec = side["record"] or {}
+                diff = (
+                    f"{_f(row['cpu_diff_pct'], '+.1f')} (to exit "
+                    f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')}; goal {row['goal_pct']:g})"
+                    if label == "on"
+                    else ""
+                )
+                out.append(
+                    f"| {row['offered']:g} | {label} | {side['sent']} | {side['received']} "
+                    f"| {side['lost']} | {_f(side['cpu_us_per_msg'], '.1f')} "
+                    f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {rec.get('written', '')} "
+                    f"| {rec.get('dropped', '')} | {_f(rec.get('mb_on_disk'), '.1f')} | {diff} |"
+                )
+    if "latency" in r:
+        lat = r["latency"]
+        out += [
+            "",
+            f"## Latency: trigger published -> halt received ({lat['trials']} trials)",
+            "",
+            "| what | n | p50 ms | p90 ms | p99 ms | max ms | mean ms | missed |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        d = lat["daemon"]
+        for label, st in (
+            ("bare rclpy echo", lat["echo"]),
+            ("safety-supervisor", d),
+            ("daemon: trigger -> violation record", d["trigger_to_record_ms"]),
+            ("daemon: detection -> halt published", d["detect_to_publish_ms"]),
+            (f"fsync of {lat['fsync']['bytes']} bytes", lat["fsync"]),
+        ):
+            out.append(
+                f"| {label} | {st.get('n', '')} | {_f(st['p50'], '.3f')} | {_f(st['p90'], '.3f')} "
+                f"| {_f(st['p99'], '.3f')} | {_f(st['max'], '.3f')} | {_f(st['mean'], '.3f')} "
+                f"| {st.get('missed', '')} |"
+            )
+    if "replay" in r:
+        rep = r["replay"]
+        out += [
+            "",
+            f"## Replay throughput ({rep['messages']} messages per bag)",
+            "",
+            "| case | messages | ticks | violations | seconds | msg/s | bag MB |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for c in rep["cases"]:
+            out.append(
+                f"| {c['case']} | {c['messages']} | {c['ticks']} | {c['violations']} "
+                f"| {c['seconds']:.3f} | {c['rate']:.0f} | {c['bag_mb']:.1f} |"
+            )
+        out += ["", "| monitor alone | per second |", "| --- | ---: |"]
+        out += [f"| {k} | {v:.0f} |" for k, v in rep["monitor"].items()]
+    return "\n".join(out) + "\n"
 
 
 def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:
