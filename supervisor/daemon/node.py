@@ -105,6 +105,10 @@ class _Sub:
     streams: SequenceStreams | None = None  # kept when the QoS changes
     vars: list[Variable] = field(default_factory=list)  # all of them, config order
     recorded: int | None = None  # the recorder's input index of this topic
+    # Recording: where each variable's field lies in the serialized message (None:
+    # deserialise), and how many first messages still check that against rclpy.
+    plans: list[Any] | None = None
+    checks: int = 0
 
 
 class SupervisorNode:
@@ -224,7 +228,9 @@ class SupervisorNode:
         self._subs = subs
         if self.recorder is not None:
             index = {(t, m): i for i, (t, m) in enumerate(self.recorder.inputs)}
+            plans = _field_plans(subs)
             for s in subs:
+                s.plans, s.checks = plans.get(id(s)), RAW_CHECKS
                 s.recorded = index.get((s.var.topic or "", s.var.msg or ""))
                 if s.recorded is None:  # a topic a reload added: not in this recording
                     warn(f"{s.var.topic} is not recorded: it was added by a reload")
@@ -376,8 +382,6 @@ class SupervisorNode:
         msg, info = taken
         t = time.monotonic_ns()
         data = msg
-        if raw:
-            msg = deserialize_message(data, s.msg_type)
         seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
         if seq:
             if self._own.is_own(s.sub.topic_name, seq, info.get("source_timestamp")):
@@ -389,20 +393,52 @@ class SupervisorNode:
             if gap:
                 for v in s.vars:
                     rt.count_lost(v.name, gap)
+        values = None
         if raw:
             assert self.recorder is not None and s.recorded is not None
             self.recorder.message(s.recorded, t, data)
-        values = []
-        for v in s.vars:
-            try:
-                values.append((v.name, get_field(msg, v.field)))
-            except AttributeError as e:  # cannot happen after check; report
-                self.core.reject(v.name, t, str(e))
+            values = self._read_raw(s, data)
+            if values is None:
+                msg = deserialize_message(data, s.msg_type)
+        if values is None:
+            values = []
+            for v in s.vars:
+                try:
+                    values.append((v.name, get_field(msg, v.field)))
+                except AttributeError as e:  # cannot happen after check; report
+                    self.core.reject(v.name, t, str(e))
         if values:
             self.core.fields(values, t)
         if self._unpublished:
             self._publish_reports()
         return True
+
+    def _read_raw(self, s: _Sub, data: bytes) -> list[tuple[str, Any]] | None:
+        """The subscription's fields read from the serialized message where the CDR
+        layout places them (supervisor/daemon/cdr.py), without building the message:
+        recording then costs the loop less than deserialising would.  None: the
+        caller deserialises.  The first messages of each topic are read both ways,
+        and a disagreement turns this off for the topic (and is logged)."""
+        if s.plans is None:
+            return None
+        out = []
+        for v, plan in zip(s.vars, s.plans, strict=True):
+            x = plan.read(data) if plan is not None else None
+            if x is None:
+                return None
+            out.append((v.name, x))
+        if s.checks:
+            s.checks -= 1
+            msg = deserialize_message(data, s.msg_type)
+            try:
+                want = [(v.name, get_field(msg, v.field)) for v in s.vars]
+            except AttributeError:
+                return None
+            if any(a != b and a == a for (_, a), (_, b) in zip(want, out, strict=True)):
+                s.plans = None
+                self.log.supervisor("record_read_fallback", topic=s.var.topic)
+                return want
+        return out
 
     def _timed_work(self, now: int) -> None:
         self.core.advance(now)  # steps, stale inputs, policy deadlines: each at its time
@@ -754,6 +790,29 @@ class SupervisorNode:
             policy=new.config.step.policy,
         )
         self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
+
+
+RAW_CHECKS = 3  # first messages of a topic read both ways when recording (_read_raw)
+
+
+def _field_plans(subs: list[_Sub]) -> dict[int, list[Any]]:
+    """For recording: per subscription (by id), each variable's field plan over the
+    message definitions rosbags knows and the installed .msg files."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from supervisor.daemon.cdr import field_plan
+    from supervisor.daemon.recorder import load_msg_types
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    out: dict[int, list[Any]] = {}
+    for s in subs:
+        msgtype = graph_type_name(s.var.msg or "")
+        try:
+            load_msg_types(store, msgtype)
+        except (LookupError, OSError, ValueError):
+            continue  # deserialised, as without recording
+        out[id(s)] = [field_plan(store, msgtype, v.field) for v in s.vars]
+    return out
 
 
 def _who(caller: dict[str, Any]) -> str:

@@ -59,8 +59,8 @@ from rosbags.typesys.store import Typestore
 from mitigations.rosmsg import COMPATIBLE
 from monitors.errors import UserError
 from supervisor.config.model import Config, Variable
+from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
 from supervisor.names import VIOLATIONS_TOPIC
-from supervisor.tools.replay.cdr import PRIMITIVES, FieldPlan, field_plan
 
 # The daemon's JSON records on ROS: the full record stream (with markers) and the
 # violations topic (docs/reference/ros-interfaces.md); both std_msgs/msg/String.

@@ -10,6 +10,7 @@ numpy instead of deserialising each message (``FieldPlan.gather``).
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,6 +92,53 @@ class FieldPlan:
         if (room < at + self.size).any():
             return None
         return _take(buf, body + at, self.size, self.dtype)
+
+
+    def read(self, data: bytes) -> Any:
+        """The field of ONE payload (the daemon's recording path, where the message
+        arrives serialized), or None when it is too short or not little-endian, or
+        the field's type is one the daemon reads differently (the caller then
+        deserialises it).  A bool is a bool, as rclpy gives it."""
+        unpack = _SCALAR.get(self.ros_type)
+        if unpack is None or len(data) < HEADER or data[1] != CDR_LE:
+            return None
+        pos = 0
+        for step in self.steps:
+            if step[0] == "skip":
+                pos = _align(pos, step[1]) + step[2]
+                continue
+            pos = _align(pos, 4)
+            if HEADER + pos + 4 > len(data):
+                return None
+            (n,) = _U32.unpack_from(data, HEADER + pos)
+            pos += 4
+            if step[0] == "string":
+                pos += n
+            else:  # elements aligned only when there are some, as rosbags writes them
+                pos = (_align(pos, step[1]) if n else pos) + n * step[1]
+        pos = _align(pos, self.size)
+        if HEADER + pos + self.size > len(data):
+            return None
+        value = unpack.unpack_from(data, HEADER + pos)[0]
+        return value != 0 if self.ros_type == "bool" else value
+
+
+_U32 = struct.Struct("<I")
+# The field types read from a payload directly: rclpy gives these as bool, int and
+# float; byte and char come out of rclpy differently, so they are deserialised.
+_SCALAR = {
+    "bool": struct.Struct("<B"),
+    "int8": struct.Struct("<b"),
+    "uint8": struct.Struct("<B"),
+    "int16": struct.Struct("<h"),
+    "uint16": struct.Struct("<H"),
+    "int32": struct.Struct("<i"),
+    "uint32": struct.Struct("<I"),
+    "int64": struct.Struct("<q"),
+    "uint64": struct.Struct("<Q"),
+    "float32": struct.Struct("<f"),
+    "float64": struct.Struct("<d"),
+}
 
 
 def _take(buf: np.ndarray, at: np.ndarray | int, size: int, dtype: str) -> np.ndarray:
