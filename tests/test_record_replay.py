@@ -197,3 +197,54 @@ def test_a_recorded_demo_run_replays_to_the_same_decisions(tmp_path: Path) -> No
     assert want["reset"] and want["mitigation"]  # reset after each mitigation
     for key in want:
         assert got[key] == want[key], key
+
+
+class _LimitedDaemon(Daemon):
+    """The daemon with a file-size limit (RLIMIT_FSIZE): a bag that outgrows it fails
+    to write (EFBIG) as on a full disk; the violation log stays far below it."""
+
+    def __init__(self, tmp: Path, config: Path, limit: int, args: list[str]) -> None:
+        from rosutil import DOMAIN_ID, ROOT, ros_env
+
+        from supervisor.tools.children import NotifySocket, daemon_argv
+
+        self.log = tmp / "v.jsonl"
+        self.notify = NotifySocket(tmp / "notify.sock")
+        limited = [
+            sys.executable,
+            "-c",
+            "import os, resource, sys; "
+            f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit})); "
+            "os.execv(sys.argv[1], sys.argv[1:])",
+            *daemon_argv(config, self.log, tmp / "build", *args),
+        ]
+        self.spawn(tmp, limited, {**ros_env(DOMAIN_ID), **self.notify.env()}, cwd=ROOT)
+
+
+def test_a_full_disk_stops_the_recording_not_the_monitoring(tmp_path: Path, robot_node: Any):
+    config = tmp_path / "r.yaml"
+    config.write_text(CONFIG)
+    d = _LimitedDaemon(tmp_path, config, 1_000_000, ["--record", str(tmp_path / "bags")])
+    try:
+        d.wait_notify("READY=1", timeout=30)
+        speed = robot_node.create_publisher(Float64, "/speed", 1000)
+        halted = robot_node.create_publisher(Bool, "/halted", 10)
+        wait_matched([speed, halted])
+        halted.publish(Bool(data=False))
+        deadline = time.monotonic() + 30
+        while not any(r.get("what") == "record_stopped" for r in d.records()):
+            assert time.monotonic() < deadline, d.explain()
+            for _ in range(2000):
+                speed.publish(Float64(data=1.0))
+            time.sleep(0.05)
+        stopped = next(r for r in d.records() if r.get("what") == "record_stopped")
+        assert "File too large" in stopped["reason"] or "No space" in stopped["reason"]
+        # monitoring goes on: a violation after the recording stopped is caught and logged
+        publish(speed, Float64(data=2.5), 0.2)
+        d.wait_record(
+            lambda r: r["event"] == "violation" and r["requirement"] == "limit", "a violation"
+        )
+        d.terminate(budget=10)
+    finally:
+        d.close()
+    assert len([r for r in d.records() if r.get("what") == "record_stopped"]) == 1
