@@ -214,11 +214,17 @@ def _window(i: int, lo: int | None, hi: int | None) -> range:
 
 def evaluate(formula: Formula, trace: Trace) -> list[Value]:
     """Value of ``formula`` at every tick of ``trace``."""
+    return evaluate_all(formula, trace)[formula]
+
+
+def evaluate_all(formula: Formula, trace: Trace) -> dict[Formula, list[Value]]:
+    """Value of every subformula at every tick of ``trace`` (monitors/verify/why.py
+    reads the reason for a verdict from it)."""
     n = len(trace)
     table: dict[Formula, list[Value]] = {}
     for g in subterms(formula):
         table[g] = _eval_node(g, trace, table, n)
-    return table[formula]
+    return table
 
 
 def verdicts(formula: Formula, trace: Trace) -> list[bool]:

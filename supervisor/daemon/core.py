@@ -194,6 +194,11 @@ class Core:
             "requirement": req.id,
             "text": req.entry.text,
             "formula": s.formulas[index],
+            **(
+                {"formula_inputs": s.formulas_inputs[index]}
+                if index < len(s.formulas_inputs) and s.formulas_inputs[index]
+                else {}
+            ),
             "tick": result.tick,
             "inputs": dict(result.inputs),
             "recent": list(rt.recent),

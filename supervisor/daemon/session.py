@@ -12,6 +12,7 @@ from typing import Any
 
 from mitigations.policy import RequirementPolicy
 from monitors.ir.formula import to_fret
+from monitors.ir.spec import Define, expand_defines
 from supervisor.config import Config
 from supervisor.daemon.runtime import InputSpec, Runtime
 from supervisor.pipeline import CompiledRequirement, Project
@@ -27,6 +28,9 @@ class Session:
     formulas: list[str] = field(default_factory=list)
     policies: list[RequirementPolicy] = field(default_factory=list)
     cleanup: Callable[[], None] | None = None  # e.g. remove the build directory
+    # Each formula over inputs only (internal variables expanded), where it differs:
+    # what a violation record's recent inputs can be judged by (monitors/verify/why.py).
+    formulas_inputs: list[str | None] = field(default_factory=list)
 
     @property
     def config(self) -> Config:
@@ -70,11 +74,15 @@ def build_session(
         )
         for r in reqs
     ]
+    defines = tuple(Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None)
+    formulas = [to_fret(r.formula) for r in reqs]
+    over_inputs = [to_fret(expand_defines(r.formula, defines)) for r in reqs]
     return Session(
         project,
         build_runtime(project, monitor),
         reqs,
-        [to_fret(r.formula) for r in reqs],
+        formulas,
         policies,
         cleanup,
+        [x if x != f else None for f, x in zip(formulas, over_inputs, strict=True)],
     )
