@@ -22,7 +22,10 @@ it began); once there is room again, a ``supervisor`` record
 naming their exact ``seq`` ranges and the write error (docs/reference/faults.md).
 
 Every record is also echoed as one readable line on stderr (journald), e.g.
-``VIOLATION state_req103 tick=42 classifier=1 distance_to_target=2``.
+``VIOLATION state_req103 tick=42 classifier=1 distance_to_target=2``.  Under systemd
+each record also goes to journald's native socket with structured fields
+(:mod:`mitigations.violationlog.journal`); then stderr, being the journal too, no
+longer echoes the records it took (docs/reference/log.md).
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ from mitigations.violationlog.format import (
     seal_line,
     sha256_hex,
 )
+from mitigations.violationlog.journal import JournalSender, priority, record_fields, socket_path
 from monitors.errors import UserError
 
 _RESERVED = frozenset(HEADER) | {"line_sha256"}
@@ -105,6 +109,7 @@ class _Entry:
     durable: bool
     counted: bool = True  # counts against retry_buffer (records_lost records do not)
     state: str = "queued"  # queued | written | dropped
+    written: bytes | None = None  # the line as written, chain hashes filled in (journal)
 
     def line(self, prev: str) -> bytes:
         body = self.body[: self.prev_at] + prev.encode() + self.body[self.prev_at + 64 :]
@@ -138,6 +143,11 @@ class ViolationLog:
         )
         self._failed = 0
         self._journal = _stderr_is_journal()
+        # Only the daemon's stderr echo has a journal twin: a log written to a
+        # stream or silently (replay, tests) is not sent there.
+        where = socket_path(self._journal) if echo is True else None
+        self._journald = JournalSender(where) if where else None
+        self._journald_reported = False
         self._fd: int | None = None
         self._prev = EMPTY_SHA256
         self._size = 0
@@ -330,6 +340,8 @@ class ViolationLog:
                 )
             fd, self._fd = self._fd, None
             self._closed.set()
+            if self._journald is not None:
+                self._journald.close()
             try:
                 os.fsync(fd)
             except OSError:
@@ -477,8 +489,9 @@ class ViolationLog:
         if self.tee is not None and entry is not None:
             self.tee(entry.body.decode("ascii"))
         if self._echo is not False:
-            record = json.loads(entry.body) if entry is not None else None
-            self._echo_line(record or {"event": event, "ts": ts, **json_safe(fields)})
+            line = entry.written or entry.body if entry is not None else None
+            record = json.loads(line) if line is not None else None
+            self._echo_line(record or {"event": event, "ts": ts, **json_safe(fields)}, line)
         self._flush_messages()
         return ok
 
@@ -629,19 +642,37 @@ class ViolationLog:
             return e.strerror or str(e)
         self._size += written
         self._prev, self._needs_newline, self._tail = sha256_hex(line), False, line[:-1]
+        entry.written = line[:-1]
         return None
 
-    def _echo_line(self, record: dict[str, Any]) -> None:
+    def _echo_line(self, record: dict[str, Any], line: bytes | None = None) -> None:
+        """``line``: the record as written (or as rendered, when not written yet)."""
         if self._echo is False:
             return
+        if self._journald is not None and self._to_journal(record, line) and self._journal:
+            return  # stderr is the journal, which has the record with its fields already
         stream = sys.stderr if self._echo is True else self._echo
-        level = 4 if record.get("event") == "violation" else 6
+        level = priority(record)
         try:
             prefix = f"<{level}>" if self._journal and stream is sys.stderr else ""
             stream.write(prefix + describe(record) + "\n")
             stream.flush()
         except (OSError, ValueError):
             pass  # a closed stderr must not stop monitoring
+
+    def _to_journal(self, record: dict[str, Any], line: bytes | None) -> bool:
+        assert self._journald is not None
+        text = line.decode("ascii") if line is not None else json.dumps(record)
+        if self._journald.send(record_fields(record, text)):
+            return True
+        if not self._journald_reported:  # once: a missing journal must not flood stderr
+            self._journald_reported = True
+            self._print(
+                f"violation log: cannot send records to the journal socket "
+                f"{self._journald.path}: {self._journald.error}; records are echoed on "
+                "stderr instead (reported once)"
+            )
+        return False
 
     def _flush_messages(self) -> None:
         """Print the reports gathered under the lock (never print while holding it)."""
@@ -650,13 +681,17 @@ class ViolationLog:
             echoes, self._echoes = self._echoes, []
         for entry in echoes:
             if self._echo is not False:
-                self._echo_line(json.loads(entry.body))
+                line = entry.written or entry.body
+                self._echo_line(json.loads(line), line)
         for text in messages:
-            try:
-                sys.stderr.write(("<3>" if self._journal else "") + text + "\n")
-                sys.stderr.flush()
-            except (OSError, ValueError):
-                pass
+            self._print(text)
+
+    def _print(self, text: str) -> None:
+        try:
+            sys.stderr.write(("<3>" if self._journal else "") + text + "\n")
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            pass
 
 
 def _add_seq(ranges: list[list[int]], seq: int) -> None:
