@@ -185,7 +185,9 @@ def parse_time(text: str) -> datetime:
     return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
 
 
-def iter_records(path: str, err: Any = None) -> Iterator[dict[str, Any]]:
+def iter_records(path: str, err: Any = None, *, raw: bool = False) -> Iterator[dict[str, Any]]:
+    """The file's records with ``_ts`` (their time, parsed); ``raw``: also ``_line``,
+    the line as stored without its newline (``logs --json``, rotation links)."""
     err = err or sys.stderr
     for i, line in enumerate(split_lines(read_bytes(path)), 1):
         try:
@@ -196,16 +198,21 @@ def iter_records(path: str, err: Any = None) -> Iterator[dict[str, Any]]:
         except ValueError:
             print(f"{path}:{i}: warning: not a log record, skipped", file=err)
             continue
+        if raw:
+            rec["_line"] = line.rstrip(b"\n").decode("utf-8", "replace")
         yield rec
 
 
-def records_since(path: str | Path, offset: int) -> tuple[list[dict[str, Any]], int]:
+def records_since(
+    path: str | Path, offset: int, *, raw: bool = False
+) -> tuple[list[dict[str, Any]], int]:
     """The records appended after byte ``offset``, and the offset to read from next time.
 
     For following a log while the daemon writes it: a last line without its newline
     is still being written and is left for the next call; a missing file has no
     records yet; a file shorter than ``offset`` was rotated and is read from its start.
-    Lines that are not records (an interrupted write) are skipped.
+    Lines that are not records (an interrupted write) are skipped.  ``raw``: each
+    record also carries ``_line``, the line as stored without its newline.
     """
     try:
         with open(path, "rb") as f:
@@ -223,5 +230,7 @@ def records_since(path: str | Path, offset: int) -> tuple[list[dict[str, Any]], 
         except ValueError:
             continue
         if isinstance(rec, dict) and "event" in rec:
+            if raw:
+                rec["_line"] = line.decode("utf-8", "replace")
             out.append(rec)
     return out, offset + complete

@@ -1,29 +1,102 @@
-"""``safety-supervisor logs``: filter, summarize and verify violation logs.
+"""``safety-supervisor logs``: query, follow, summarize and verify violation logs.
 
 The format and its hash chain are described in :mod:`mitigations.violationlog.format`;
-reading and verification live in :mod:`mitigations.violationlog.reader`.
+reading and verification live in :mod:`mitigations.violationlog.reader`.  Options and
+the accepted times: docs/reference/commands.md (logs) and docs/reference/log.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import re
+import signal
 import sys
+import threading
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from mitigations.violationlog.format import EVENTS, details
+from mitigations.violationlog.format import EVENTS, details, sha256_hex
 from mitigations.violationlog.reader import (
     check_seq_gap,
     iter_records,
     parse_time,
     read_bytes,
+    records_since,
     verify_bytes,
+)
+from monitors.errors import UserError
+
+FOLLOW_INTERVAL_S = 0.2  # polling, as tail -F does without inotify
+FOLLOW_LINES = 10  # records shown before following, as tail -f and journalctl -f
+
+# journalctl's time spans (systemd.time(7)), without months and years: their length varies.
+_UNITS = {
+    **dict.fromkeys(("us", "usec"), 1e-6),
+    **dict.fromkeys(("ms", "msec"), 1e-3),
+    **dict.fromkeys(("s", "sec", "secs", "second", "seconds"), 1.0),
+    **dict.fromkeys(("m", "min", "mins", "minute", "minutes"), 60.0),
+    **dict.fromkeys(("h", "hr", "hrs", "hour", "hours"), 3600.0),
+    **dict.fromkeys(("d", "day", "days"), 86400.0),
+    **dict.fromkeys(("w", "week", "weeks"), 604800.0),
+}
+_SPAN_PART = re.compile(r"(\d+(?:\.\d+)?)\s*([a-z]+)")
+_SPAN = re.compile(r"(?:\s*\d+(?:\.\d+)?\s*[a-z]+)+\s*")
+_DAYS = {"today": 0, "yesterday": -1, "tomorrow": 1}
+TIME_FORMS = (
+    "ISO 8601 (2026-11-21, 2026-11-21T14:00, ...Z, ...+01:00; UTC without a zone), "
+    "now, today, yesterday, tomorrow (midnight UTC), or relative: -2h, -30min, "
+    "'-1h 30min', +10s, '2 hours ago'"
 )
 
 
-def time_arg(text: str) -> Any:
-    """``--since``/``--until``: parse_time with argparse's error message."""
+def _now() -> datetime:
+    """The time relative times count from (tests replace it)."""
+    return datetime.now(UTC)
+
+
+def _span(text: str) -> float | None:
+    """Seconds in ``2h``, ``30min``, ``1h 30min``, ``2 hours``; None if not a span."""
+    if not _SPAN.fullmatch(text):
+        return None
+    total = 0.0
+    for number, unit in _SPAN_PART.findall(text):
+        if unit not in _UNITS:
+            return None
+        total += float(number) * _UNITS[unit]
+    return total
+
+
+def parse_when(text: str, now: datetime) -> datetime:
+    """``--since``/``--until``: an ISO time or one relative to ``now`` (journalctl's words)."""
+    low = text.strip().lower()
+    if low == "now":
+        return now
+    if low in _DAYS:
+        midnight = now.astimezone(UTC).replace(hour=0, minute=0, second=0, microsecond=0)
+        return midnight + timedelta(days=_DAYS[low])
+    # Units are case-sensitive, as journalctl's: "M" would be months, not minutes.
+    body, sign = text.strip(), 0
+    if body[:1] in ("+", "-"):
+        sign, body = (1 if body[0] == "+" else -1), body[1:]
+    elif low.endswith(" ago"):
+        sign, body = -1, body[: -len(" ago")]
+    seconds = _span(body) if sign else None
+    if seconds is not None:
+        return now + timedelta(seconds=sign * seconds)
     try:
         return parse_time(text)
+    except ValueError:
+        raise ValueError(f"not a time: {text!r}; use {TIME_FORMS}") from None
+
+
+def time_arg(text: str) -> datetime:
+    """argparse type of ``--since``/``--until``: a malformed time is a one-line usage error."""
+    try:
+        return parse_when(text, _now())
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from e
 
@@ -76,76 +149,353 @@ def verify_files(paths: list[str], out: Any = None) -> int:
 
 
 def _selected(rec: dict[str, Any], args: argparse.Namespace) -> bool:
+    """The filters, all of which must hold (add a new one here)."""
     if args.since and rec["_ts"] < args.since:
         return False
     if args.until and rec["_ts"] > args.until:
         return False
     if args.requirement and rec.get("requirement") not in args.requirement:
         return False
-    return not (args.event and rec.get("event") not in args.event)
+    if args.event and rec.get("event") not in args.event:
+        return False
+    # ok false: a failed attempt, or a confirmation whose effect was not seen
+    return not (args.failed and (rec.get("event") != "mitigation" or rec.get("ok") is True))
 
 
-def _summary(records: list[dict[str, Any]]) -> list[str]:
+# ---------------------------------------------------------------- files in order
+
+
+@dataclass
+class LogFile:
+    """One file's records (with ``_ts`` and ``_line``) and what orders it among the others."""
+
+    path: str
+    records: list[dict[str, Any]]
+    last_sha256: str | None = None  # of its last line: what a newer file links to
+    links_to: str | None = None  # previous_last_sha256 of its log_reopened record
+    newer: list[LogFile] = field(default_factory=list)
+
+    @classmethod
+    def read(cls, path: str) -> LogFile:
+        records = list(iter_records(path, raw=True))
+        f = cls(path, records)
+        if records:
+            f.last_sha256 = sha256_hex((records[-1]["_line"] + "\n").encode())
+        f.links_to = next(
+            (
+                str(r["previous_last_sha256"])
+                for r in records
+                if r.get("event") == "supervisor" and r.get("previous_last_sha256")
+            ),
+            None,
+        )
+        return f
+
+    @property
+    def first_ts(self) -> datetime | None:
+        return self.records[0]["_ts"] if self.records else None
+
+
+def in_order(files: list[LogFile]) -> list[LogFile]:
+    """Oldest first, whatever the command line's order: a file whose ``log_reopened``
+    record names another's last line comes right after it (the rotation link), and
+    the chains of files so linked are ordered by their first record's time (files
+    without records last: a file just rotated in)."""
+    by_last = {f.last_sha256: f for f in files if f.last_sha256}
+    heads = []
+    for f in files:
+        older = by_last.get(f.links_to) if f.links_to else None
+        if older is not None and older is not f and not older.newer:
+            older.newer.append(f)
+        else:
+            heads.append(f)
+    far = datetime.max.replace(tzinfo=UTC)
+    heads.sort(key=lambda f: f.first_ts or far)
+    out: list[LogFile] = []
+    for f in heads:
+        while f is not None and f not in out:
+            out.append(f)
+            f = f.newer[0] if f.newer else None
+    return out + [f for f in files if f not in out]  # a cycle of links: never dropped
+
+
+def load(paths: list[str]) -> list[LogFile]:
+    return in_order([LogFile.read(p) for p in paths])
+
+
+# ---------------------------------------------------------------- output
+
+
+class Printer:
+    """The selected records as a table (header first) or, ``--json``, as stored."""
+
+    def __init__(self, as_json: bool, width: int, out: Any = None) -> None:
+        self.as_json = as_json
+        self.width = max(len("REQUIREMENT"), width)
+        self.out = out or sys.stdout
+        self.header = not as_json
+
+    def __call__(self, records: Iterable[dict[str, Any]]) -> None:
+        lines = []
+        if self.header:
+            self.header = False
+            w = self.width
+            lines.append(f"{'TIME':<27}  {'EVENT':<10}  {'REQUIREMENT':<{w}}  DETAILS")
+        for r in records:
+            if self.as_json:
+                lines.append(r["_line"])
+            else:
+                req = r.get("requirement", "-")
+                lines.append(f"{r['ts']:<27}  {r['event']:<10}  {req:<{self.width}}  {details(r)}")
+        if lines:
+            self.out.write("\n".join(lines) + "\n")
+            self.out.flush()  # a follower's reader (a pipe) sees each record when it comes
+
+
+def _summary_rows(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     rows: dict[str, dict[str, Any]] = {}
     for rec in records:
         req = rec.get("requirement")
         if not req or rec.get("event") not in ("violation", "mitigation"):
             continue
-        row = rows.setdefault(req, {"v": 0, "first": None, "last": None, "ok": 0, "failed": 0})
+        row = rows.setdefault(
+            req, {"violations": 0, "first": None, "last": None, "ok": 0, "failed": 0}
+        )
         if rec["event"] == "violation":
-            row["v"] += 1
+            row["violations"] += 1
             row["first"] = rec["ts"] if row["first"] is None else row["first"]
             row["last"] = rec["ts"]
         elif rec.get("ok"):
             row["ok"] += 1
         else:
             row["failed"] += 1
+    return dict(sorted(rows.items()))
+
+
+def _summary(records: list[dict[str, Any]]) -> list[str]:
+    rows = _summary_rows(records)
     w = max([len("REQUIREMENT")] + [len(k) for k in rows])
     out = [
         f"{'REQUIREMENT':<{w}}  {'VIOLATIONS':>10}  {'FIRST':<27}  {'LAST':<27}  "
         f"{'MIT_OK':>6}  {'MIT_FAILED':>10}"
     ]
-    for req in sorted(rows):
-        r = rows[req]
+    for req, r in rows.items():
         out.append(
-            f"{req:<{w}}  {r['v']:>10}  {r['first'] or '-':<27}  {r['last'] or '-':<27}  "
-            f"{r['ok']:>6}  {r['failed']:>10}"
+            f"{req:<{w}}  {r['violations']:>10}  {r['first'] or '-':<27}  "
+            f"{r['last'] or '-':<27}  {r['ok']:>6}  {r['failed']:>10}"
         )
     return out
+
+
+def _summary_json(records: list[dict[str, Any]]) -> list[str]:
+    return [
+        json.dumps(
+            {
+                "requirement": req,
+                "violations": r["violations"],
+                "first": r["first"],
+                "last": r["last"],
+                "mitigations_ok": r["ok"],
+                "mitigations_failed": r["failed"],
+            }
+        )
+        for req, r in _summary_rows(records).items()
+    ]
+
+
+# ---------------------------------------------------------------- --follow
+
+
+class Follower:
+    """``tail -F`` on the live log, through the reader's ``records_since``.
+
+    The file is held open and read through ``/proc/self/fd``, so a file renamed
+    by logrotate is read to its end; once the path names another file (the
+    daemon reopened it, docs/reference/log.md#rotation) the new one is read from
+    its start.  The old one is read once more after the new one has a record,
+    for what the daemon wrote there before it reopened.
+    """
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.fd: int | None = None
+        self.offset = 0
+        self.old: list[tuple[int, int]] = []  # (fd, offset) of rotated files still read
+        self._open()
+
+    def _open(self) -> None:
+        try:
+            self.fd = os.open(self.path, os.O_RDONLY | os.O_CLOEXEC)
+        except FileNotFoundError:
+            self.fd = None  # between logrotate's rename and create; tried again
+        self.offset = 0
+
+    @staticmethod
+    def _read(fd: int, offset: int) -> tuple[list[dict[str, Any]], int]:
+        return records_since(f"/proc/self/fd/{fd}", offset, raw=True)
+
+    def _rotated(self) -> bool:
+        try:
+            st = os.stat(self.path)
+        except FileNotFoundError:
+            return False
+        if self.fd is None:
+            return True
+        cur = os.fstat(self.fd)
+        return (st.st_dev, st.st_ino) != (cur.st_dev, cur.st_ino)
+
+    def poll(self) -> list[dict[str, Any]]:
+        """The records appended since the last call, oldest first."""
+        out: list[dict[str, Any]] = []
+        for i, (fd, offset) in enumerate(self.old):
+            recs, offset = self._read(fd, offset)
+            self.old[i] = (fd, offset)
+            out += recs
+        if self.fd is not None:
+            recs, self.offset = self._read(self.fd, self.offset)
+            out += recs
+        if self._rotated():
+            if self.fd is not None:
+                self.old.append((self.fd, self.offset))
+            self._open()
+            if self.fd is not None:
+                recs, self.offset = self._read(self.fd, self.offset)
+                out += recs
+        if self.old and self.offset > 0:
+            # The new file has a record: the daemon writes no more to the old ones.
+            for fd, offset in self.old:
+                out += self._read(fd, offset)[0]
+                os.close(fd)
+            self.old = []
+        for r in out:
+            r["_ts"] = _ts(r)
+        return out
+
+    def close(self) -> None:
+        for fd in [fd for fd, _ in self.old] + ([self.fd] if self.fd is not None else []):
+            os.close(fd)
+        self.old, self.fd = [], None
+
+
+def _ts(rec: dict[str, Any]) -> datetime:
+    try:
+        return parse_time(str(rec.get("ts")))
+    except ValueError:
+        return datetime.min.replace(tzinfo=UTC)  # a record without a time: never --since
+
+
+def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
+    """Print the last ``--lines`` selected records, then the new ones until SIGTERM
+    (exit 0) or Ctrl-C (130); the newest file is the one followed."""
+    live = next((f for f in reversed(files) if not f.path.endswith(".gz")), None)
+    if live is None:
+        raise UserError("--follow needs a log that is not compressed (.gz)")
+    stop = threading.Event()
+    follower = Follower(live.path)
+    old_handler = None
+    if threading.current_thread() is threading.main_thread():
+        old_handler = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        # The live file as the follower reads it: a line being written is left for later.
+        history = [r for f in files if f is not live for r in f.records] + follower.poll()
+        selected = [r for r in history if _selected(r, args)]
+        lines = FOLLOW_LINES if args.lines is None else args.lines
+        selected = selected[len(selected) - lines :] if lines else []
+        printer = Printer(
+            args.json, max((len(str(r.get("requirement", ""))) for r in history), default=0)
+        )
+        printer(selected)
+        while not stop.wait(FOLLOW_INTERVAL_S):
+            printer(r for r in follower.poll() if _selected(r, args))
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        follower.close()
+        if old_handler is not None:
+            signal.signal(signal.SIGTERM, old_handler)
+    return 0
+
+
+# ---------------------------------------------------------------- the command
 
 
 def cmd_logs(args: argparse.Namespace) -> int:
     if args.verify:
         return verify_files(args.files)
-    records = [r for p in args.files for r in iter_records(p) if _selected(r, args)]
-    records.sort(key=lambda r: r["_ts"])  # several files (rotated ones) in time order
+    files = load(args.files)
+    if args.follow:
+        return _follow(files, args)
+    records = [r for f in files for r in f.records if _selected(r, args)]
     if args.summary:
-        for line in _summary(records):
+        for line in _summary_json(records) if args.json else _summary(records):
             print(line)
         return 0
-    w = max([len("REQUIREMENT")] + [len(str(r.get("requirement", ""))) for r in records])
-    print(f"{'TIME':<27}  {'EVENT':<10}  {'REQUIREMENT':<{w}}  DETAILS")
-    for r in records:
-        print(f"{r['ts']:<27}  {r['event']:<10}  {r.get('requirement', '-'):<{w}}  {details(r)}")
+    if args.lines is not None:
+        records = records[len(records) - args.lines :] if args.lines else []
+    width = max((len(str(r.get("requirement", ""))) for r in records), default=0)
+    Printer(args.json, width)(records)
     return 0
 
 
+def _lines_arg(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"not a number of records: {text!r}")
+    return n
+
+
+# Relative times start with "-" (--since -2h): argparse would take them for options.
+_OPTION_LIKE_VALUE = re.compile(r"^-\d+$|^-\d*\.\d+$|^-\d+(?:\.\d+)?\s*[a-z]")
+
+
 def add_parser(sub: Any) -> None:
-    p = sub.add_parser("logs", help="read violation logs: filter, summarize, verify the hash chain")
-    p.add_argument(
-        "files", nargs="+", metavar="FILE", help="violation logs (.gz too), oldest first"
+    p = sub.add_parser(
+        "logs", help="read violation logs: filter, follow, summarize, verify the hash chain"
     )
+    if hasattr(p, "_negative_number_matcher"):  # argparse's own test for "-5" values
+        p._negative_number_matcher = _OPTION_LIKE_VALUE
     p.add_argument(
+        "files",
+        nargs="+",
+        metavar="FILE",
+        help="violation logs, rotated ones (.1, .2.gz) too, in any order",
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
         "--verify",
         action="store_true",
         help="check the hash chain and the records' seq; exit 1 at a broken line or missing records",
     )
-    p.add_argument("--since", type=time_arg, metavar="TIME", help="ISO 8601, UTC if no zone")
-    p.add_argument("--until", type=time_arg, metavar="TIME", help="ISO 8601, UTC if no zone")
-    p.add_argument("--requirement", action="append", metavar="ID", help="repeatable")
-    p.add_argument("--event", action="append", choices=EVENTS, help="repeatable")
-    p.add_argument(
+    mode.add_argument(
         "--summary",
         action="store_true",
         help="per requirement: violations, first/last time, mitigations ok/failed",
+    )
+    mode.add_argument(
+        "-f",
+        "--follow",
+        action="store_true",
+        help="print the selected records as they are appended, across rotation (Ctrl-C stops)",
+    )
+    when = "ISO 8601 (UTC if no zone), now, today, yesterday, or -2h, -30min, '2 hours ago'"
+    p.add_argument("--since", type=time_arg, metavar="TIME", help=f"at or after: {when}")
+    p.add_argument("--until", type=time_arg, metavar="TIME", help="at or before (as --since)")
+    p.add_argument("--requirement", action="append", metavar="ID", help="repeatable")
+    p.add_argument("--event", action="append", choices=EVENTS, help="repeatable")
+    p.add_argument(
+        "--failed",
+        action="store_true",
+        help="only mitigation records with ok false: failed attempts and confirmations "
+        "that did not take effect",
+    )
+    p.add_argument("--json", action="store_true", help="the records as stored (JSON lines)")
+    p.add_argument(
+        "-n",
+        "--lines",
+        type=_lines_arg,
+        metavar="N",
+        help=f"only the last N selected records (--follow: {FOLLOW_LINES} before following)",
     )
