@@ -1,27 +1,15 @@
-"""The one way the tools (``demo``, ``bench``) and the tests start a child process.
+"""The tools' (``demo``, ``bench``) and the tests' children: :class:`Child` (stderr to
+a file, JSON lines read from stdout, stopping in order), the daemon's command line and
+a NOTIFY_SOCKET to read.
 
-Every child:
-
-* gets :func:`ros_env`: this process's environment on one ROS domain with
-  localhost-only discovery, without the systemd variables meant for this process;
-* runs in its own process group, so Ctrl-C reaches only the parent, which stops
-  the children in order, and killing the group also takes what the child started;
-* gets SIGTERM when the parent dies, even by SIGKILL (``PR_SET_PDEATHSIG``).  A
-  trampoline sets it, ``python -m supervisor.tools.children PID -- ARGV``, then
-  execs ARGV, which keeps the pid (signals and /proc readings reach the real
-  child).  Popen's ``preexec_fn`` would save a process but is unsafe once threads
-  run, and the tests (rclpy) and the bench (stdout readers) have threads by then;
-* runs ``sys.executable -m ...`` on the installed package: no PYTHONPATH to a
-  source tree, so the tools work installed from a wheel.
-
-The parent-death signal fires when the *thread* that started the child ends:
-start children from a thread that outlives them (the main thread).
+Starting a process is :func:`supervisor.children.start` (environment, own process
+group, SIGTERM when the parent dies): the daemon starts its recording writer the same
+way, and the daemon may not import the tools.
 """
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import json
 import os
 import signal
@@ -34,25 +22,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-PR_SET_PDEATHSIG = 1
-# Meant for this process (a systemd service, a shell with ROS set up), not its children;
-# ROS_LOCALHOST_ONLY is deprecated and ROS_AUTOMATIC_DISCOVERY_RANGE says the same.
-NOT_INHERITED = ("NOTIFY_SOCKET", "WATCHDOG_USEC", "WATCHDOG_PID", "ROS_LOCALHOST_ONLY")
+from supervisor.children import NOT_INHERITED, ros_env, ros_vars, start
+
+__all__ = ["NOT_INHERITED", "Child", "NotifySocket", "daemon_argv", "ros_env", "ros_vars"]
+
 REAP_TIMEOUT_S = 5.0
-
-
-def ros_vars(domain_id: int) -> dict[str, str]:
-    """The variables that put a ROS process on ``domain_id``, this machine only."""
-    return {"ROS_DOMAIN_ID": str(domain_id), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-
-
-def ros_env(domain_id: int, *, log_dir: Path | None = None) -> dict[str, str]:
-    """The environment of a child on ``domain_id``; ``log_dir``: ROS_LOG_DIR (not ~/.ros)."""
-    env = {k: v for k, v in os.environ.items() if k not in NOT_INHERITED}
-    env.update(ros_vars(domain_id))
-    if log_dir is not None:
-        env["ROS_LOG_DIR"] = str(log_dir)
-    return env
 
 
 def daemon_argv(config: Path, log: Path, build_dir: Path, *extra: str) -> list[str]:
@@ -62,7 +36,7 @@ def daemon_argv(config: Path, log: Path, build_dir: Path, *extra: str) -> list[s
 
 
 class Child:
-    """A child process (see the module docstring); stderr goes to a file.
+    """A child process (:func:`supervisor.children.start`); stderr goes to a file.
 
     ``stdin``: a pipe for :meth:`send`, else /dev/null.  ``json_stdout``: a thread
     collects the JSON objects the child prints one per line, else /dev/null.
@@ -84,16 +58,14 @@ class Child:
         self._objects: list[tuple[float, dict[str, Any]]] = []  # (monotonic time, object)
         self._taken = 0
         self._cond = threading.Condition()
-        trampoline = [sys.executable, "-m", __name__, str(os.getpid()), "--"]
         with stderr.open("w") as err:
-            self.proc = subprocess.Popen(
-                [*trampoline, *argv],
+            self.proc = start(
+                argv,
+                env=env,
                 cwd=cwd,
-                env=dict(env),
                 stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
                 stdout=subprocess.PIPE if json_stdout else subprocess.DEVNULL,
                 stderr=err,
-                start_new_session=True,
             )
         self._reader: threading.Thread | None = None
         if json_stdout:
@@ -223,25 +195,3 @@ class NotifySocket:
     def close(self) -> None:
         self.sock.close()
         self.path.unlink(missing_ok=True)
-
-
-def _trampoline(args: list[str]) -> int:
-    """``PID -- ARGV``: die with PID, then become ARGV."""
-    if len(args) < 3 or args[1] != "--":
-        print("usage: python -m supervisor.tools.children PARENT_PID -- ARGV...", file=sys.stderr)
-        return 2
-    parent, argv = int(args[0]), args[2:]
-    # Best effort (Linux only); the parent kills the process group anyway.
-    with contextlib.suppress(Exception):
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    if os.getppid() != parent:  # the parent died before prctl took effect
-        return 1
-    try:
-        os.execvp(argv[0], argv)
-    except OSError as e:
-        print(f"cannot run {argv[0]}: {e.strerror or e}", file=sys.stderr)
-    return 127
-
-
-if __name__ == "__main__":
-    raise SystemExit(_trampoline(sys.argv[1:]))
