@@ -274,6 +274,11 @@ def test_a_write_error_stops_the_recording_once_and_never_the_caller(tmp_path):
         data = b"\\x00\\x01\\x00\\x00" + bytes(1000)
         i = 0
         deadline = time.monotonic() + 20
+        # Once the writer process is up (its first flush): a first batch of what
+        # queued while it started would pass the limit before any chunk is flushed.
+        while rec.stats().written == 0 and time.monotonic() < deadline:
+            rec.message(0, time.monotonic_ns(), data)
+            time.sleep(0.01)
         while not stops and time.monotonic() < deadline:
             rec.message(0, time.monotonic_ns(), data)
             i += 1
@@ -304,12 +309,26 @@ def test_a_write_error_stops_the_recording_once_and_never_the_caller(tmp_path):
     assert [t for _, t, _ in msgs] == sorted(t for _, t, _ in msgs)
 
 
-def test_kill_9_leaves_an_mcap_file_readable_up_to_the_last_flushed_chunk(tmp_path):
+def _gone(pid: int, timeout: float) -> bool:
+    """Whether ``pid`` (not our child) ended within ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_kill_9_of_the_daemon_leaves_a_closed_bag(tmp_path):
+    # The writer process sees EOF when the daemon dies and closes the bag itself.
     child = _child(
         f"""
         import sys, time
         from supervisor.daemon.recorder import Recorder
         rec = Recorder({str(tmp_path)!r}, [("/x", "std_msgs/msg/Int64")], flush_s=0.1)
+        print(rec.writer_pid, flush=True)
         i = 0
         for burst in range(1000):
             for _ in range(500):
@@ -318,24 +337,83 @@ def test_kill_9_leaves_an_mcap_file_readable_up_to_the_last_flushed_chunk(tmp_pa
             if burst == 5:
                 while rec.stats().written < i:
                     time.sleep(0.01)
-                time.sleep(0.5)  # more than flush_s: all of it is on disk now
                 print(i, flush=True)
             time.sleep(0.01)
         """
     )
     assert child.stdout is not None
-    flushed = int(child.stdout.readline())
+    writer = int(child.stdout.readline())
+    sent = int(child.stdout.readline())
     time.sleep(0.3)
     child.send_signal(signal.SIGKILL)
     child.wait(10)
+    assert _gone(writer, 20)
+    ((_, bag),) = bag_dirs(tmp_path)
+    assert (bag / "metadata.yaml").exists()
+    with Reader(bag) as r:
+        assert r.message_count >= sent == 3000
+    values = [m.data for _, _, _, m in rosbags_messages(bag)]
+    assert values == list(range(len(values)))  # what was sent, in order, none corrupted
+    assert [d for _, _, d in cut_short_messages(mcap_file(bag))] == [
+        b"\x00\x01\x00\x00" + v.to_bytes(8, "little") for v in values
+    ]
+
+
+def test_kill_9_of_the_writer_leaves_a_file_readable_up_to_its_last_flushed_chunk(tmp_path):
+    stops: list[str] = []
+    rec = Recorder(tmp_path, [("/x", INT64)], flush_s=0.1, on_stopped=stops.append)
+    for i in range(3000):
+        rec.message(0, i, cdr_int64(i))
+    deadline = time.monotonic() + 20
+    while rec.stats().written < 3000 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.3)  # more than flush_s: all of it is on disk now
+    os.kill(rec.writer_pid, signal.SIGKILL)
+    while not stops and time.monotonic() < deadline:
+        time.sleep(0.01)
+    (reason,) = stops
+    assert "killed by signal 9" in reason and "last flushed chunk" in reason
+    for i in range(10_000):  # counted, never queued, never raising
+        rec.message(0, 5000 + i, cdr_int64(i))
+    stats = rec.close()
+    assert stats.lost >= 10_000 and stats.stopped == reason and stops == [reason]
     ((_, bag),) = bag_dirs(tmp_path)
     assert not (bag / "metadata.yaml").exists()
     msgs = cut_short_messages(mcap_file(bag))
-    assert len(msgs) >= flushed == 3000
-    # a prefix of what was sent, in order, none corrupted
-    assert [(t, int.from_bytes(d[4:], "little")) for _, t, d in msgs] == [
-        (i + msgs[0][1], i) for i in range(len(msgs))
+    assert len(msgs) == 3000
+    assert [(t, d) for _, t, d in msgs] == [
+        (i + rec.wall_offset_ns, cdr_int64(i)) for i in range(3000)
     ]
+
+
+def test_a_stalled_writer_never_stalls_the_caller(tmp_path):
+    # The writer stopped (SIGSTOP): the pipe fills, then the queue; message() keeps
+    # returning and counts what does not fit, and after SIGCONT the rest is written.
+    warnings: list[str] = []
+    rec = Recorder(tmp_path, [("/x", INT64)], queue_messages=1000, on_warning=warnings.append)
+    rec.message(0, 0, cdr_int64(0))
+    deadline = time.monotonic() + 20
+    while rec.stats().written == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    os.kill(rec.writer_pid, signal.SIGSTOP)
+    try:
+        n = 200_000
+        t0 = time.monotonic()
+        for i in range(1, n + 1):
+            rec.message(0, i, cdr_int64(i) + bytes(100))
+        took = time.monotonic() - t0
+        time.sleep(0.2)  # the sender's last batch, into the full pipe
+        assert rec.stats().dropped > 0
+    finally:
+        os.kill(rec.writer_pid, signal.SIGCONT)
+    assert took < 10  # sanity only: no call waited for the writer
+    stats = rec.close()
+    assert stats.stopped is None and stats.lost == 0
+    assert stats.written + stats.dropped == n + 1
+    assert any("messages dropped" in w for w in warnings)
+    ((_, bag),) = bag_dirs(tmp_path)
+    values = [int.from_bytes(d[4:12], "little") for _, _, d in cut_short_messages(mcap_file(bag))]
+    assert len(values) == stats.written and values == sorted(values)
 
 
 # -- the record: section ----------------------------------------------------------------

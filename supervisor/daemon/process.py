@@ -108,7 +108,12 @@ def open_recorder(cfg: Config, path: str | None, log: ViolationLog) -> Recorder 
             file=cfg.path,
             line=settings.line,
         ) from None
-    log.supervisor("record", path=str(recorder.directory), topics=[t for t, _ in topics])
+    log.supervisor(
+        "record",
+        path=str(recorder.directory),
+        topics=[t for t, _ in topics],
+        writer_pid=recorder.writer_pid,  # the process that writes the bags (bench reads it)
+    )
     return recorder
 
 

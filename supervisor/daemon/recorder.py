@@ -5,34 +5,41 @@ and type) with the daemon's receive time; the daemon's log lines go to
 ``RECORDS_TOPIC`` as ``std_msgs/msg/String``, so one bag shows inputs and violations
 on one timeline (docs/reference/config.md, record; docs/reference/log.md).
 
-The receive loop only appends to a queue (``message``, ``record``); a writer thread
-encodes and writes in batches with rosbags' rosbag2 writer. Recording never stops
-monitoring: a full queue drops and counts, a write error stops the recording and is
-reported once through ``on_stopped``. No rclpy here, so it is tested without ROS.
+The receive loop only appends to a queue (``message``, ``record``); a sender thread
+passes it in batches through a pipe to a writer process
+(:mod:`supervisor.daemon.record_writer`), which encodes and writes with rosbags'
+rosbag2 writer, so that work does not compete with the loop for the GIL. Recording
+never stops monitoring: a full queue drops and counts, a write error or the writer's
+death stops the recording and is reported once through ``on_stopped``. No rclpy here,
+so it is tested without ROS.
 """
 
 from __future__ import annotations
 
 import collections
-import errno
+import contextlib
+import fcntl
+import json
 import os
 import re
-import shutil
+import select
+import struct
+import subprocess
 import sys
 import threading
 import time
+from array import array
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys import get_types_from_msg
 from rosbags.typesys.base import Nodetype
 
+from supervisor.children import child_env, start
+
 if TYPE_CHECKING:
-    from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
     from supervisor.config.record import RecordConfig
@@ -49,6 +56,12 @@ MESSAGE_OVERHEAD = 47
 # so that a flood of inputs cannot push a violation out of the recording.
 RECORD_RESERVE = 1000
 MB = 1 << 20
+# A batch's header for the writer process (count, payload bytes, dropped so far), and
+# the bytes per message before the payloads (int64 time, int32 index, uint32 length).
+HEAD = struct.Struct("=IIq")
+PER_MESSAGE = 16
+F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)
+PIPE_BYTES = 1 << 20  # Linux's limit for an unprivileged process (fs.pipe-max-size)
 
 
 @dataclass(frozen=True)
@@ -113,6 +126,25 @@ def bag_dirs(directory: Path) -> list[tuple[int, Path]]:
     return sorted(out)
 
 
+def frame(batch: Sequence[tuple[int, int, bytes]], dropped: int) -> bytes:
+    """One batch for the writer process as one bytes object: ``HEAD`` (count n,
+    payload bytes, messages dropped so far), n int64 receive times, n int32 input
+    indices (-1: a log record), n uint32 lengths, then the payloads (native byte
+    order: one machine). A few C-level passes over the batch, no Python per message."""
+    if not batch:
+        return HEAD.pack(0, 0, dropped)
+    indices, times, payloads = zip(*batch, strict=True)
+    lengths = array("I", map(len, payloads))
+    parts = [
+        HEAD.pack(len(indices), sum(lengths), dropped),
+        array("q", times).tobytes(),
+        array("i", indices).tobytes(),
+        lengths.tobytes(),
+    ]
+    parts.extend(payloads)
+    return b"".join(parts)
+
+
 class Recorder:
     """Records input messages and log records into rotating rosbag2 MCAP bags.
 
@@ -120,14 +152,22 @@ class Recorder:
     under one short lock and never block on I/O or raise. ``inputs[i]`` is the
     (topic, ROS type) of input ``i``; ``message(i, ...)`` records on it.
 
+    The bags are written by a child process (:mod:`supervisor.daemon.record_writer`,
+    ``writer_pid``): a sender thread here takes the queue every ``poll_s`` and writes
+    it to the child's stdin as one batch (one ``os.write``, which releases the GIL);
+    a reader thread turns the child's reports into ``stats()`` and the callbacks.
+    While the child is behind, the pipe is full and the queue fills up to its bound:
+    beyond it messages are dropped and counted, the callers never wait.
+
     Times: callers pass ``time.monotonic_ns()``; the bag holds wall-clock time
     ``t_ns + wall_offset_ns`` with one offset fixed here, so differences between bag
     timestamps are exactly the differences of the receive times.
 
-    Construction creates the directory (OSError if it cannot); every later error
-    stops the recording and is reported once through ``on_stopped(reason)``.
-    ``on_warning(text)`` says what the recording leaves out (a topic whose type
-    cannot be described, messages dropped while the writer was behind).
+    Construction creates the directory and starts the child (OSError if it cannot);
+    every later error (a failed write, the child's death) stops the recording and is
+    reported once through ``on_stopped(reason)``. ``on_warning(text)`` says what the
+    recording leaves out (a topic whose type cannot be described, messages dropped
+    while the writer was behind).
     """
 
     def __init__(
@@ -144,7 +184,7 @@ class Recorder:
         on_warning: Callable[[str], None] | None = None,
         flush_s: float = 0.5,
         flush_messages: int = 10_000,
-        poll_s: float = 0.01,
+        poll_s: float = 0.05,
         msg_prefixes: Sequence[Path] | None = None,
     ) -> None:
         if keep < 1 or max_bag_bytes < 1 or max_bag_s <= 0 or queue_messages < 1:
@@ -153,48 +193,67 @@ class Recorder:
         self.directory.mkdir(parents=True, exist_ok=True)
         self.inputs = [(str(topic), str(msgtype)) for topic, msgtype in inputs]
         self.wall_offset_ns = time.time_ns() - time.monotonic_ns()
-        self._max_bag_bytes = max_bag_bytes
-        self._max_bag_ns = int(max_bag_s * 1e9)
-        self._keep = keep
         self._max_queue = queue_messages
         self._max_queue_bytes = queue_bytes
         self._on_stopped = on_stopped
         self._on_warning = on_warning
-        self._flush_ns = int(flush_s * 1e9)
-        self._flush_messages = flush_messages
         self._poll_s = poll_s
-        self._msg_prefixes = msg_prefixes
 
         # Shared with the callers, under _lock: the queue and what it holds.
         self._lock = threading.Lock()
-        self._queue: collections.deque[tuple[int, int, bytes | str]] = collections.deque()
+        self._queue: collections.deque[tuple[int, int, bytes]] = collections.deque()
         self._queued = 0
         self._queued_bytes = 0
         self._dropped = 0
         self._lost = 0
         self._stopped = False
 
-        # The writer thread's own.
-        self._writer: Writer | None = None
-        self._conns: list[Connection | None] = []
-        self._records_conn: Connection | None = None
-        self._typestore: Typestore | None = None
-        self._skip: set[int] = set()  # inputs whose type cannot be described
-        self._bag_start_ns = 0
-        self._bag_bytes = 0
-        self._seq = max((n for n, _ in bag_dirs(self.directory)), default=0)
-        self._unflushed = 0
-        self._last_flush = time.monotonic_ns()
-        self._written = 0
-        self._skipped = 0
-        self._bytes = 0
-        self._bags = 0
-        self._reported_drops = 0
+        # The reader thread's: the child's latest counts and why the recording stopped.
+        self._counts: dict[str, int] = {}
         self._reason: str | None = None
+        self._reported_stop = False
+        self._kill_reason: str | None = None
+        self._reported_drops = 0
+        self._last_drop_report = 0.0
+
+        settings = {
+            "directory": str(self.directory),
+            "inputs": self.inputs,
+            "wall_offset_ns": self.wall_offset_ns,
+            "max_bag_bytes": max_bag_bytes,
+            "max_bag_ns": int(max_bag_s * 1e9),
+            "keep": keep,
+            "flush_ns": int(flush_s * 1e9),
+            "flush_messages": flush_messages,
+            "msg_prefixes": None if msg_prefixes is None else [str(p) for p in msg_prefixes],
+        }
+        # No parent-death signal: EOF on its stdin tells the child that the daemon is
+        # gone (even after SIGKILL), and it closes the bag before it exits; a signal
+        # would also fire when the thread that made this recorder ends.
+        self._proc = start(
+            [sys.executable, "-m", "supervisor.daemon.record_writer", json.dumps(settings)],
+            env=child_env(),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            parent_death_signal=None,
+        )
+        assert self._proc.stdin is not None and self._proc.stdout is not None
+        self._pipe = self._proc.stdin.fileno()
+        os.set_blocking(self._pipe, False)  # the sender waits in select, abortable
+        with contextlib.suppress(OSError):  # room for about 50 ms at 20k msg/s
+            fcntl.fcntl(self._pipe, F_SETPIPE_SZ, PIPE_BYTES)
 
         self._closing = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="recorder", daemon=True)
-        self._thread.start()
+        self._abort = threading.Event()
+        self._sender = threading.Thread(target=self._send_loop, name="recorder", daemon=True)
+        self._reader = threading.Thread(target=self._read_loop, name="recorder-in", daemon=True)
+        self._sender.start()
+        self._reader.start()
+
+    @property
+    def writer_pid(self) -> int:
+        """The writer process's pid."""
+        return self._proc.pid
 
     @classmethod
     def from_config(
@@ -239,7 +298,7 @@ class Recorder:
 
     def record(self, t_ns: int, json_text: str) -> None:
         """One log line (a JSON record) made at monotonic ``t_ns``, for RECORDS_TOPIC."""
-        n = len(json_text)
+        data = json_text.encode()
         with self._lock:
             if self._stopped:
                 self._lost += 1
@@ -247,201 +306,152 @@ class Recorder:
                 self._dropped += 1
             else:
                 self._queued += 1
-                self._queued_bytes += n
-                self._queue.append((-1, t_ns, json_text))
+                self._queued_bytes += len(data)
+                self._queue.append((-1, t_ns, data))
 
     def stats(self) -> RecorderStats:
         with self._lock:
             dropped, lost = self._dropped, self._lost
+        counts = self._counts
         return RecorderStats(
-            written=self._written,
+            written=counts.get("written", 0),
             dropped=dropped,
-            skipped=self._skipped,
+            skipped=counts.get("skipped", 0),
             lost=lost,
-            bytes=self._bytes,
-            bags=self._bags,
+            bytes=counts.get("bytes", 0),
+            bags=counts.get("bags", 0),
             stopped=self._reason,
         )
 
     def close(self, timeout_s: float = 30.0) -> RecorderStats:
-        """Writes what is queued, closes the bag (index and metadata.yaml) and ends
-        the writer thread; waits at most ``timeout_s``."""
+        """Sends what is queued and waits for the writer process to write it, close
+        the bag (index and metadata.yaml) and exit; at most ``timeout_s``, then the
+        writer is killed (the bag is then readable up to its last flushed chunk)."""
+        deadline = time.monotonic() + timeout_s
         self._closing.set()
-        self._thread.join(timeout_s)
+        self._sender.join(max(0.0, deadline - time.monotonic()))
+        if self._sender.is_alive():  # the child takes nothing: stop offering
+            self._abort.set()
+            self._sender.join()
+        if self._proc.stdin is not None:
+            with contextlib.suppress(OSError):
+                self._proc.stdin.close()  # EOF: the child's end
+        self._reader.join(max(0.0, deadline - time.monotonic()))
+        if self._reader.is_alive():
+            self._kill_reason = (
+                f"recording stopped: the writer process did not finish within {timeout_s:g} s "
+                "and was killed; the bag is readable up to its last flushed chunk"
+            )
+            self._proc.kill()
+            self._reader.join()
         with self._lock:  # from now on message() and record() only count
             self._stopped = True
         return self.stats()
 
-    # -- the writer thread ------------------------------------------------------------
+    # -- the sender thread --------------------------------------------------------------
 
-    def _run(self) -> None:
+    def _send_loop(self) -> None:
         try:
-            self._typestore = get_typestore(Stores.ROS2_JAZZY)
-            self._describe_inputs()
             while True:
                 closing = self._closing.wait(self._poll_s)
                 batch = self._take()
-                if batch:
-                    self._write(batch)
-                self._report_drops()
-                now = time.monotonic_ns()
-                if self._unflushed and (
-                    now - self._last_flush >= self._flush_ns
-                    or self._unflushed >= self._flush_messages
-                ):
-                    self._flush()
+                if (batch or closing) and not self._send(frame(batch, self._dropped)):
+                    with self._lock:
+                        self._lost += len(batch)
+                self._report_drops(final=closing)
                 if closing and not self._queue:
-                    break
-            self._close_bag()
+                    return
         except Exception as e:  # whatever fails ends the recording, never the daemon
-            self._stop(e)
+            self._stop(f"recording stopped: {type(e).__name__}: {e}")
 
-    def _describe_inputs(self) -> None:
-        """Types rosbags' Jazzy store lacks come from the installed .msg files; an
-        input whose type has none is left out (a msgdef-less connection would make
-        rosbags' AnyReader refuse the whole bag)."""
-        assert self._typestore is not None
-        for i, (topic, msgtype) in enumerate(self.inputs):
-            try:
-                load_msg_types(self._typestore, msgtype, self._msg_prefixes)
-                self._typestore.generate_msgdef(msgtype, ros_version=2)
-            except Exception as e:  # rosbags raises several kinds here
-                if (topic, msgtype) not in (self.inputs[j] for j in self._skip):
-                    self._warn(
-                        f"not recording {topic}: its type {msgtype} cannot be described ({e})"
-                    )
-                self._skip.add(i)
-
-    def _take(self) -> collections.deque[tuple[int, int, bytes | str]]:
+    def _take(self) -> collections.deque[tuple[int, int, bytes]]:
         with self._lock:  # a swap, so the callers never wait for a copy
             batch, self._queue = self._queue, collections.deque()
             self._queued = 0
             self._queued_bytes = 0
         return batch
 
-    def _write(self, batch: collections.deque[tuple[int, int, bytes | str]]) -> None:
-        assert self._typestore is not None
-        offset = self.wall_offset_ns
-        string_type = self._typestore.types[RECORDS_TYPE]
-        for index, t_ns, data in batch:
-            wall = t_ns + offset
-            if index in self._skip:
-                self._skipped += 1
-                continue
-            if isinstance(data, str):
-                text = data[:-1] if data.endswith("\n") else data
-                data = bytes(self._typestore.serialize_cdr(string_type(data=text), RECORDS_TYPE))
-            if self._writer is None or (
-                self._bag_bytes >= self._max_bag_bytes
-                or wall - self._bag_start_ns >= self._max_bag_ns
-            ):
-                self._rotate(wall)
-            assert self._writer is not None
-            conn = self._records_conn if index < 0 else self._conns[index]
-            assert conn is not None
-            self._writer.write(conn, wall, data)
-            self._written += 1
-            self._unflushed += 1
-            self._bytes += len(data)
-            self._bag_bytes += len(data) + MESSAGE_OVERHEAD
+    def _send(self, data: bytes) -> bool:
+        """All of ``data`` into the pipe; False if the child is gone or the recording
+        stopped meanwhile. Waits while the pipe is full, never the callers."""
+        view = memoryview(data)
+        while view:
+            if self._abort.is_set():
+                return False
+            try:
+                view = view[os.write(self._pipe, view) :]
+            except BlockingIOError:
+                select.select([], [self._pipe], [], 0.1)
+                self._report_drops()
+            except OSError:  # EPIPE: the child ended; the reader says why
+                self._abort.set()
+                return False
+        return True
 
-    def _rotate(self, wall_ns: int) -> None:
-        """Closes the current bag (complete: index and metadata.yaml), begins the next
-        one named after ``wall_ns``, and deletes the oldest beyond ``keep``."""
-        assert self._typestore is not None
-        self._close_bag()
-        self._seq += 1
-        stamp = datetime.fromtimestamp(wall_ns // 1_000_000_000, UTC).strftime("%Y%m%dT%H%M%SZ")
-        writer = Writer(
-            self.directory / f"{stamp}_{self._seq:06d}",
-            version=9,
-            storage_plugin=StoragePlugin.MCAP,
-        )
-        writer.open()
-        self._writer = writer
-        # Every connection goes into the first chunk, so a reader of a bag cut short
-        # (no summary) knows every channel before its first message. Inputs on one
-        # topic (two fields of /odom) share its connection.
-        by_topic: dict[tuple[str, str], Connection] = {}
-        self._conns = []
-        for i, key in enumerate(self.inputs):
-            if i not in self._skip and key not in by_topic:
-                by_topic[key] = writer.add_connection(*key, typestore=self._typestore)
-            self._conns.append(by_topic.get(key))
-        self._records_conn = writer.add_connection(
-            RECORDS_TOPIC, RECORDS_TYPE, typestore=self._typestore
-        )
-        self._bag_start_ns = wall_ns
-        self._bag_bytes = 0
-        self._bags += 1
-        for _, old in bag_dirs(self.directory)[: -self._keep]:
-            shutil.rmtree(old, ignore_errors=True)
-
-    def _flush(self) -> None:
-        """Ends the pending MCAP chunk and puts it on disk: a chunk is self-contained,
-        so what a kill -9 (or a power cut) leaves is readable up to here."""
-        writer = self._writer
-        if writer is not None and writer.storage is not None:
-            # rosbags' McapWriter only ends a chunk at 1 MiB or at close, and has no
-            # public flush: its chunk and file are used here (pyproject pins rosbags
-            # < 0.12; tests/test_recorder.py's kill -9 test fails if they change).
-            storage: Any = writer.storage
-            if storage.chunk.msgs:
-                storage.close_chunk()
-            storage.bio.flush()
-            os.fsync(storage.bio.fileno())
-        self._unflushed = 0
-        self._last_flush = time.monotonic_ns()
-
-    def _close_bag(self) -> None:
-        writer, self._writer = self._writer, None
-        if writer is not None:
-            dropped = self._dropped
-            if dropped:
-                writer.set_custom_data("safety_supervisor.dropped_messages", str(dropped))
-            writer.close()
-
-    def _report_drops(self) -> None:
+    def _report_drops(self, *, final: bool = False) -> None:
         dropped = self._dropped
-        if dropped > self._reported_drops:
+        now = time.monotonic()
+        if dropped > self._reported_drops and (final or now - self._last_drop_report >= 1.0):
             self._warn(
                 f"recording fell behind: {dropped - self._reported_drops} messages dropped "
                 f"({dropped} in all; record.queue_messages is {self._max_queue})"
             )
             self._reported_drops = dropped
+            self._last_drop_report = now
+
+    # -- the reader thread: the child's reports -------------------------------------
+
+    def _read_loop(self) -> None:
+        closed = False
+        assert self._proc.stdout is not None
+        for line in self._proc.stdout:
+            try:
+                obj = json.loads(line)
+            except ValueError:
+                continue
+            if not isinstance(obj, dict):
+                continue
+            if isinstance(obj.get("stats"), dict):
+                self._counts = obj["stats"]
+                closed = closed or bool(obj.get("closed"))
+            if "warning" in obj:
+                self._warn(str(obj["warning"]))
+            if "stopped" in obj:
+                self._stop(str(obj["stopped"]), int(obj.get("lost", 0)))
+        code = self._proc.wait()
+        if not closed:
+            how = f"was killed by signal {-code}" if code < 0 else f"exited with status {code}"
+            self._stop(
+                self._kill_reason
+                or f"recording stopped: the writer process (pid {self._proc.pid}) {how}; "
+                "the bag is readable up to its last flushed chunk"
+            )
 
     def _warn(self, text: str) -> None:
         if self._on_warning is not None:
             try:
                 self._on_warning(text)
-            except Exception:  # the daemon's callback must not end the writer
+            except Exception:  # the daemon's callback must not end the recording
                 pass
 
-    def _stop(self, error: BaseException) -> None:
-        if isinstance(error, OSError) and error.errno is not None:
-            where = f" ({error.filename})" if error.filename else ""
-            reason = f"{os.strerror(error.errno)}{where}"
-            if error.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
-                reason += "; the bag is readable up to its last flushed chunk"
-        else:
-            reason = f"{type(error).__name__}: {error}"
+    def _stop(self, reason: str, child_lost: int = 0) -> None:
+        """The recording ends (once): what is queued and what the child did not write
+        count as lost, and the sender stops waiting for the pipe."""
         with self._lock:
+            self._lost += self._queued + child_lost
+            if self._reported_stop:
+                return
+            self._reported_stop = True
             self._stopped = True
-            self._lost += self._queued
             self._queue.clear()
             self._queued = 0
             self._queued_bytes = 0
-        self._reason = f"recording stopped: {reason}"
-        writer, self._writer = self._writer, None
-        if writer is not None:
-            try:
-                writer.abort()
-            except Exception:  # already stopping for a worse error
-                pass
+        self._reason = reason
+        self._abort.set()
         if self._on_stopped is not None:
             try:
-                self._on_stopped(self._reason)
-            except Exception:  # the daemon's callback must not end the writer
+                self._on_stopped(reason)
+            except Exception:  # the daemon's callback must not end the recording
                 pass
 
 
