@@ -3,7 +3,7 @@ MCAP bags (docs/reference/config.md, record).
 
 Recording is on when ``run --record DIR`` is given or ``record.path`` is set; the
 other keys bound what the recording may cost: disk (``max_bag_mb`` x ``keep``) and
-memory (``queue_messages`` waiting for the writer thread).
+memory (``queue_messages`` waiting for the writer process).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ class RecordConfig:
     max_bag_mb: float = 100.0
     max_bag_s: float = 300.0
     keep: int = 20
-    # Messages waiting for the writer thread; beyond it new ones are dropped and
+    # Messages waiting for the writer process; beyond it new ones are dropped and
     # counted (the receive loop never waits for the disk). 5 s at 20k msg/s.
     queue_messages: int = 100_000
     line: int | None = None  # of 'record:'
