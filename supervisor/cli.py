@@ -32,6 +32,8 @@ from supervisor.tools.logs import add_parser as add_logs_parser
 from supervisor.tools.logs import cmd_logs
 from supervisor.tools.replay.command import add_parser as add_replay_parser
 from supervisor.tools.replay.command import cmd_replay
+from supervisor.tools.report.command import add_parser as add_report_parser
+from supervisor.tools.report.command import cmd_report
 from supervisor.tools.reset import add_parser as add_reset_parser
 from supervisor.tools.reset import cmd_reset
 
@@ -236,6 +238,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "demo": cmd_demo,
     "inject": cmd_inject,
     "replay": cmd_replay,
+    "report": cmd_report,
     "bench": cmd_bench,
 }
 
@@ -297,6 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_demo_parser(sub)
     add_inject_parser(sub)
     add_replay_parser(sub)
+    add_report_parser(sub)
     add_bench_parser(sub)
     return p
 

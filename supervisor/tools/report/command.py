@@ -1,0 +1,62 @@
+"""``safety-supervisor report``: its arguments, and writing the page."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from monitors.errors import UserError
+
+EXIT_OK, EXIT_FAIL = 0, 1
+
+
+def add_parser(sub: Any) -> None:
+    """Add the ``report`` subcommand to the CLI's subparsers."""
+    p = sub.add_parser(
+        "report",
+        help="one self-contained HTML page about violation logs, for an incident ticket",
+        description="Write one HTML file that opens without a network: whether the logs' "
+        "hash chain verifies, a zoomable timeline of the inputs with every violation, "
+        "mitigation, reset and supervisor event on it, per requirement counts, mitigation "
+        "outcomes and latencies, and for each violation why it fired.",
+    )
+    p.add_argument("logs", nargs="+", metavar="LOG", help="violation logs (.gz too), any order")
+    p.add_argument(
+        "--bag",
+        action="append",
+        default=[],
+        metavar="BAG",
+        help="the run's recording (run --record directory, bag, .mcap, .jsonl): inputs and "
+        "why-tree windows from it; repeatable; needs the config",
+    )
+    p.add_argument(
+        "--config",
+        default=None,
+        metavar="CONFIG",
+        help="the config the log was written with (default: the one its start record names, "
+        "if unchanged)",
+    )
+    p.add_argument("-o", "--output", required=True, metavar="REPORT.html")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    # The pipeline and the replay load only when report runs: the CLI imports this
+    # module for its parser at every start.
+    from supervisor.tools.report.build import build
+    from supervisor.tools.report.page import write
+
+    out = Path(args.output)
+    if out.is_dir():
+        raise UserError("is a directory; give the HTML file to write", file=str(out))
+    rep = build(args.logs, args.bag, args.config, quiet=args.quiet)
+    try:
+        write(rep, out)
+    except OSError as e:
+        raise UserError(f"cannot write the report: {e.strerror or e}", file=str(out)) from e
+    integ = rep.data.integrity
+    n = sum(len(q.violations) for q in rep.requirements)
+    chain = "hash chain intact" if integ.ok else f"HASH CHAIN BROKEN: {integ.first_problem}"
+    print(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}")
+    return EXIT_OK if integ.ok else EXIT_FAIL
