@@ -246,7 +246,9 @@ class Printer:
                 lines.append(r["_line"])
             else:
                 req = r.get("requirement", "-")
-                lines.append(f"{r['ts']:<27}  {r['event']:<10}  {req:<{self.width}}  {details(r)}")
+                lines.append(
+                    f"{r.get('ts', '-'):<27}  {r['event']:<10}  {req:<{self.width}}  {details(r)}"
+                )
         if lines:
             self.out.write("\n".join(lines) + "\n")
             self.out.flush()  # a follower's reader (a pipe) sees each record when it comes
