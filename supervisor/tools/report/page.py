@@ -13,7 +13,7 @@ from monitors.verify.why import WhyNode
 from supervisor.tools.report.assets import CSS, JS
 from supervisor.tools.report.build import Report, Requirement
 from supervisor.tools.report.inputs import SHOWN_PER_REQUIREMENT
-from supervisor.tools.report.timeline import MAJOR, svg
+from supervisor.tools.report.timeline import MAJOR, domain, marker_text, svg
 from supervisor.tools.report.whys import Why
 
 SHOWN_TICKS = 12  # columns of a why-tree: the violating tick and the ones before it
@@ -46,8 +46,6 @@ def render(rep: Report) -> str:
     comp = next((r.get("component") for r in recs if r.get("component")), "?")
     violated = [q for q in rep.requirements if q.violations]
     timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys})
-    from supervisor.tools.report.timeline import domain
-
     t0, _ = domain(recs, rep.series)
     tl_json = json.dumps(tl_data, separators=(",", ":")).replace("</", "<\\/")
     parts = [
@@ -298,8 +296,6 @@ def _tree(root: WhyNode, ticks: list[int]) -> str:
 
 
 def _supervisor(rep: Report) -> str:
-    from supervisor.tools.report.timeline import marker_text
-
     rows = []
     for r in rep.data.records:
         if r.get("event") != "supervisor":
