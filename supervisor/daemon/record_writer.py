@@ -17,6 +17,7 @@ A batch on stdin is :func:`supervisor.daemon.recorder.frame`'s.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import os
@@ -248,6 +249,9 @@ def stop_reason(error: BaseException) -> str:
     return f"recording stopped: {reason}"
 
 
+RECORD_NICE = 10
+
+
 def run(settings: dict[str, Any], fd: int = 0) -> int:
     terminating = False
 
@@ -257,6 +261,10 @@ def run(settings: dict[str, Any], fd: int = 0) -> int:
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, on_term)
+    # Recording yields to monitoring when the CPUs are busy: the daemon's loop keeps
+    # its priority, and the writer catches up from its queue (or drops and counts).
+    with contextlib.suppress(OSError):
+        os.nice(RECORD_NICE)
     os.set_blocking(fd, False)
     buf = bytearray()
     w: BagWriter | None = None
