@@ -166,7 +166,8 @@ class Core:
         self._mark("operator_reset", t, **extra)
         ids = [r.id for r in self.session.requirements]
         refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
-        self.log.reset("*", reason="operator reset", refused=refused, **extra)
+        tick = self.session.runtime.tick  # the next tick is judged afresh
+        self.log.reset("*", reason="operator reset", refused=refused, tick=tick, **extra)
         self._due = 0
         return refused
 

@@ -788,6 +788,7 @@ class SupervisorNode:
             requirements=n,
             inputs=len(new.config.inputs),
             policy=new.config.step.policy,
+            tick=new.runtime.tick,  # the first tick judged by the new monitor
         )
         self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
 
