@@ -159,3 +159,48 @@ def test_a_violation_record_is_explained_from_its_own_fields(tmp_path):
     assert explain(f, trace, len(trace) - 1, first) == (
         f"(distance < 3) held (distance = 2) at tick {record['tick']} while halted was false"
     )
+
+
+def test_logs_why_explains_each_violation_of_a_log(tmp_path, capsys):
+    """A log written by replay (the daemon's core) over a trace; ``logs --why``
+    explains its violations from their recent windows."""
+    import json
+
+    from supervisor.cli import main
+    from supervisor.tools.replay.session import replay_files
+
+    (tmp_path / "c.yaml").write_text(
+        "component: R\n"
+        "step: {policy: on_trigger, trigger: halted}\n"
+        "variables:\n"
+        "  distance: {type: int64, topic: /d, msg: std_msgs/msg/Int64}\n"
+        "  halted: {type: bool, topic: /h, msg: std_msgs/msg/Bool}\n"
+        "requirements:\n"
+        "  - id: stop_near\n"
+        "    text: R shall always satisfy distance < 3 -> halted\n"
+        "    on_violation: [note]\n"
+        "    policy: {reset: after_mitigation}\n"
+        "mitigations:\n"
+        "  note: {log: {message: violated}}\n"
+    )
+    rows = [(9, False), (2, True), (2, False), (8, False), (1, False)]
+    lines = []
+    for k, (d, h) in enumerate(rows):
+        t = 10**9 + k * 10**7
+        lines += [
+            {"t_ns": t, "name": "distance", "value": d},
+            {"t_ns": t + 1, "name": "halted", "value": h},
+        ]
+    (tmp_path / "t.jsonl").write_text("\n".join(json.dumps(x) for x in lines) + "\n")
+    log = tmp_path / "log.jsonl"
+    replay_files(tmp_path / "c.yaml", [tmp_path / "t.jsonl"], log, None)
+    assert main(["logs", "--why", str(log)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    whys = [line.strip() for line in out if line.startswith("  why:")]
+    assert whys == [
+        "why: (distance < 3) held (distance = 2) at tick 2 while halted was false",
+        "why: (distance < 3) held (distance = 1) at tick 4 while halted was false",
+    ]
+    assert main(["logs", "--why", "--json", str(log)]) == 0
+    objs = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [o["tick"] for o in objs] == [2, 4] and all(o["problem"] is None for o in objs)

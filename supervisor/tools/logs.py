@@ -427,6 +427,8 @@ def cmd_logs(args: argparse.Namespace) -> int:
     files = load(args.files)
     if args.follow:
         return _follow(files, args)
+    if args.why:
+        return _why([r for f in files for r in f.records], args)
     records = [r for f in files for r in f.records if _selected(r, args)]
     if args.summary:
         for line in _summary_json(records) if args.json else _summary(records):
@@ -436,6 +438,44 @@ def cmd_logs(args: argparse.Namespace) -> int:
         records = records[len(records) - args.lines :] if args.lines else []
     width = max((len(str(r.get("requirement", ""))) for r in records), default=0)
     Printer(args.json, width)(records)
+    return 0
+
+
+def _why(records: list[dict[str, Any]], args: argparse.Namespace) -> int:
+    """Each selected violation, and why it fired: the why-engine on the inputs its
+    monitor judged, as far as the record's ``recent`` window shows them."""
+    from supervisor.tools.why import mark_runs, why_of, windows_from_log
+
+    mark_runs(records)
+    windows = windows_from_log(records)
+    chosen = [
+        (i, r)
+        for i, r in enumerate(records)
+        if r.get("event") == "violation" and _selected(r, args)
+    ]
+    if args.lines is not None:
+        chosen = chosen[len(chosen) - args.lines :] if args.lines else []
+    out = []
+    for i, r in chosen:
+        why = why_of(r, windows.get(i))
+        if args.json:
+            out.append(
+                json.dumps(
+                    {
+                        "ts": r.get("ts"),
+                        "requirement": r.get("requirement"),
+                        "tick": r.get("tick"),
+                        "why": why.sentence or None,
+                        "problem": why.problem,
+                        "window": why.window.note if why.window else None,
+                    }
+                )
+            )
+        else:
+            out.append(f"{r.get('ts', '-')}  {r.get('requirement')}  tick {r.get('tick')}")
+            out.append(f"  why: {why.sentence}" if why.sentence else f"  (no why: {why.problem})")
+    if out:
+        print("\n".join(out))
     return 0
 
 
@@ -475,6 +515,12 @@ def add_parser(sub: Any) -> None:
         "--summary",
         action="store_true",
         help="per requirement: violations, first/last time, mitigations ok/failed",
+    )
+    mode.add_argument(
+        "--why",
+        action="store_true",
+        help="each selected violation and why it fired: the inputs that decided it, "
+        "judged by the reference interpreter over the record's recent ticks",
     )
     mode.add_argument(
         "-f",

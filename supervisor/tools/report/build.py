@@ -11,14 +11,12 @@ from supervisor.tools.report.data import LogData, load_logs, median, resolve_con
 from supervisor.tools.report.inputs import (
     SHOWN_PER_REQUIREMENT,
     Series,
-    Window,
     bag_paths,
     series_from_bag,
     series_from_log,
     windows_from_bag,
-    windows_from_log,
 )
-from supervisor.tools.report.whys import Why, why_of
+from supervisor.tools.why import Why, Window, why_of, windows_from_log
 
 
 @dataclass
@@ -72,7 +70,7 @@ def build(logs: list[str], bags: list[str], config: str | None, quiet: bool = Fa
         for r in reqs
         for i in r.violations[:SHOWN_PER_REQUIREMENT]
     }
-    windows: dict[int, Window] = windows_from_log(data)
+    windows: dict[int, Window] = windows_from_log(data.records)
     if bags:
         assert cfg is not None and cfg_path is not None
         paths = bag_paths(bags)

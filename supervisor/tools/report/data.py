@@ -18,6 +18,7 @@ from typing import Any
 from mitigations.violationlog.reader import read_bytes, verify_bytes
 from monitors.errors import UserError
 from supervisor.tools.logs import load, verify_files
+from supervisor.tools.why import is_start, mark_runs
 
 
 @dataclass
@@ -80,13 +81,7 @@ def load_logs(paths: list[str]) -> LogData:
     records = [r for f in files for r in f.records]  # in the order written
     if not records:
         raise UserError("not a violation log: no record in it", file=paths[0])
-    run = -1
-    for r in records:
-        # seq starts at 1 with each daemon or replay (docs/reference/log.md, "seq"); a
-        # log written before seq existed has its start records only
-        if run < 0 or r.get("seq") == 1 or ("seq" not in r and _is_start(r)):
-            run += 1
-        r["_run"] = run
+    mark_runs(records)
     _times(records)
     integrity = Integrity(status == 0, first, lines, skipped.getvalue().splitlines())
     return LogData(paths, integrity, records)
@@ -115,14 +110,10 @@ def _times(records: list[dict[str, Any]]) -> None:
         r.pop("_placed", None)
 
 
-def _is_start(r: dict[str, Any]) -> bool:
-    return r.get("event") == "supervisor" and r.get("what") in ("start", "replay")
-
-
 def config_path(data: LogData) -> str | None:
     """The config named by the last ``start`` (or ``replay``) supervisor record."""
     for r in reversed(data.records):
-        if _is_start(r) and r.get("config"):
+        if is_start(r) and r.get("config"):
             return str(r["config"])
     return None
 

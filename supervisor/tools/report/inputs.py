@@ -23,6 +23,7 @@ from typing import Any
 from monitors.errors import UserError
 from supervisor.config.model import Config
 from supervisor.tools.report.data import LogData
+from supervisor.tools.why import Window, value, window
 
 Value = bool | int | float
 MAX_POINTS = 3000  # per input in the page: beyond it, min/max per time bucket
@@ -35,22 +36,6 @@ class Series:
     name: str
     kind: str  # "bool" (drawn as bands) or "number" (a line)
     points: list[tuple[int, Value]] = field(default_factory=list)  # (t_ns, value), in time order
-
-
-@dataclass
-class Window:
-    """The trace a why-tree judges: oldest first, the violating tick last."""
-
-    ticks: list[int]
-    trace: list[dict[str, Value]]
-    note: str  # where it comes from and how it starts
-
-
-def value(x: Any) -> Any:
-    """JSON's stand-ins for NaN and the infinities back to floats (docs/reference/log.md)."""
-    if isinstance(x, str) and x in ("nan", "inf", "-inf"):
-        return float(x)
-    return x
 
 
 def _kind(values: list[Any], declared: str | None) -> str:
@@ -163,63 +148,6 @@ def _period_ns(cfg: Config | None) -> int | None:
     if cfg is None or cfg.step.policy != "periodic" or not cfg.step.period_ms:
         return None
     return int(cfg.step.period_ms * 1e6)
-
-
-def reset_ticks(data: LogData) -> dict[int, int]:
-    """Index of each violation record in ``data.records`` -> the first tick its
-    requirement's monitor judged (its last reset, else the run's start: 0).
-
-    A requirement's reset carries its tick; an operator reset (``*``) or a reload
-    resets every requirement and carries none: the tick of a ``latch released``
-    record of the same reset, else the tick after the last one the log shows."""
-    out: dict[int, int] = {}
-    last: dict[tuple[int, str], int] = {}
-    every: dict[int, int] = {}
-    newest: dict[int, int] = {}  # per run, the highest tick seen
-    for i, r in enumerate(data.records):
-        run, tick, ev = r["_run"], r.get("tick"), r.get("event")
-        if ev == "violation" and isinstance(tick, int):
-            req = str(r.get("requirement"))
-            out[i] = max(last.get((run, req), 0), every.get(run, 0))
-            newest[run] = max(newest.get(run, -1), tick)
-        elif ev == "reset" and isinstance(tick, int):
-            last[(run, str(r.get("requirement")))] = tick
-            newest[run] = max(newest.get(run, -1), tick - 1)
-        elif (ev == "reset" and r.get("requirement") == "*") or (
-            ev == "supervisor" and r.get("what") == "reload" and r.get("ok")
-        ):
-            every[run] = newest.get(run, -1) + 1
-    return out
-
-
-def windows_from_log(data: LogData) -> dict[int, Window]:
-    starts = reset_ticks(data)
-    out = {}
-    for i, start in starts.items():
-        r = data.records[i]
-        rows = [row for row in r.get("recent") or [] if row.get("tick", -1) >= start]
-        if not rows:
-            continue
-        first = rows[0]["tick"]
-        if first > start:
-            note = (
-                f"the record's last {len(rows)} ticks (logging.recent); the monitor judged "
-                f"{r['tick'] - start + 1} ticks since tick {start}"
-            )
-        else:
-            note = f"ticks {first}..{r['tick']}: every tick since " + (
-                "the requirement's last reset" if start > 0 else "monitoring started"
-            )
-        out[i] = _window(rows, note)
-    return out
-
-
-def _window(rows: list[dict[str, Any]], note: str) -> Window:
-    return Window(
-        [int(row["tick"]) for row in rows],
-        [{k: value(v) for k, v in row.items() if k != "tick"} for row in rows],
-        note,
-    )
 
 
 # ---------------------------------------------------------------- from a bag
@@ -347,7 +275,7 @@ def windows_from_bag(
             note = f"replayed from the bag: ticks {first}..{key[1]}, every tick since " + (
                 "the requirement's last reset" if start > 0 else "monitoring started"
             )
-        out[i] = _window(rows, note)
+        out[i] = window(rows, note)
     if missed:
         notes.append(
             f"{missed} violation(s) of the log were not reproduced by replaying the bag with "

@@ -14,7 +14,7 @@ from supervisor.tools.report.assets import CSS, JS
 from supervisor.tools.report.build import Report, Requirement
 from supervisor.tools.report.inputs import SHOWN_PER_REQUIREMENT
 from supervisor.tools.report.timeline import MAJOR, domain, marker_text, svg
-from supervisor.tools.report.whys import Why
+from supervisor.tools.why import Why
 
 SHOWN_TICKS = 12  # columns of a why-tree: the violating tick and the ones before it
 
