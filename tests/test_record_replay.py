@@ -197,6 +197,19 @@ def test_a_recorded_demo_run_replays_to_the_same_decisions(tmp_path: Path) -> No
     assert want["reset"] and want["mitigation"]  # reset after each mitigation
     for key in want:
         assert got[key] == want[key], key
+    # and the incident report of that run opens offline in a real browser, one marker
+    # per violation, a why-tree for each (tests/test_report.py's checks)
+    from test_report import check_page
+
+    page = tmp_path / "report.html"
+    built = subprocess.run(
+        [sys.executable, "-m", "supervisor", "report", str(log), "--bag", str(rec),
+         "--config", str(config), "-o", str(page), "--quiet"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert built.returncode == 0, built.stderr
+    trees = check_page(page, log)
+    assert {k.split("@")[0] for k in trees} == {v[0] for v in want["violation"]}
 
 
 class _LimitedDaemon(Daemon):
