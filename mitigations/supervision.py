@@ -81,11 +81,13 @@ class Supervision:
             if d is not None and d <= now:
                 self._apply(i, pol.on_time(now, values), None, now)
 
-    def operator_reset(self) -> list[tuple[int, str]]:
-        """Reset every requirement's monitor and lift the latches of those that
-        hold; returns the refused ones (index, why)."""
+    def operator_reset(self, only: int | None = None) -> list[tuple[int, str]]:
+        """Reset every requirement's monitor (or requirement ``only``'s) and lift the
+        latches of those that hold; returns the refused ones (index, why)."""
         refused = []
         for i, pol in enumerate(self.policies):
+            if only is not None and i != only:
+                continue
             ok, why = pol.operator_reset()
             if not ok:
                 refused.append((i, why))
@@ -93,7 +95,10 @@ class Supervision:
                 self.sink.reset(i, "operator reset: latch released")
             if ok:
                 self.active.discard(i)
-        self.runtime.reset_all()
+        if only is None:
+            self.runtime.reset_all()
+        elif not refused:
+            self.runtime.reset_requirement(only)
         return refused
 
     def latched(self) -> list[int]:

@@ -180,3 +180,21 @@ def test_operator_reset_is_ordered_by_time(project):
     assert core.operator_reset(21 * MS, via="test") == []
     assert not core.supervision.latched()
     assert len([c for c in calls.calls if c[0] == "reset" and c[1] == "*"]) == 2
+
+
+def test_an_operator_reset_of_one_requirement_leaves_the_others(project):
+    core, calls = new_core(project)
+    core.start(0)
+    core.message("halted", False, 1 * MS)
+    core.message("speed", 2.6, 2 * MS)  # 'held' latches at the step at 10 ms
+    core.message("speed", 1.0, 12 * MS)
+    core.advance(21 * MS)
+    assert core.supervision.latched() == [2]
+    with pytest.raises(KeyError):
+        core.operator_reset(22 * MS, "nope")
+    assert core.operator_reset(23 * MS, "limit", via="ui", client="127.0.0.1") == []
+    assert core.supervision.latched() == [2]  # only 'limit' was reset
+    assert core.operator_reset(24 * MS, "held", via="ui") == []
+    assert core.supervision.latched() == []
+    resets = [c for c in calls.calls if c[0] == "reset" and c[2] == "operator reset"]
+    assert [c[1] for c in resets] == ["limit", "held"]

@@ -31,7 +31,7 @@ import pytest
 from monitors.errors import UserError
 from supervisor.config import load_config
 from supervisor.config.model import ControlConfig
-from supervisor.daemon.control import ControlServer, Refusals, ResetGate, open_control
+from supervisor.daemon.control import Caller, ControlServer, Refusals, ResetGate, open_control
 from supervisor.names import RESET_SERVICE
 from supervisor.tools.reset import request
 
@@ -405,3 +405,13 @@ def test_unit_and_installer_give_operators_the_socket(
     except KeyError:
         assert f"$ groupadd --system {OPERATORS_GROUP}" in out, out
     assert f"usermod -aG {OPERATORS_GROUP} USER" in out, out
+
+
+def test_a_request_may_name_one_requirement_and_who_relays_it() -> None:
+    caller = Caller(pid=1, uid=0, gid=0)
+    req = ControlServer._parse(
+        b'{"command": "reset", "requirement": "r1", "via": "ui", "client": "10.0.0.5"}', caller
+    )
+    assert (req.refused, req.requirement, req.via, req.client) == (None, "r1", "ui", "10.0.0.5")
+    bad = ControlServer._parse(b'{"command": "reset", "requirement": 3}', caller)
+    assert bad.refused == "bad_request" and "requirement" in bad.detail

@@ -38,6 +38,7 @@ from supervisor.config.model import ControlConfig
 from supervisor.names import OPERATORS_GROUP, daemon_control_socket
 
 COMMANDS = ("reset",)
+MAX_FIELD = 200  # characters of requirement, via and client
 MAX_REQUEST = 4096  # bytes of one request line
 READ_TIMEOUT_S = 2.0  # a client that connects and says nothing is dropped
 ANSWER_TIMEOUT_S = 5.0  # the loop answers within one iteration; the watchdog covers a hang
@@ -67,6 +68,11 @@ class ControlRequest:
     command: str
     caller: Caller
     refused: str | None = None  # "permission" or "bad_request": the loop only reports it
+    requirement: str | None = None  # reset one requirement; None: every one
+    # Who asked, as a program that relays operators says it (the UI: "ui" and the
+    # browser's address); recorded beside the socket peer's credentials.
+    via: str | None = None
+    client: str | None = None
     detail: str = ""
     reply: dict[str, Any] | None = None
     _done: threading.Event = field(default_factory=threading.Event)
@@ -235,7 +241,11 @@ class ControlServer:
         command = doc.get("command") if isinstance(doc, dict) else None
         if command not in COMMANDS:
             return bad(f"unknown command {command!r}; known: {', '.join(COMMANDS)}")
-        return ControlRequest(str(command), caller)
+        extra = {k: doc.get(k) for k in ("requirement", "via", "client")}
+        for key, value in extra.items():
+            if value is not None and (not isinstance(value, str) or len(value) > MAX_FIELD):
+                return bad(f"'{key}' must be a string of at most {MAX_FIELD} characters")
+        return ControlRequest(str(command), caller, **extra)
 
     def _authorised(self, c: Caller) -> bool:
         """The same rule the socket file's mode expresses, checked on the peer's

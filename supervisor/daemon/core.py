@@ -159,15 +159,26 @@ class Core:
         if busy or self.supervision.active:
             self._due = 0  # a policy deadline may have moved earlier
 
-    def operator_reset(self, t: int, **extra: Any) -> list[str]:
-        """Reset every requirement's monitor, lift the latches of those that hold;
-        returns the refused ones as ``id (why)``."""
-        self.advance(t)
-        self._mark("operator_reset", t, **extra)
+    def operator_reset(self, t: int, requirement: str | None = None, **extra: Any) -> list[str]:
+        """Reset every requirement's monitor (or ``requirement``'s), lift the latches of
+        those that hold; returns the refused ones as ``id (why)``.  An unknown id is a
+        KeyError (the caller checks it first: nothing is reset)."""
         ids = [r.id for r in self.session.requirements]
-        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset()]
+        only = None if requirement is None else ids.index(requirement) if requirement in ids else -1
+        if only == -1:
+            raise KeyError(requirement)
+        self.advance(t)
+        target = {} if requirement is None else {"requirement": requirement}
+        self._mark("operator_reset", t, **target, **extra)
+        refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset(only)]
         tick = self.session.runtime.tick  # the next tick is judged afresh
-        self.log.reset("*", reason="operator reset", refused=refused, tick=tick, **extra)
+        self.log.reset(
+            "*" if requirement is None else requirement,
+            reason="operator reset",
+            refused=refused,
+            tick=tick,
+            **extra,
+        )
         self._due = 0
         return refused
 

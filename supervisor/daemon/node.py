@@ -586,7 +586,11 @@ class SupervisorNode:
                     req.answer({"ok": False, "refused": req.refused, "message": req.detail})
                     continue
                 ok, message, refused = self.operator_reset(
-                    via="control_socket", caller=req.caller.record(), now=now
+                    via=req.via or "control_socket",
+                    caller=req.caller.record(),
+                    now=now,
+                    requirement=req.requirement,
+                    client=req.client,
                 )
                 reply: dict[str, Any] = {"ok": ok, "message": message}
                 if refused is not None:
@@ -605,16 +609,30 @@ class SupervisorNode:
             self.log.supervisor("reset_refused", **summary)
 
     def operator_reset(
-        self, *, via: str, caller: dict[str, Any] | None, now: int | None = None
+        self,
+        *,
+        via: str,
+        caller: dict[str, Any] | None,
+        now: int | None = None,
+        requirement: str | None = None,
+        client: str | None = None,
     ) -> tuple[bool, str, str | None]:
-        """Reset every requirement's monitor; lift latches of requirements that hold.
-        Returns (accepted, message for the caller, why refused).
+        """Reset every requirement's monitor (or ``requirement``'s); lift latches of
+        requirements that hold.  Returns (accepted, message for the caller, why refused).
 
         At most ``control.max_resets`` per ``control.interval_ms``: a refused call
         touches nothing and is counted, not logged on its own (:class:`Refusals`)."""
         now = time.monotonic_ns() if now is None else now
         who = _who(caller) if caller is not None else via
         cfg = self.session.config.control
+        known = [r.id for r in self.session.requirements]
+        if requirement is not None and requirement not in known:
+            self._refusals.add("bad_request", who)
+            return (
+                False,
+                f"no requirement '{requirement}' (known: {', '.join(known)})",
+                "bad_request",
+            )
         if not self._reset_gate.admit(now, cfg.max_resets, int(cfg.interval_ms * 1e6)):
             self._refusals.add("rate", who)
             return (
@@ -626,11 +644,13 @@ class SupervisorNode:
         extra: dict[str, Any] = {"via": via}
         if caller is not None:
             extra["caller"] = caller
-        refused = self.core.operator_reset(now, **extra)
+        if client is not None:
+            extra["client"] = client
+        refused = self.core.operator_reset(now, requirement, **extra)
         if refused:
             self._refusals.add("still_violated", who)
             return False, "not reset: " + ", ".join(refused), "still_violated"
-        return True, "all requirements reset", None
+        return True, f"{requirement or 'all requirements'} reset", None
 
     # ------------------------------------------------------------ graph and diagnostics
 

@@ -42,11 +42,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--timeout", type=float, default=10.0, help="seconds to wait for the answer (default 10)"
     )
+    r.add_argument(
+        "--requirement",
+        metavar="ID",
+        default=None,
+        help="reset this requirement only (default: every requirement)",
+    )
 
 
 def cmd_reset(args: argparse.Namespace) -> int:
     path = args.socket or client_control_socket()
-    answer = request(path, {"command": "reset"}, args.timeout)
+    req: dict[str, Any] = {"command": "reset"}
+    if args.requirement is not None:
+        req["requirement"] = args.requirement
+    answer = request(path, req, args.timeout)
     print(answer.get("message", ""), flush=True)
     return 0 if answer.get("ok") is True else 1
 

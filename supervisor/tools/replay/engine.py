@@ -189,8 +189,12 @@ def _marker(core: Core, record: dict[str, Any], t: int, outcome: Outcome, starte
         outcome.start_ns = t
         return True
     if what == "operator_reset" and started:
-        extra = {k: v for k, v in record.items() if k in ("via", "caller")}
-        core.operator_reset(t, **extra)
+        extra = {k: v for k, v in record.items() if k in ("via", "caller", "client")}
+        requirement = record.get("requirement")
+        try:
+            core.operator_reset(t, requirement if isinstance(requirement, str) else None, **extra)
+        except KeyError:
+            outcome.warnings.append(f"the recorded run reset {requirement}, not in this config")
     elif what == "stop":
         outcome.end_ns = t
     elif what == "reload":
