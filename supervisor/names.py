@@ -17,6 +17,10 @@ NODE_NAME = "safety_supervisor"
 VIOLATIONS_TOPIC = "/safety_supervisor/violations"  # std_msgs/String, one JSON record each
 HEARTBEAT_TOPIC = "/safety_supervisor/heartbeat"  # std_msgs/UInt64, from the loop
 RESET_SERVICE = "/safety_supervisor/reset"  # std_srvs/Trigger: opt-in (ros.reset_service)
+# std_msgs/String, JSON: each requirement's state, inputs, health (docs/reference/
+# ros-interfaces.md, "Status"); reliable + transient local, so a page that starts late
+# gets the latest at once
+STATUS_TOPIC = "/safety_supervisor/status"
 DIAGNOSTICS_TOPIC = "/diagnostics"  # diagnostic_msgs/DiagnosticArray (REP 107)
 
 # The operator's control socket (docs/reference/ros-interfaces.md, "Control socket").

@@ -36,6 +36,7 @@ class RosConfig:
     node_name: str = NODE_NAME
     heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
     diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
+    status_ms: float = 500.0  # /safety_supervisor/status period; 0: not published
     reset_service: bool = False  # /safety_supervisor/reset: opt-in, no credentials
     reset_service_line: int | None = None
 

@@ -10,7 +10,7 @@ from supervisor.config.model import RosConfig
 from supervisor.config.yamlload import LineDict
 from supervisor.names import RESET_SERVICE
 
-ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms", "reset_service"}
+ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms", "status_ms", "reset_service"}
 
 
 def load_ros(doc: LineDict) -> RosConfig:
@@ -25,8 +25,9 @@ def load_ros(doc: LineDict) -> RosConfig:
         if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(name)):
             raise error_at(f"ros.node_name '{name}' is not a valid ROS node name", r, "node_name")
         out.node_name = str(name)
-    for key in ("heartbeat_ms", "diagnostics_ms"):
-        v = number(r, key, "ros")
+    for key in ("heartbeat_ms", "diagnostics_ms", "status_ms"):
+        # status_ms 0 turns the status topic off; the others must tick
+        v = number(r, key, "ros", positive=key != "status_ms")
         if v is not None:
             setattr(out, key, v)
     reset = r.get("reset_service")

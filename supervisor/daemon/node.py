@@ -44,8 +44,10 @@ from rclpy.context import Context
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import (
+    DurabilityPolicy,
     QoSCompatibility,
     QoSProfile,
+    ReliabilityPolicy,
     qos_check_compatible,
 )
 from rclpy.serialization import deserialize_message
@@ -66,10 +68,12 @@ from supervisor.daemon.notify import Notifier
 from supervisor.daemon.qos import graph_type_name, matching_qos, qos_for
 from supervisor.daemon.runtime import Runtime
 from supervisor.daemon.session import Session
+from supervisor.daemon.status import StatusBoard
 from supervisor.names import (
     DIAGNOSTICS_TOPIC,
     HEARTBEAT_TOPIC,
     RESET_SERVICE,
+    STATUS_TOPIC,
     VIOLATIONS_TOPIC,
 )
 
@@ -156,6 +160,16 @@ class SupervisorNode:
             _msg("std_msgs/msg/String"), VIOLATIONS_TOPIC, 10
         )
         self.heartbeat = self.node.create_publisher(_msg("std_msgs/msg/UInt64"), HEARTBEAT_TOPIC, 1)
+        # Latched (transient local, depth 1): a page that starts late has the latest.
+        self.status_publisher = self.node.create_publisher(
+            _msg("std_msgs/msg/String"),
+            STATUS_TOPIC,
+            QoSProfile(
+                depth=1,
+                reliability=ReliabilityPolicy.RELIABLE,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            ),
+        )
         self.diagnostics = self.node.create_publisher(
             _msg("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS_TOPIC, 10
         )
@@ -186,8 +200,9 @@ class SupervisorNode:
             marker=self._marker if recorder is not None else None,
             warn=warn,
         )
-        if recorder is not None:
-            log.tee = lambda line: recorder.record(time.monotonic_ns(), line)
+        # Each record also goes to the status topic's feed, and to the recording.
+        self.status = StatusBoard(cfg.ros.node_name, self.node.get_namespace())
+        log.tee = self._tee
 
     # ------------------------------------------------------------ building
 
@@ -235,6 +250,29 @@ class SupervisorNode:
                 if s.recorded is None:  # a topic a reload added: not in this recording
                     warn(f"{s.var.topic} is not recorded: it was added by a reload")
                     self.log.supervisor("record_topic_missing", topic=s.var.topic)
+
+    def _tee(self, line: str) -> None:
+        self.status.record(line)
+        if self.recorder is not None:
+            self.recorder.record(time.monotonic_ns(), line)
+
+    def _publish_status(self, now: int) -> None:
+        doc = self.status.document(
+            self.session,
+            self.session.policies,
+            now_ns=now,
+            violations=self.core.violations,
+            reloads=self.reloads,
+            recording=self.recorder is not None,
+            watchdog_s=self.watchdog_ns / 1e9 if self.watchdog_ns else None,
+            control_socket=self.control.path if self.control is not None else None,
+        )
+        msg = _msg("std_msgs/msg/String")()
+        msg.data = json.dumps(doc)
+        try:
+            self.status_publisher.publish(msg)
+        except Exception as e:  # noqa: BLE001 - shutdown race
+            warn(f"cannot publish {STATUS_TOPIC}: {e}")
 
     def _marker(self, what: str, t: int, fields: dict[str, Any]) -> None:
         assert self.recorder is not None
@@ -309,6 +347,8 @@ class SupervisorNode:
         now = time.monotonic_ns()
         self.core.start(now)
         self._next = {"heartbeat": now, "diagnostics": now, "status": now}
+        if self.session.config.ros.status_ms:
+            self._next["status_topic"] = now
         if self.watchdog_ns:  # only a real deadline: a stale one would make the wait spin
             self._next["watchdog"] = now
         self._heartbeats = 0
@@ -452,6 +492,10 @@ class SupervisorNode:
             self._heartbeats += 1
             self.heartbeat.publish(_msg("std_msgs/msg/UInt64")(data=self._heartbeats))
             nxt["heartbeat"] = now + int(self.session.config.ros.heartbeat_ms * 1e6)
+        status_ms = self.session.config.ros.status_ms
+        if status_ms and now >= nxt.get("status_topic", now):
+            self._publish_status(now)
+            nxt["status_topic"] = now + int(status_ms * 1e6)
         if now >= nxt["diagnostics"]:
             self._check_graph()
             self._publish_diagnostics(now)

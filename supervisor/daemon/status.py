@@ -1,0 +1,194 @@
+"""The status document of ``/safety_supervisor/status``: what an operator's page
+shows (``ui``, docs/reference/ros-interfaces.md, "Status").
+
+One JSON document every ``ros.status_ms``: each requirement's state, each input's
+latest value and age, the supervisor's health, and the records made since the
+previous document (so a page's event feed misses none).  No rclpy here: the node
+publishes what :class:`StatusBoard` builds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import threading
+from collections import deque
+from datetime import UTC, datetime
+from functools import cache
+from typing import Any
+
+from mitigations.policy import RequirementPolicy
+from mitigations.violationlog.format import json_safe
+from supervisor.daemon.session import Session
+
+SCHEMA = 1
+ACTIONS_KEPT = 5  # per requirement, the latest
+EVENTS_KEPT = 500  # records between two documents; beyond, the oldest are counted
+MS = 1_000_000
+
+
+def requirement_state(pol: RequirementPolicy, now_ns: int) -> str:
+    """One word for a requirement's policy state, the most pressing first."""
+    c = pol.config
+    if pol.latched:
+        return "latched"
+    if pol.escalated:
+        return "escalated"
+    if pol.run_steps > 0 and not pol.in_episode:
+        return "debouncing"  # flagged, not yet for debounce_steps / debounce_ms
+    if not pol.holds:
+        return "violated"
+    if pol.last_act_ns is not None and now_ns < pol.last_act_ns + int(c.cooldown_ms * MS):
+        return "cooldown"
+    return "holding"
+
+
+def _iso(wall_ns: int) -> str:
+    return datetime.fromtimestamp(wall_ns / 1e9, tz=UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+class StatusBoard:
+    """Collects the records the log writes (``record``, from any thread) and builds
+    the status document from the session (``document``, on the loop)."""
+
+    def __init__(self, node_name: str, namespace: str = "/") -> None:
+        self.supervisor = f"{socket.gethostname()}:{namespace.rstrip('/')}/{node_name}"
+        self.started_wall = datetime.now(UTC).timestamp()
+        self.started_mono = None  # set at the first document
+        self._lock = threading.Lock()
+        self._events: deque[dict[str, Any]] = deque(maxlen=EVENTS_KEPT)
+        self._dropped = 0
+        self._actions: dict[str, deque[dict[str, Any]]] = {}
+        self._last_violation: dict[str, dict[str, Any]] = {}
+        self._prev: tuple[int, int, int] | None = None  # (t, ticks, received)
+
+    def record(self, line: str) -> None:
+        """A record as the log rendered it (ViolationLog.tee)."""
+        try:
+            r = json.loads(line)
+        except ValueError:
+            return
+        event = r.get("event")
+        brief = {
+            k: r[k]
+            for k in ("event", "ts", "requirement", "what", "action", "ok", "stage", "tick",
+                      "reason", "input", "detail", "error")
+            if k in r
+        }  # fmt: skip
+        with self._lock:
+            if len(self._events) == self._events.maxlen:
+                self._dropped += 1
+            self._events.append(brief)
+            req = str(r.get("requirement", ""))
+            if event == "violation":
+                self._last_violation[req] = {"ts": r.get("ts"), "tick": r.get("tick")}
+            elif event == "mitigation":
+                kept = self._actions.setdefault(req, deque(maxlen=ACTIONS_KEPT))
+                kept.append(
+                    {k: r.get(k) for k in ("action", "stage", "ok", "ts", "latency_ms", "dry_run")}
+                )
+
+    def document(
+        self,
+        session: Session,
+        policies: list[RequirementPolicy],
+        *,
+        now_ns: int,
+        violations: int,
+        reloads: int,
+        recording: bool,
+        watchdog_s: float | None,
+        control_socket: str | None,
+    ) -> dict[str, Any]:
+        cfg = session.config
+        rt = session.runtime
+        stats = rt.input_stats()
+        received = sum(st["messages"] + st["rejected"] for st in stats.values())
+        tick_rate = receive_rate = 0.0
+        if self._prev is not None and now_ns > self._prev[0]:
+            dt = (now_ns - self._prev[0]) / 1e9
+            tick_rate = (rt.tick - self._prev[1]) / dt
+            receive_rate = (received - self._prev[2]) / dt
+        self._prev = (now_ns, rt.tick, received)
+        if self.started_mono is None:
+            self.started_mono = now_ns
+        with self._lock:
+            events, self._events = list(self._events), deque(maxlen=EVENTS_KEPT)
+            dropped, self._dropped = self._dropped, 0
+            actions = {k: list(v) for k, v in self._actions.items()}
+            last = dict(self._last_violation)
+        stale = set(rt.stale_inputs())
+        types = {v.name: v for v in cfg.inputs}
+        requirements = []
+        for i, r in enumerate(session.requirements):
+            pol = policies[i]
+            over_inputs = session.formulas_inputs[i] if i < len(session.formulas_inputs) else None
+            reads = [n for n in _names(over_inputs or session.formulas[i]) if n in stale]
+            requirements.append(
+                {
+                    "id": r.id,
+                    "text": r.entry.text,
+                    "formula": session.formulas[i],
+                    "state": requirement_state(pol, now_ns),
+                    "violations": pol.violations,
+                    "last_violation": (last.get(r.id) or {}).get("ts"),
+                    "last_tick": pol.last_violation_tick,
+                    "stale_inputs": reads,
+                    "actions": actions.get(r.id, []),
+                }
+            )
+        inputs = []
+        for name, st in stats.items():
+            v = types.get(name)
+            last_ns = st["last_ns"]
+            inputs.append(
+                {
+                    "name": name,
+                    "topic": v.topic if v else None,
+                    "type": v.type if v else None,
+                    "value": rt.snapshot().get(name),
+                    "age_s": None if last_ns is None else round((now_ns - last_ns) / 1e9, 3),
+                    "stale": bool(st["stale"]),
+                    "messages": st["messages"],
+                    "lost": st["lost"],
+                }
+            )
+        doc = {
+            "schema": SCHEMA,
+            "supervisor": self.supervisor,
+            "component": cfg.component,
+            "config": cfg.path,
+            "config_sha256": cfg.sha256,
+            "pid": os.getpid(),
+            "started": _iso(int(self.started_wall * 1e9)),
+            "now": _iso(int(datetime.now(UTC).timestamp() * 1e9)),
+            "uptime_s": round((now_ns - self.started_mono) / 1e9, 3),
+            "policy": cfg.step.policy,
+            "ticks": rt.tick,
+            "tick_rate_hz": round(tick_rate, 2),
+            "receive_rate_hz": round(receive_rate, 2),
+            "received": received,
+            "lost": sum(st["lost"] for st in stats.values()),
+            "violations": violations,
+            "reloads": reloads,
+            "recording": recording,
+            "watchdog": {"enabled": watchdog_s is not None, "interval_s": watchdog_s},
+            "control_socket": control_socket,
+            "requirements": requirements,
+            "inputs": inputs,
+            "events": events,
+            "events_dropped": dropped,
+        }
+        return json_safe(doc)
+
+
+@cache
+def _names(formula: str) -> list[str]:
+    """The inputs a formula reads (parsed once per formula text)."""
+    from monitors.ir.formula import parse_formula, variables
+
+    try:
+        return variables(parse_formula(formula))
+    except Exception:  # noqa: BLE001 - a formula the parser reads back; none is expected
+        return []
