@@ -93,7 +93,6 @@ class FieldPlan:
             return None
         return _take(buf, body + at, self.size, self.dtype)
 
-
     def read(self, data: bytes) -> Any:
         """The field of ONE payload (the daemon's recording path, where the message
         arrives serialized), or None when it is too short or not little-endian, or
