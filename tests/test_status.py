@@ -114,13 +114,14 @@ def test_the_document_of_a_session(tmp_path: Path):
 
 
 @pytest.mark.ros
-def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any):
+@pytest.mark.parametrize("namespace", ["/", "/robot1"])
+def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any, namespace: str):
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosutil import Daemon, spin_until, wait_matched
     from std_msgs.msg import Bool, Float64, String
 
     config = tmp_path / "r.yaml"
-    config.write_text(CONFIG + "ros: {status_ms: 100}\n")
+    config.write_text(CONFIG + f"ros: {{status_ms: 100, namespace: '{namespace}'}}\n")
     d = Daemon(tmp_path, config)
     try:
         d.wait_notify("READY=1", timeout=30)
@@ -131,7 +132,10 @@ def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any):
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
         robot_node.create_subscription(
-            String, "/safety_supervisor/status", lambda m: docs.append(json.loads(m.data)), qos
+            String,
+            namespace.rstrip("/") + "/safety_supervisor/status",
+            lambda m: docs.append(json.loads(m.data)),
+            qos,
         )
         speed = robot_node.create_publisher(Float64, "/speed", 10)
         halted = robot_node.create_publisher(Bool, "/halted", 10)
@@ -149,6 +153,7 @@ def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any):
 
         doc = spin_until(robot_node, "a status with the latch", latched, timeout=15)
         assert doc["component"] == "R" and doc["schema"] == 1 and doc["policy"] == "on_message"
+        assert doc["supervisor"].endswith(f":{namespace.rstrip('/')}/safety_supervisor")
         assert any(e["event"] == "violation" for d_ in docs for e in d_["events"])
         assert {i["name"] for i in doc["inputs"]} == {"speed", "halted"}
         d.terminate()

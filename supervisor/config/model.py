@@ -34,6 +34,7 @@ class RosConfig:
     """The supervisor's own ROS interfaces (``ros:``)."""
 
     node_name: str = NODE_NAME
+    namespace: str = "/"  # the daemon's own topics and service live under it
     heartbeat_ms: float = 100.0  # /safety_supervisor/heartbeat period
     diagnostics_ms: float = 1000.0  # /diagnostics period (1 Hz, REP 107)
     status_ms: float = 500.0  # /safety_supervisor/status period; 0: not published

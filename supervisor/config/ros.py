@@ -10,7 +10,14 @@ from supervisor.config.model import RosConfig
 from supervisor.config.yamlload import LineDict
 from supervisor.names import RESET_SERVICE
 
-ROS_KEYS = {"node_name", "heartbeat_ms", "diagnostics_ms", "status_ms", "reset_service"}
+ROS_KEYS = {
+    "node_name",
+    "namespace",
+    "heartbeat_ms",
+    "diagnostics_ms",
+    "status_ms",
+    "reset_service",
+}
 
 
 def load_ros(doc: LineDict) -> RosConfig:
@@ -25,6 +32,16 @@ def load_ros(doc: LineDict) -> RosConfig:
         if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(name)):
             raise error_at(f"ros.node_name '{name}' is not a valid ROS node name", r, "node_name")
         out.node_name = str(name)
+    ns = r.get("namespace")
+    if ns is not None:
+        if not re.match(r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$", str(ns)):
+            raise error_at(
+                f"ros.namespace '{ns}' is not a ROS namespace",
+                r,
+                "namespace",
+                "absolute, like /robot1 or /fleet/robot1",
+            )
+        out.namespace = str(ns)
     for key in ("heartbeat_ms", "diagnostics_ms", "status_ms"):
         # status_ms 0 turns the status topic off; the others must tick
         v = number(r, key, "ros", positive=key != "status_ms")

@@ -153,17 +153,22 @@ class SupervisorNode:
         self._lost_at_diag: dict[str, int] = {}  # per input: lost total last on /diagnostics
 
         cfg = session.config
-        self.node = Node(cfg.ros.node_name, context=context)
+        # The daemon's own topics and service are named relative to its namespace
+        # (ros.namespace): in the default one they are the absolute names, and
+        # supervisors of several robots on one graph stay apart.
+        self.node = Node(cfg.ros.node_name, namespace=cfg.ros.namespace, context=context)
         self._subs: list[_Sub] = []
         self._make_subscriptions(cfg)
         self.publisher = self.node.create_publisher(
-            _msg("std_msgs/msg/String"), VIOLATIONS_TOPIC, 10
+            _msg("std_msgs/msg/String"), own(VIOLATIONS_TOPIC), 10
         )
-        self.heartbeat = self.node.create_publisher(_msg("std_msgs/msg/UInt64"), HEARTBEAT_TOPIC, 1)
+        self.heartbeat = self.node.create_publisher(
+            _msg("std_msgs/msg/UInt64"), own(HEARTBEAT_TOPIC), 1
+        )
         # Latched (transient local, depth 1): a page that starts late has the latest.
         self.status_publisher = self.node.create_publisher(
             _msg("std_msgs/msg/String"),
-            STATUS_TOPIC,
+            own(STATUS_TOPIC),
             QoSProfile(
                 depth=1,
                 reliability=ReliabilityPolicy.RELIABLE,
@@ -596,7 +601,7 @@ class SupervisorNode:
     def _sync_reset_service(self, cfg: Config) -> None:
         """The ROS reset service exists iff ``ros.reset_service`` (also after a reload)."""
         if cfg.ros.reset_service and self.reset_service is None:
-            self.reset_service = self.node.create_service(self._trigger, RESET_SERVICE, _never)
+            self.reset_service = self.node.create_service(self._trigger, own(RESET_SERVICE), _never)
             self.log.supervisor("reset_service", enabled=True, service=RESET_SERVICE)
         elif not cfg.ros.reset_service and self.reset_service is not None:
             self.node.destroy_service(self.reset_service)
@@ -902,6 +907,11 @@ def _keep_policies(old: Session, new: Session) -> list[str]:
             new.policies[i] = old.policies[j]
             kept.append(req.id)
     return kept
+
+
+def own(name: str) -> str:
+    """One of the daemon's own names, relative to its namespace."""
+    return name.lstrip("/")
 
 
 def _never(*_args: Any) -> None:
