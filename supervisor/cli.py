@@ -36,6 +36,8 @@ from supervisor.tools.report.command import add_parser as add_report_parser
 from supervisor.tools.report.command import cmd_report
 from supervisor.tools.reset import add_parser as add_reset_parser
 from supervisor.tools.reset import cmd_reset
+from supervisor.tools.ui.command import add_parser as add_ui_parser
+from supervisor.tools.ui.command import cmd_ui
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 
@@ -234,6 +236,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "logs": cmd_logs,
     "run": cmd_run,
     "reset": cmd_reset,
+    "ui": cmd_ui,
     "install-service": cmd_install_service,
     "demo": cmd_demo,
     "inject": cmd_inject,
@@ -296,6 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_logs_parser(sub)
     add_reset_parser(sub)
+    add_ui_parser(sub)
     add_install_parser(sub)
     add_demo_parser(sub)
     add_inject_parser(sub)

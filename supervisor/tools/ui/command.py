@@ -1,0 +1,115 @@
+"""``safety-supervisor ui``: parse the options, start the ROS node and the server, wait.
+
+It never runs inside the daemon: a crash or a restart of the UI leaves monitoring
+alone.  docs/reference/commands.md, ``ui``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from monitors.errors import UserError
+from supervisor.names import client_control_socket
+from supervisor.tools.ui.token import TOKEN_FILE, read_token
+
+PROG = "ui"
+DEFAULT_BIND = "127.0.0.1:8321"
+
+
+def bind_arg(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``[::1]:PORT`` for IPv6) as argparse's type."""
+    host, sep, port = text.rpartition(":")
+    host = host.strip("[]")
+    try:
+        if not sep or not host:
+            raise ValueError
+        ipaddress.ip_address(host)
+        number = int(port)
+        if not 0 <= number <= 65535:
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not ADDRESS:PORT (e.g. 127.0.0.1:8321, [::1]:8321, 0.0.0.0:8321)"
+        ) from None
+    return host, number
+
+
+def add_parser(sub: Any) -> None:
+    p = sub.add_parser(
+        "ui", help="the operator's web page: live state, events, resets (its own process)"
+    )
+    p.add_argument(
+        "--bind",
+        type=bind_arg,
+        default=bind_arg(DEFAULT_BIND),
+        metavar="ADDRESS:PORT",
+        help=f"where to listen (default {DEFAULT_BIND}: this machine only)",
+    )
+    p.add_argument(
+        "--token-file",
+        default=None,
+        metavar="PATH",
+        help=f"the bearer token that resets need (default {TOKEN_FILE} if it exists; "
+        "without a token the page is read-only)",
+    )
+    p.add_argument(
+        "--socket",
+        default=None,
+        metavar="PATH",
+        help="the daemon's control socket (default: the one its status document names, "
+        "else where `reset` looks)",
+    )
+
+
+def _token(args: argparse.Namespace) -> bytes | None:
+    if args.token_file:
+        return read_token(Path(args.token_file))
+    if TOKEN_FILE.exists():
+        return read_token(TOKEN_FILE)
+    return None
+
+
+def cmd_ui(args: argparse.Namespace) -> int:
+    from supervisor.tools.ui.hub import Hub
+    from supervisor.tools.ui.server import UiServer, reset_availability
+
+    token = _token(args)
+
+    def socket_path(status: dict[str, Any] | None = None) -> str | None:
+        if args.socket:
+            return str(args.socket)
+        doc = status if status is not None else hub.status
+        named = doc.get("control_socket") if isinstance(doc, dict) else None
+        return named if isinstance(named, str) and named else client_control_socket()
+
+    hub = Hub(lambda doc: reset_availability(socket_path(doc), token))
+    try:
+        server = UiServer(args.bind, hub, token, socket_path)
+    except OSError as e:
+        host, port = args.bind
+        raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None
+
+    from supervisor.tools.ui.node import UiNode
+
+    node = UiNode(hub)
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    thread = threading.Thread(target=server.serve_forever, name="ui-http", daemon=True)
+    thread.start()
+    mode = "resets with the token" if token is not None else "read-only: no token"
+    print(f"safety-supervisor ui: {server.url()} ({mode})", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        server.stop()
+        node.close()
+    print("safety-supervisor ui: stopped", file=sys.stderr, flush=True)
+    return 0

@@ -1,0 +1,222 @@
+"""What the page shows, kept in one place, and its fan-out to the browsers.
+
+The ROS side (:mod:`.node`) calls ``on_status``, ``on_violation`` and
+``on_diagnostics`` from its executor thread; each HTTP ``/events`` stream
+subscribes a queue.  No rclpy here, so it is tested without DDS.
+
+Sources (docs/reference/ros-interfaces.md, "What the UI reads"):
+
+- the status document (``/safety_supervisor/status``) is the picture: requirements,
+  inputs, health, and the records made since the previous document (``events``);
+- a violation record (``/safety_supervisor/violations``) goes to the feed at once,
+  not half a status period later; the same violation in the next document's
+  ``events`` is then not shown twice;
+- ``/diagnostics`` stands in for the requirements and inputs while no status
+  document has arrived (a daemon without the status topic).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import queue
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Any
+
+FEED_LENGTH = 200  # entries a newly opened page gets
+CLIENT_QUEUE = 1000  # messages a slow browser may fall behind before it is dropped
+
+
+def utc_now() -> str:
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+def _diag_state(level: int, message: str) -> str:
+    """A requirement's state in the words of the status document, from its
+    /diagnostics status (docs/reference/ros-interfaces.md, "/diagnostics")."""
+    if level == 0:
+        return "holding"
+    return "latched" if "latched" in message else "violated"
+
+
+class Hub:
+    """The latest picture and the browsers' queues; every method is thread-safe."""
+
+    def __init__(
+        self,
+        reset_state: Callable[[dict[str, Any] | None], dict[str, Any]],
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._lock = threading.Lock()
+        self._reset_state = reset_state  # whether resets can reach the daemon, and why not
+        self._clock = clock
+        self.status: dict[str, Any] | None = None
+        self._status_at: float | None = None
+        self._diagnostics: dict[str, Any] = {"requirements": {}, "inputs": {}, "at": None}
+        self._feed: deque[dict[str, Any]] = deque(maxlen=FEED_LENGTH)
+        # violations shown from the topic, not yet seen in a status document's events
+        self._pending: Counter[str] = Counter()
+        self._clients: set[queue.Queue[str | None]] = set()
+
+    # ------------------------------------------------------------ inputs
+
+    def on_status(self, doc: dict[str, Any]) -> None:
+        entries = []
+        with self._lock:
+            self.status = doc
+            self._status_at = self._clock()
+            for ev in doc.get("events") or []:
+                if not isinstance(ev, dict):
+                    continue
+                rid = str(ev.get("requirement") or "")
+                if ev.get("event") == "violation" and self._pending[rid] > 0:
+                    self._pending[rid] -= 1  # already in the feed from the topic
+                    continue
+                entries.append(self._entry(ev))
+            self._feed.extend(entries)
+        self._broadcast(
+            {"type": "status", "status": doc, "reset": self._reset_state(doc), "feed": entries}
+        )
+
+    def on_violation(self, record: dict[str, Any]) -> None:
+        rid = str(record.get("requirement") or "")
+        entry = {
+            "event": "violation",
+            "ts": record.get("ts") or utc_now(),
+            "requirement": rid,
+            "what": "violated",
+            "detail": _inputs_text(record.get("inputs")),
+            "tick": record.get("tick"),
+            "text": record.get("text"),
+            "formula": record.get("formula"),
+        }
+        with self._lock:
+            self._pending[rid] += 1
+            self._feed.append(entry)
+        self._broadcast({"type": "violation", "record": record, "feed": [entry]})
+
+    def on_diagnostics(self, statuses: list[tuple[str, int, str, dict[str, str]]]) -> None:
+        """``(name, level, message, values)`` per status of one DiagnosticArray."""
+        reqs: dict[str, Any] = {}
+        inputs: dict[str, Any] = {}
+        for name, level, message, values in statuses:
+            _node, _, what = name.partition(": ")
+            kind, _, key = what.partition(" ")
+            if kind == "requirement" and key:
+                reqs[key] = {
+                    "id": key,
+                    "state": _diag_state(level, message),
+                    "message": message,
+                    "violations": _int(values.get("violations")),
+                }
+            elif kind == "input" and key:
+                age = values.get("age_ms", "never")
+                inputs[key] = {
+                    "name": key,
+                    "topic": values.get("topic", ""),
+                    "age_s": None if age == "never" else _float(age, 1e-3),
+                    "stale": level != 0 and "stale" in message,
+                    "messages": _int(values.get("messages")),
+                    "lost": _int(values.get("lost")),
+                    "message": message,
+                }
+        if not reqs and not inputs:
+            return  # another node's diagnostics
+        with self._lock:
+            self._diagnostics = {"requirements": reqs, "inputs": inputs, "at": utc_now()}
+            diag = self._diagnostics
+        self._broadcast({"type": "diagnostics", "diagnostics": diag})
+
+    def note(self, entry: dict[str, Any]) -> None:
+        """An entry of the UI's own (a reset asked for from the page) for the feed."""
+        entry = {"ts": utc_now(), **entry}
+        with self._lock:
+            self._feed.append(entry)
+        self._broadcast({"type": "feed", "feed": [entry]})
+
+    # ------------------------------------------------------------ outputs
+
+    def snapshot(self) -> dict[str, Any]:
+        """Everything a page that just connected needs."""
+        with self._lock:
+            age = None if self._status_at is None else self._clock() - self._status_at
+            out = {
+                "type": "snapshot",
+                "status": self.status,
+                "status_age_s": age,
+                "diagnostics": self._diagnostics,
+                "feed": list(self._feed),
+            }
+            status = self.status
+        out["reset"] = self._reset_state(status)
+        return out
+
+    def subscribe(self) -> queue.Queue[str | None]:
+        """A queue of SSE ``data`` lines; its first item is the snapshot, so
+        nothing published after the snapshot is missed."""
+        q: queue.Queue[str | None] = queue.Queue(CLIENT_QUEUE)
+        with self._lock:
+            self._clients.add(q)
+        q.put(json.dumps(self.snapshot()))
+        return q
+
+    def unsubscribe(self, q: queue.Queue[str | None]) -> None:
+        with self._lock:
+            self._clients.discard(q)
+
+    def close(self) -> None:
+        """Ends every stream (None wakes its handler)."""
+        with self._lock:
+            clients = list(self._clients)
+            self._clients.clear()
+        for q in clients:
+            with contextlib.suppress(queue.Full):
+                q.put_nowait(None)
+
+    def _broadcast(self, message: dict[str, Any]) -> None:
+        line = json.dumps(message)
+        with self._lock:
+            clients = list(self._clients)
+        for q in clients:
+            try:
+                q.put_nowait(line)
+            except queue.Full:
+                # a browser that stopped reading: drop it; it reconnects with a snapshot
+                self.unsubscribe(q)
+                with contextlib.suppress(queue.Empty):
+                    q.get_nowait()
+                q.put_nowait(None)
+
+    @staticmethod
+    def _entry(ev: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "event": str(ev.get("event") or "supervisor"),
+            "ts": ev.get("ts") or utc_now(),
+            "requirement": ev.get("requirement") or "",
+            "what": ev.get("what") or "",
+            "detail": ev.get("detail") or "",
+        }
+
+
+def _inputs_text(inputs: Any) -> str:
+    if not isinstance(inputs, dict):
+        return ""
+    return ", ".join(f"{k}={json.dumps(v)}" for k, v in inputs.items())
+
+
+def _int(text: str | None) -> int | None:
+    try:
+        return int(str(text))
+    except ValueError:
+        return None
+
+
+def _float(text: str, scale: float = 1.0) -> float | None:
+    try:
+        return float(text) * scale
+    except ValueError:
+        return None

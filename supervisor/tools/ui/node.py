@@ -1,0 +1,94 @@
+"""The UI's rclpy node: it only subscribes to the daemon's topics and feeds the hub.
+
+Its own context and executor thread, so the HTTP threads never touch rclpy.
+The QoS of each subscription matches what the daemon offers
+(docs/reference/ros-interfaces.md, "The node" and "What the UI reads").
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from typing import Any
+
+from supervisor.names import DIAGNOSTICS_TOPIC, VIOLATIONS_TOPIC
+from supervisor.tools.ui.hub import Hub
+
+NODE_NAME = "safety_supervisor_ui"
+# The daemon's status document (reliable, transient local, depth 1: a UI that
+# starts late gets the last one at once).  Its name belongs in supervisor/names.py
+# with the daemon's other names once the daemon publishes it.
+STATUS_TOPIC = "/safety_supervisor/status"
+
+
+def _json(msg: Any, what: str) -> dict[str, Any] | None:
+    try:
+        doc = json.loads(msg.data)
+    except ValueError:
+        print(f"safety-supervisor ui: WARNING: {what} is not JSON", file=sys.stderr, flush=True)
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+class UiNode:
+    """Starts rclpy in its own context; :meth:`close` stops it."""
+
+    def __init__(self, hub: Hub) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.signals import SignalHandlerOptions
+        from std_msgs.msg import String
+
+        self._hub = hub
+        self._ctx = Context()
+        rclpy.init(context=self._ctx, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = Node(NODE_NAME, context=self._ctx)
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        self.node.create_subscription(String, STATUS_TOPIC, self._on_status, latched)
+        # depth 100: a burst of violations is not cut short before the executor runs
+        self.node.create_subscription(String, VIOLATIONS_TOPIC, self._on_violation, 100)
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diag, 10)
+        self._executor = SingleThreadedExecutor(context=self._ctx)
+        self._executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, name="ui-ros", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while not self._stop.is_set() and self._ctx.ok():
+            self._executor.spin_once(timeout_sec=0.1)
+
+    def _on_status(self, msg: Any) -> None:
+        doc = _json(msg, "a status document")
+        if doc is not None:
+            self._hub.on_status(doc)
+
+    def _on_violation(self, msg: Any) -> None:
+        doc = _json(msg, "a violation record")
+        if doc is not None:
+            self._hub.on_violation(doc)
+
+    def _on_diag(self, msg: Any) -> None:
+        statuses = []
+        for s in msg.status:
+            level = s.level if isinstance(s.level, int) else int.from_bytes(s.level, "little")
+            statuses.append((s.name, level, s.message, {kv.key: kv.value for kv in s.values}))
+        self._hub.on_diagnostics(statuses)
+
+    def close(self) -> None:
+        import rclpy
+
+        self._stop.set()
+        self._thread.join(2.0)
+        self._executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self._ctx)

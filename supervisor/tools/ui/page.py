@@ -1,0 +1,372 @@
+"""The UI's one page: HTML, CSS and JavaScript inline, nothing fetched from elsewhere.
+
+It works offline (no CDN, no build step).  The script opens ``/events`` (Server-Sent
+Events): a snapshot first, then each status document, violation record and
+/diagnostics update as it arrives; ages tick and sparklines are drawn in the
+browser from the values it has seen.  ``__NONCE__`` is replaced per response (the
+Content-Security-Policy admits this script only).  docs/reference/commands.md, ``ui``.
+"""
+
+from __future__ import annotations
+
+PAGE = r"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<link rel="icon" href="data:,">
+<title>safety-supervisor</title>
+<style>
+body { font: 14px/1.4 system-ui, sans-serif; margin: 0; color: #222; background: #f6f6f4; }
+header { background: #263238; color: #fff; padding: 8px 16px; display: flex; gap: 16px;
+         align-items: center; flex-wrap: wrap; }
+header h1 { font-size: 18px; margin: 0; }
+main { display: grid; grid-template-columns: minmax(0, 3fr) minmax(0, 2fr); gap: 12px; padding: 12px; }
+section { background: #fff; border: 1px solid #ddd; border-radius: 6px; padding: 8px 12px; }
+h2 { font-size: 15px; margin: 4px 0 8px; }
+table { border-collapse: collapse; width: 100%; }
+td, th { text-align: left; padding: 3px 6px; border-bottom: 1px solid #eee; vertical-align: top; }
+th { font-weight: 600; color: #555; }
+code { font-size: 12px; word-break: break-word; }
+.muted { color: #777; }
+.state { padding: 1px 8px; border-radius: 9px; font-weight: 600; white-space: nowrap; }
+.state-holding { background: #c8e6c9; color: #1b5e20; }
+.state-violated, .state-escalated { background: #ffcdd2; color: #b71c1c; }
+.state-latched { background: #f8bbd0; color: #880e4f; }
+.state-debouncing, .state-cooldown { background: #fff3c4; color: #8a6d00; }
+.state-unknown { background: #eee; color: #555; }
+.stale { color: #b71c1c; font-weight: 600; }
+.ok { color: #1b5e20; } .fail { color: #b71c1c; font-weight: 600; }
+#quiet { background: #ffcdd2; color: #b71c1c; padding: 2px 8px; border-radius: 4px; display: none; }
+#conn.off { color: #ffab91; }
+#feed { list-style: none; padding: 0; margin: 0; max-height: 420px; overflow-y: auto; }
+#feed li { border-bottom: 1px solid #eee; padding: 2px 0; }
+#feed .k { display: inline-block; min-width: 76px; font-weight: 600; }
+#feed .violation .k { color: #b71c1c; } #feed .mitigation .k { color: #6a1b9a; }
+#feed .reset .k, #feed .ui .k { color: #0d47a1; }
+button { cursor: pointer; }
+button:disabled { cursor: not-allowed; }
+#tokenbox { display: none; margin-top: 6px; }
+#resetmsg { margin-left: 8px; }
+svg.spark { width: 120px; height: 24px; }
+svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
+.full { grid-column: 1 / -1; }
+</style>
+</head>
+<body>
+<header>
+  <h1>safety-supervisor</h1>
+  <span id="component" class="muted"></span>
+  <span id="supervisor"></span>
+  <span id="quiet"></span>
+  <span id="conn" class="off">connecting</span>
+</header>
+<main>
+<section class="full" id="health-section">
+  <h2>Supervisor</h2>
+  <table><tbody id="health"></tbody></table>
+</section>
+<section id="req-section">
+  <h2>Requirements</h2>
+  <div>
+    <button id="reset-all" disabled>Reset all</button>
+    <span id="resetmsg" class="muted"></span>
+    <form id="tokenbox">
+      <label>Token for resets: <input type="password" id="token" size="40" autocomplete="off"></label>
+      <button id="token-save">Use</button>
+    </form>
+  </div>
+  <table>
+    <thead><tr><th>requirement</th><th>state</th><th>violations</th><th>last violation</th>
+      <th>mitigations</th><th></th></tr></thead>
+    <tbody id="requirements"></tbody>
+  </table>
+</section>
+<section id="side">
+  <div id="opview-section" style="display:none">
+    <h2>Operational state</h2>
+    <svg id="opview" viewBox="0 0 460 220" width="100%" role="img"></svg>
+  </div>
+  <h2>Inputs</h2>
+  <table>
+    <thead><tr><th>input</th><th>value</th><th>age</th><th>last seconds</th></tr></thead>
+    <tbody id="inputs"></tbody>
+  </table>
+</section>
+<section class="full">
+  <h2>Events</h2>
+  <ul id="feed"></ul>
+</section>
+</main>
+<script nonce="__NONCE__">
+"use strict";
+const SPARK_S = 30;          // seconds of values a sparkline shows
+const QUIET_S = 2.5;         // no status document for this long: the daemon is quiet
+const FEED_MAX = 200;
+const TOKEN_KEY = "safety-supervisor-ui-token";
+const ZONES = [[3, "red"], [7, "yellow"]];   // sRobot: red < 3 m, yellow 3-7 m, green beyond
+const CLASSES = {0: "nobody", 1: "trained worker", 2: "untrained person"};
+const OPSTATES = {0: "normal", 1: "alert", 2: "alert + slow down", 3: "stop + UV off"};
+
+const M = {
+  status: null, statusAt: null, diag: {requirements: {}, inputs: {}}, diagAt: null,
+  learned: {}, seen: {}, values: {}, reset: {available: false, why: "connecting"},
+  hist: {}, feed: [], connected: false,
+};
+const $ = (id) => document.getElementById(id);
+const esc = (s) => String(s ?? "").replace(/[&<>"']/g,
+  (c) => ({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;"}[c]));
+const now = () => performance.now();
+const fmtAge = (s) => s == null ? "never" : (s < 10 ? s.toFixed(1) : s.toFixed(0)) + " s";
+const fmtTs = (ts) => ts ? String(ts).replace("T", " ").replace(/\.\d+Z$/, "Z") : "";
+const fmtDur = (s) => {
+  s = Math.floor(s); const h = Math.floor(s / 3600), m = Math.floor(s % 3600 / 60);
+  return (h ? h + " h " : "") + (h || m ? m + " min " : "") + (s % 60) + " s";
+};
+
+function onStatus(doc, age) {
+  M.status = doc;
+  M.statusAt = now() - 1000 * (age || 0);
+  M.seen = {};  // the document's counts include what the topic showed
+  const t = Date.now() / 1000;
+  for (const inp of doc.inputs || []) {
+    M.values[inp.name] = inp.value;
+    const v = typeof inp.value === "boolean" ? +inp.value : inp.value;
+    if (typeof v !== "number") continue;
+    const h = M.hist[inp.name] || (M.hist[inp.name] = []);
+    h.push([t - (inp.age_s || 0), v]);
+    while (h.length && h[0][0] < t - SPARK_S) h.shift();
+  }
+}
+
+function onViolation(rec) {
+  const rid = rec.requirement;
+  M.learned[rid] = {text: rec.text, formula: rec.formula};
+  const s = M.seen[rid] || (M.seen[rid] = {n: 0});
+  s.n += 1; s.last = new Date().toISOString();
+  for (const [k, v] of Object.entries(rec.inputs || {})) if (!(k in M.values)) M.values[k] = v;
+}
+
+function addFeed(entries) {
+  for (const e of entries || []) M.feed.unshift(e);
+  M.feed.length = Math.min(M.feed.length, FEED_MAX);
+}
+
+function handle(msg) {
+  if (msg.reset) M.reset = msg.reset;
+  if (msg.type === "snapshot") {
+    M.feed = []; addFeed(msg.feed);
+    if (msg.status) onStatus(msg.status, msg.status_age_s);
+    if (msg.diagnostics) { M.diag = msg.diagnostics; M.diagAt = now(); }
+  } else if (msg.type === "status") {
+    onStatus(msg.status, 0); addFeed(msg.feed);
+  } else if (msg.type === "violation") {
+    onViolation(msg.record); addFeed(msg.feed);
+  } else if (msg.type === "diagnostics") {
+    M.diag = msg.diagnostics; M.diagAt = now();
+    if (!M.status) M.seen = {};  // its counts include what the topic showed
+  } else if (msg.type === "feed") {
+    addFeed(msg.feed);
+  }
+  render();
+}
+
+// ------------------------------------------------------------------ rendering
+
+function requirements() {
+  if (M.status) return M.status.requirements || [];
+  return Object.values(M.diag.requirements || {}).map((r) => ({
+    id: r.id, state: r.state, violations: r.violations, actions: [],
+    text: (M.learned[r.id] || {}).text, formula: (M.learned[r.id] || {}).formula,
+  }));
+}
+
+function inputs() {
+  if (M.status) return M.status.inputs || [];
+  const since = M.diagAt == null ? 0 : (now() - M.diagAt) / 1000;
+  return Object.values(M.diag.inputs || {}).map((i) => ({
+    name: i.name, topic: i.topic, value: M.values[i.name], stale: i.stale,
+    age_s: i.age_s == null ? null : i.age_s, _since: since,
+  }));
+}
+
+function render() {
+  const st = M.status;
+  $("conn").textContent = M.connected ? "live" : "reconnecting";
+  $("conn").className = M.connected ? "" : "off";
+  $("component").textContent = st ? st.component : "";
+  $("supervisor").textContent = st ? st.supervisor : (M.diagAt ? "(from /diagnostics)" : "");
+  renderHealth(); renderRequirements(); renderInputs(); renderFeed(); renderOpView(); tick();
+}
+
+function renderHealth() {
+  const st = M.status;
+  const rows = [];
+  if (!st) {
+    rows.push(["status", "no status document yet (a daemon without the status topic shows " +
+               "requirements and inputs from /diagnostics only)"]);
+  } else {
+    const wd = st.watchdog || {};
+    rows.push(["config", `<code>${esc(st.config)}</code> sha256 <code>${esc((st.config_sha256 || "").slice(0, 16))}</code>`]);
+    rows.push(["uptime", `<span id="uptime">${esc(fmtDur(st.uptime_s || 0))}</span> (pid ${esc(st.pid)}, since ${esc(fmtTs(st.started))})`]);
+    rows.push(["step", `${esc(st.policy)}: ${esc(st.ticks)} ticks, ${esc(Number(st.tick_rate_hz || 0).toFixed(1))} ticks/s`]);
+    rows.push(["received", `${esc(st.received)} messages, ${esc(Number(st.receive_rate_hz || 0).toFixed(1))} msg/s, ` +
+               `<span class="${st.lost ? "fail" : ""}">${esc(st.lost)} lost</span>`]);
+    rows.push(["violations", `${esc(st.violations)}; reloads ${esc(st.reloads)}; recording ${st.recording ? "on" : "off"}`]);
+    rows.push(["watchdog", wd.enabled ? `on, every ${esc(wd.interval_s)} s` : "off (not under systemd)"]);
+  }
+  rows.push(["resets", M.reset.available ? `through <code>${esc(st ? st.control_socket : "")}</code>`
+             : `<span class="muted">unavailable: ${esc(M.reset.why)}</span>`]);
+  $("health").innerHTML = rows.map(([k, v]) => `<tr><th>${esc(k)}</th><td>${v}</td></tr>`).join("");
+  $("reset-all").disabled = !M.reset.available;
+}
+
+function renderRequirements() {
+  const rows = requirements().map((r) => {
+    const seen = M.seen[r.id];
+    const state = seen ? "violated" : (r.state || "unknown");
+    const count = (r.violations || 0) + (seen ? seen.n : 0);
+    const last = seen ? seen.last : r.last_violation;
+    const acts = (r.actions || []).map((a) =>
+      `<div class="${a.ok ? "ok" : "fail"}">${esc(a.action)} (${esc(a.stage)}) ${a.ok ? "ok" : "failed"}` +
+      `${a.latency_ms != null ? ", " + esc(Number(a.latency_ms).toFixed(1)) + " ms" : ""}` +
+      ` <span class="muted">${esc(fmtTs(a.ts))}</span></div>`).join("");
+    const learned = M.learned[r.id] || {};
+    const text = r.text || learned.text || "";
+    const formula = r.formula || learned.formula || "";
+    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" data-violations="${count}">` +
+      `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
+      `<td><span class="state state-${esc(state)}">${esc(state)}</span></td>` +
+      `<td>${count}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
+      `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
+  });
+  $("requirements").innerHTML = rows.join("") ||
+    `<tr><td colspan="6" class="muted">no requirements known yet</td></tr>`;
+}
+
+function spark(name) {
+  const h = M.hist[name] || [];
+  if (h.length < 2) return `<svg class="spark" viewBox="0 0 120 24"></svg>`;
+  const t1 = Date.now() / 1000, t0 = t1 - SPARK_S;
+  let lo = Math.min(...h.map((p) => p[1])), hi = Math.max(...h.map((p) => p[1]));
+  if (hi === lo) { hi += 1; lo -= 1; }
+  const pts = h.map(([t, v]) => `${(120 * (t - t0) / SPARK_S).toFixed(1)},${(22 - 20 * (v - lo) / (hi - lo)).toFixed(1)}`);
+  pts.push(`120,${pts[pts.length - 1].split(",")[1]}`);  // the value holds until now
+  return `<svg class="spark" viewBox="0 0 120 24"><polyline points="${pts.join(" ")}"/></svg>`;
+}
+
+function renderInputs() {
+  const rows = inputs().map((i) =>
+    `<tr class="input" data-input="${esc(i.name)}" data-stale="${i.stale ? 1 : 0}">` +
+    `<td><b>${esc(i.name)}</b><div class="muted">${esc(i.topic)}</div></td>` +
+    `<td class="value">${esc(i.value === undefined ? "?" : JSON.stringify(i.value))}</td>` +
+    `<td><span class="age" data-age="${i.age_s == null ? "" : i.age_s}">${esc(fmtAge(i.age_s))}</span>` +
+    `${i.stale ? ' <span class="stale">stale</span>' : ""}</td><td>${spark(i.name)}</td></tr>`);
+  $("inputs").innerHTML = rows.join("") || `<tr><td colspan="4" class="muted">no inputs known yet</td></tr>`;
+}
+
+function renderFeed() {
+  $("feed").innerHTML = M.feed.map((e) =>
+    `<li class="ev ${esc(e.event)}" data-event="${esc(e.event)}" data-requirement="${esc(e.requirement)}">` +
+    `<span class="muted">${esc(fmtTs(e.ts))}</span> <span class="k">${esc(e.event)}</span> ` +
+    `${esc(e.requirement)} ${esc(e.what)} <span class="muted">${esc(e.detail)}</span></li>`).join("");
+}
+
+function renderOpView() {
+  const names = new Set(inputs().map((i) => i.name));
+  const shown = ["distance_to_target", "classifier", "OpState"].every((n) => names.has(n));
+  $("opview-section").style.display = shown ? "" : "none";
+  if (!shown) { $("opview").innerHTML = ""; return; }
+  const d = Number(M.values.distance_to_target), cls = Number(M.values.classifier);
+  const op = Number(M.values.OpState);
+  const X0 = 40, Y0 = 110, PX = 30, MAXM = 13;   // robot position, pixels per metre
+  const zone = !(d >= 0) ? "?" : d < 3 ? "red" : d <= 7 ? "yellow" : "green";
+  let s = `<rect x="0" y="0" width="460" height="220" fill="#c8e6c9"/>` +
+    `<circle cx="${X0}" cy="${Y0}" r="${7 * PX}" fill="#fff59d"/>` +
+    `<circle cx="${X0}" cy="${Y0}" r="${3 * PX}" fill="#ef9a9a"/>` +
+    `<rect x="${X0 - 16}" y="${Y0 - 11}" width="32" height="22" rx="4" fill="#37474f"/>` +
+    `<text x="${X0}" y="${Y0 + 28}" text-anchor="middle" font-size="11">robot</text>`;
+  for (const [m] of ZONES) s += `<text x="${X0 + m * PX + 2}" y="14" font-size="10">${m} m</text>`;
+  if (cls > 0 && d >= 0) {
+    const x = X0 + Math.min(d, MAXM) * PX, colour = cls === 1 ? "#0d47a1" : "#e65100";
+    s += `<g id="person" data-distance="${d}"><circle cx="${x}" cy="${Y0 - 18}" r="6" fill="${colour}"/>` +
+      `<line x1="${x}" y1="${Y0 - 12}" x2="${x}" y2="${Y0 + 6}" stroke="${colour}" stroke-width="3"/>` +
+      `<line x1="${x}" y1="${Y0 + 6}" x2="${x - 6}" y2="${Y0 + 18}" stroke="${colour}" stroke-width="3"/>` +
+      `<line x1="${x}" y1="${Y0 + 6}" x2="${x + 6}" y2="${Y0 + 18}" stroke="${colour}" stroke-width="3"/></g>`;
+  }
+  s += `<text x="10" y="200" font-size="12" id="opstate">${esc(CLASSES[cls] || "class " + cls)}` +
+    `${cls > 0 ? ` at ${esc(d)} m (${zone} zone)` : ""}; controller OpState ${esc(op)}: ${esc(OPSTATES[op] || "?")}</text>`;
+  $("opview").innerHTML = s;
+}
+
+// Between updates: input ages and uptime tick, and a quiet daemon is said.
+function tick() {
+  const t = now();
+  const since = M.status ? (t - M.statusAt) / 1000 : (M.diagAt == null ? 0 : (t - M.diagAt) / 1000);
+  for (const el of document.querySelectorAll(".age")) {
+    if (el.dataset.age === "") continue;
+    el.textContent = fmtAge(Number(el.dataset.age) + since);
+  }
+  const up = $("uptime");
+  if (up && M.status) up.textContent = fmtDur((M.status.uptime_s || 0) + since);
+  const quiet = $("quiet");
+  if (M.status && since > QUIET_S) {
+    quiet.style.display = ""; quiet.textContent = `no status for ${Math.floor(since)} s`;
+  } else {
+    quiet.style.display = "none";
+  }
+}
+setInterval(tick, 200);
+
+// ------------------------------------------------------------------ resets
+
+function askToken(why) {
+  $("tokenbox").style.display = "block";
+  $("resetmsg").textContent = why;
+  $("token").focus();
+}
+
+async function reset(requirement) {
+  const token = sessionStorage.getItem(TOKEN_KEY);
+  if (!token) { askToken("a token is needed for resets"); M.pending = requirement; return; }
+  const body = requirement ? {requirement} : {};
+  $("resetmsg").textContent = "resetting ...";
+  let res;
+  try {
+    res = await fetch("/api/reset", {
+      method: "POST", headers: {"Content-Type": "application/json", "Authorization": "Bearer " + token},
+      body: JSON.stringify(body),
+    });
+  } catch (e) { $("resetmsg").textContent = "the UI did not answer"; return; }
+  const answer = await res.json().catch(() => ({message: res.statusText}));
+  if (res.status === 401) { sessionStorage.removeItem(TOKEN_KEY); askToken("wrong token"); return; }
+  $("resetmsg").textContent = answer.message || res.statusText;
+}
+
+$("reset-all").addEventListener("click", () => reset(null));
+$("requirements").addEventListener("click", (e) => {
+  const b = e.target.closest("button.reset-one");
+  if (b) reset(b.dataset.requirement);
+});
+$("tokenbox").addEventListener("submit", (e) => {
+  e.preventDefault();  // the token stays in this page (sessionStorage), never in a URL
+  const v = $("token").value.trim();
+  if (!v) return;
+  sessionStorage.setItem(TOKEN_KEY, v); $("token").value = ""; $("tokenbox").style.display = "none";
+  const pending = M.pending; M.pending = undefined; reset(pending);
+});
+
+// ------------------------------------------------------------------ live updates
+
+function connect() {
+  const es = new EventSource("/events");
+  es.onopen = () => { M.connected = true; render(); };
+  es.onmessage = (e) => handle(JSON.parse(e.data));
+  es.onerror = () => { M.connected = false; render(); };  // EventSource reconnects itself
+}
+render();
+connect();
+</script>
+</body>
+</html>
+"""

@@ -1,0 +1,315 @@
+"""The UI's HTTP server: the page, its Server-Sent Events and the reset endpoint.
+
+The standard library's ThreadingHTTPServer: one page, one event stream per
+browser and a rare POST need no framework (docs/reference/commands.md, ``ui``).
+
+Safety of the one state-changing request (``POST /api/reset``), in this order:
+
+1. the ``Host`` header must name this server (a DNS-rebinding page would send
+   its own name), for every request;
+2. ``Origin`` (when sent) must be this server's origin and ``Sec-Fetch-Site``
+   (when sent) ``same-origin`` or ``none``: 403 otherwise, so no other site's
+   page can make a browser reset;
+3. ``Content-Type: application/json`` (415 otherwise): a form cannot send it
+   without a CORS preflight, which this server never answers;
+4. ``Authorization: Bearer <token>``, compared in constant time (401 otherwise).
+
+Only then is the reset forwarded to the daemon's control socket, naming the UI and
+the browser's address; the daemon's answer is returned as is.
+"""
+
+from __future__ import annotations
+
+import hmac
+import ipaddress
+import json
+import os
+import queue
+import secrets
+import socket
+import stat
+import threading
+from collections.abc import Callable
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import Any
+
+from monitors.errors import UserError
+from supervisor.tools.reset import request
+from supervisor.tools.ui.hub import Hub
+from supervisor.tools.ui.page import PAGE
+
+KEEPALIVE_S = 10.0  # an SSE comment this often: a closed browser is noticed, proxies keep it
+MAX_BODY = 4096
+RESET_TIMEOUT_S = 5.0
+
+
+def reset_availability(socket_path: str | None, token: bytes | None) -> dict[str, Any]:
+    """Whether a reset from the page can reach the daemon, and if not why.
+
+    The socket is not connected to: a connection without a request counts as a
+    refused call in the daemon's log.  Connecting needs write permission on the
+    socket file, which the kernel checks exactly like this."""
+    if token is None:
+        return {"available": False, "why": "no token configured (--token-file)"}
+    if not socket_path:
+        return {"available": False, "why": "the daemon named no control socket"}
+    try:
+        st = os.stat(socket_path)
+    except OSError:
+        return {"available": False, "why": f"{socket_path}: not on this machine"}
+    if not stat.S_ISSOCK(st.st_mode):
+        return {"available": False, "why": f"{socket_path}: not a socket"}
+    if not os.access(socket_path, os.W_OK):
+        return {
+            "available": False,
+            "why": f"{socket_path}: permission denied (the UI's user is not in its group)",
+        }
+    return {"available": True, "why": ""}
+
+
+def allowed_hosts(host: str, port: int) -> Callable[[str], bool]:
+    """Which ``Host`` headers name this server: the bound address and localhost
+    names for a loopback bind; also this machine's names and any IP address for
+    a wildcard or other bind."""
+    names = {f"localhost:{port}"}
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        ip = None
+        names.add(f"{host}:{port}")
+    if ip is not None:
+        names.add(f"[{ip}]:{port}" if ip.version == 6 else f"{ip}:{port}")
+    wide = ip is None or not ip.is_loopback
+    if wide:
+        names |= {f"{socket.gethostname()}:{port}", f"{socket.getfqdn()}:{port}"}
+
+    def ok(value: str) -> bool:
+        value = value.strip().lower()
+        if value in names:
+            return True
+        if not (wide and ip is not None and ip.is_unspecified):
+            return False
+        h, _, p = value.rpartition(":")
+        try:
+            ipaddress.ip_address(h.strip("[]"))
+        except ValueError:
+            return False
+        return p == str(port)
+
+    return ok
+
+
+class UiServer(ThreadingHTTPServer):
+    daemon_threads = True  # an open event stream never holds up the exit
+
+    def __init__(
+        self,
+        address: tuple[str, int],
+        hub: Hub,
+        token: bytes | None,
+        socket_path: Callable[[], str | None],
+    ) -> None:
+        try:
+            family = socket.AF_INET6 if ipaddress.ip_address(address[0]).version == 6 else None
+        except ValueError:
+            family = None
+        if family is not None:
+            self.address_family = family
+        super().__init__(address, Handler)
+        self.hub = hub
+        self.token = token
+        self.socket_path = socket_path
+        self.host_ok = allowed_hosts(address[0], self.server_address[1])
+        self.stopping = threading.Event()
+
+    def url(self) -> str:
+        host, port = self.server_address[0], self.server_address[1]
+        shown = f"[{host}]" if ":" in str(host) else str(host)
+        return f"http://{shown}:{port}/"
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self.hub.close()
+        self.shutdown()
+        self.server_close()
+
+
+class Handler(BaseHTTPRequestHandler):
+    server: UiServer
+    server_version = "safety-supervisor-ui"
+    sys_version = ""
+
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base's name
+        pass  # requests are not logged; resets are, below
+
+    # ------------------------------------------------------------ helpers
+
+    def _send(
+        self,
+        code: int,
+        body: bytes,
+        ctype: str = "application/json",
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Referrer-Policy", "no-referrer")
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def _json(self, code: int, doc: dict[str, Any]) -> None:
+        self._send(code, json.dumps(doc).encode())
+
+    def _host_ok(self) -> bool:
+        if self.server.host_ok(self.headers.get("Host", "")):
+            return True
+        self._json(HTTPStatus.MISDIRECTED_REQUEST, {"ok": False, "message": "unknown Host"})
+        return False
+
+    def _same_origin(self) -> bool:
+        origin = self.headers.get("Origin")
+        if origin is not None and origin != f"http://{self.headers.get('Host', '')}":
+            return False
+        site = self.headers.get("Sec-Fetch-Site")
+        return site is None or site in ("same-origin", "none")
+
+    def _authorised(self) -> bool:
+        token = self.server.token
+        scheme, _, given = self.headers.get("Authorization", "").partition(" ")
+        if token is None or scheme.lower() != "bearer":
+            return False
+        return hmac.compare_digest(given.strip().encode(), token)
+
+    # ------------------------------------------------------------ GET
+
+    def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        if not self._host_ok():
+            return
+        path = self.path.split("?", 1)[0]
+        if path == "/":
+            self._page()
+        elif path == "/events":
+            self._events()
+        elif path == "/api/state":
+            self._json(HTTPStatus.OK, self.server.hub.snapshot())
+        else:
+            self._json(HTTPStatus.NOT_FOUND, {"ok": False, "message": "not found"})
+
+    def _page(self) -> None:
+        nonce = secrets.token_urlsafe(16)
+        # Nothing may load from elsewhere; the one inline script runs by its nonce.
+        csp = (
+            f"default-src 'none'; script-src 'nonce-{nonce}'; style-src 'unsafe-inline'; "
+            "connect-src 'self'; img-src 'self' data:; base-uri 'none'; form-action 'none'; "
+            "frame-ancestors 'none'"
+        )
+        body = PAGE.replace("__NONCE__", nonce).encode()
+        self._send(
+            HTTPStatus.OK,
+            body,
+            "text/html; charset=utf-8",
+            {"Content-Security-Policy": csp, "X-Frame-Options": "DENY"},
+        )
+
+    def _events(self) -> None:
+        hub = self.server.hub
+        q = hub.subscribe()
+        try:
+            self.send_response(HTTPStatus.OK)
+            self.send_header("Content-Type", "text/event-stream")
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("X-Content-Type-Options", "nosniff")
+            self.end_headers()
+            self.wfile.write(b"retry: 1000\n\n")  # reconnect quickly after a UI restart
+            self.wfile.flush()
+            while not self.server.stopping.is_set():
+                try:
+                    line = q.get(timeout=KEEPALIVE_S)
+                except queue.Empty:
+                    self.wfile.write(b": keepalive\n\n")
+                    self.wfile.flush()
+                    continue
+                if line is None:
+                    break
+                self.wfile.write(b"data: " + line.encode() + b"\n\n")
+                self.wfile.flush()
+        except OSError:
+            pass  # the browser went away
+        finally:
+            hub.unsubscribe(q)
+
+    # ------------------------------------------------------------ POST
+
+    def do_POST(self) -> None:  # noqa: N802 - http.server's name
+        if not self._host_ok():
+            return
+        if self.path != "/api/reset":
+            self._json(HTTPStatus.NOT_FOUND, {"ok": False, "message": "not found"})
+            return
+        if not self._same_origin():
+            self._json(HTTPStatus.FORBIDDEN, {"ok": False, "message": "cross-origin request"})
+            return
+        if self.headers.get_content_type() != "application/json":
+            self._json(
+                HTTPStatus.UNSUPPORTED_MEDIA_TYPE,
+                {"ok": False, "message": "Content-Type must be application/json"},
+            )
+            return
+        if not self._authorised():
+            self._send(
+                HTTPStatus.UNAUTHORIZED,
+                json.dumps({"ok": False, "message": "a valid token is needed"}).encode(),
+                headers={"WWW-Authenticate": 'Bearer realm="safety-supervisor"'},
+            )
+            return
+        try:
+            length = int(self.headers.get("Content-Length", "0"))
+        except ValueError:
+            length = -1
+        if not 0 <= length <= MAX_BODY:
+            self._json(HTTPStatus.BAD_REQUEST, {"ok": False, "message": "bad Content-Length"})
+            return
+        try:
+            body = json.loads(self.rfile.read(length) or b"{}")
+        except ValueError:
+            body = None
+        requirement = body.get("requirement") if isinstance(body, dict) else ""
+        if requirement is not None and (not isinstance(requirement, str) or not requirement):
+            self._json(
+                HTTPStatus.BAD_REQUEST,
+                {"ok": False, "message": 'the body must be {} or {"requirement": "ID"}'},
+            )
+            return
+        self._reset(requirement)
+
+    def _reset(self, requirement: str | None) -> None:
+        client = self.client_address[0]
+        path = self.server.socket_path()
+        state = reset_availability(path, self.server.token)
+        if not state["available"] or path is None:
+            self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"ok": False, "message": state["why"]})
+            return
+        # The daemon's reset record names where the reset came from
+        # (docs/reference/ros-interfaces.md, "Control socket").
+        req: dict[str, Any] = {"command": "reset", "via": "ui", "client": client}
+        if requirement is not None:
+            req["requirement"] = requirement
+        try:
+            answer = request(path, req, RESET_TIMEOUT_S)
+        except UserError as e:
+            self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"ok": False, "message": str(e)})
+            return
+        message = str(answer.get("message", ""))
+        what = f"reset {requirement or 'all'} from {client}"
+        print(f"safety-supervisor ui: {what}: {message}", flush=True)
+        self.server.hub.note(
+            {"event": "ui", "requirement": requirement or "*", "what": what, "detail": message}
+        )
+        self._json(HTTPStatus.OK, {"ok": answer.get("ok") is True, "message": message})
