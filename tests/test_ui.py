@@ -173,8 +173,8 @@ def test_a_violation_is_not_fed_twice() -> None:
     q = hub.subscribe()
     assert json.loads(q.get_nowait())["type"] == "snapshot"
     hub.on_violation({"event": "violation", "requirement": "r1", "tick": 5, "inputs": {"x": 1}})
-    ev = [{"event": "violation", "ts": "t", "requirement": "r1", "what": "violated"},
-          {"event": "violation", "ts": "t", "requirement": "r2", "what": "violated"},
+    ev = [{"event": "violation", "ts": "t", "requirement": "r1", "tick": 5},
+          {"event": "violation", "ts": "t", "requirement": "r2", "tick": 5},
           {"event": "reset", "ts": "t", "requirement": "*", "what": "operator reset"}]  # fmt: skip
     hub.on_status(status_doc("/nonexistent", events=ev))
     feed = hub.snapshot()["feed"]
@@ -319,6 +319,10 @@ def test_the_page_shows_the_status_live_and_resets_with_the_token(served: Any) -
 # ---------------------------------------------------------------- over DDS
 
 
+def config_sha(d: Any) -> str:
+    return next(r["config_sha256"] for r in d.records() if "config_sha256" in r)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -384,6 +388,9 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
             15,
             lambda: str(ui.state() if ui else ""),
         )
+        # the daemon's status document, not only /diagnostics
+        sha = config_sha(d)
+        wait_until("the status on the page", lambda: sha[:16] in page.inner_text("#health"), 10)
         before = ages(page)
         page.wait_for_timeout(400)
         assert ages(page) != before, "input ages do not tick"

@@ -59,6 +59,12 @@ def add_parser(sub: Any) -> None:
         "without a token the page is read-only)",
     )
     p.add_argument(
+        "--namespace",
+        default="/",
+        metavar="NS",
+        help="the daemon's ros.namespace (default /): where its status and violations are",
+    )
+    p.add_argument(
         "--socket",
         default=None,
         metavar="PATH",
@@ -95,9 +101,15 @@ def cmd_ui(args: argparse.Namespace) -> int:
         host, port = args.bind
         raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None
 
+    from rclpy.exceptions import InvalidNamespaceException
+
     from supervisor.tools.ui.node import UiNode
 
-    node = UiNode(hub)
+    try:
+        node = UiNode(hub, args.namespace)
+    except InvalidNamespaceException as e:
+        server.server_close()
+        raise UserError(f"--namespace {args.namespace!r}: {e}", file=PROG) from None
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

@@ -58,8 +58,9 @@ class Hub:
         self._status_at: float | None = None
         self._diagnostics: dict[str, Any] = {"requirements": {}, "inputs": {}, "at": None}
         self._feed: deque[dict[str, Any]] = deque(maxlen=FEED_LENGTH)
-        # violations shown from the topic, not yet seen in a status document's events
-        self._pending: Counter[str] = Counter()
+        # violations shown from the topic, not yet seen in a status document's events:
+        # by (requirement, tick)
+        self._pending: Counter[tuple[str, Any]] = Counter()
         self._clients: set[queue.Queue[str | None]] = set()
 
     # ------------------------------------------------------------ inputs
@@ -72,9 +73,9 @@ class Hub:
             for ev in doc.get("events") or []:
                 if not isinstance(ev, dict):
                     continue
-                rid = str(ev.get("requirement") or "")
-                if ev.get("event") == "violation" and self._pending[rid] > 0:
-                    self._pending[rid] -= 1  # already in the feed from the topic
+                key = (str(ev.get("requirement") or ""), ev.get("tick"))
+                if ev.get("event") == "violation" and self._pending[key] > 0:
+                    self._pending[key] -= 1  # already in the feed from the topic
                     continue
                 entries.append(self._entry(ev))
             self._feed.extend(entries)
@@ -95,7 +96,7 @@ class Hub:
             "formula": record.get("formula"),
         }
         with self._lock:
-            self._pending[rid] += 1
+            self._pending[(rid, record.get("tick"))] += 1
             self._feed.append(entry)
         self._broadcast({"type": "violation", "record": record, "feed": [entry]})
 
@@ -193,12 +194,27 @@ class Hub:
 
     @staticmethod
     def _entry(ev: dict[str, Any]) -> dict[str, Any]:
+        """A feed entry from a status document's shortened record
+        (docs/reference/ros-interfaces.md, "Status")."""
+        event = str(ev.get("event") or "supervisor")
+        what = str(ev.get("what") or "")
+        detail = ev.get("detail") or ev.get("error") or ""
+        if event == "mitigation":
+            ok = "ok" if ev.get("ok") else "failed"
+            what = f"{ev.get('action', '')} ({ev.get('stage', '')}) {ok}"
+        elif event == "reset":
+            what = str(ev.get("reason") or "reset")
+        elif event == "violation":
+            what = "violated"
+        if ev.get("input"):
+            what = f"{what} {ev['input']}".strip()
         return {
-            "event": str(ev.get("event") or "supervisor"),
+            "event": event,
             "ts": ev.get("ts") or utc_now(),
             "requirement": ev.get("requirement") or "",
-            "what": ev.get("what") or "",
-            "detail": ev.get("detail") or "",
+            "what": what,
+            "detail": detail if isinstance(detail, str) else json.dumps(detail),
+            "tick": ev.get("tick"),
         }
 
 

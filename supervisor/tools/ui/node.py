@@ -12,14 +12,15 @@ import sys
 import threading
 from typing import Any
 
-from supervisor.names import DIAGNOSTICS_TOPIC, VIOLATIONS_TOPIC
+from supervisor.names import DIAGNOSTICS_TOPIC, STATUS_TOPIC, VIOLATIONS_TOPIC
 from supervisor.tools.ui.hub import Hub
 
 NODE_NAME = "safety_supervisor_ui"
-# The daemon's status document (reliable, transient local, depth 1: a UI that
-# starts late gets the last one at once).  Its name belongs in supervisor/names.py
-# with the daemon's other names once the daemon publishes it.
-STATUS_TOPIC = "/safety_supervisor/status"
+
+
+def own(name: str) -> str:
+    """One of the daemon's own names, relative to the namespace (as the daemon has it)."""
+    return name.lstrip("/")
 
 
 def _json(msg: Any, what: str) -> dict[str, Any] | None:
@@ -34,7 +35,7 @@ def _json(msg: Any, what: str) -> dict[str, Any] | None:
 class UiNode:
     """Starts rclpy in its own context; :meth:`close` stops it."""
 
-    def __init__(self, hub: Hub) -> None:
+    def __init__(self, hub: Hub, namespace: str = "/") -> None:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
@@ -47,15 +48,18 @@ class UiNode:
         self._hub = hub
         self._ctx = Context()
         rclpy.init(context=self._ctx, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = Node(NODE_NAME, context=self._ctx)
+        # In the daemon's namespace (ros.namespace), its own topics are found by
+        # their relative names, as the daemon names them; /diagnostics stays absolute.
+        self.node = Node(NODE_NAME, namespace=namespace, context=self._ctx)
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
-        self.node.create_subscription(String, STATUS_TOPIC, self._on_status, latched)
+        # The status document is latched: a UI that starts late has the last one at once.
+        self.node.create_subscription(String, own(STATUS_TOPIC), self._on_status, latched)
         # depth 100: a burst of violations is not cut short before the executor runs
-        self.node.create_subscription(String, VIOLATIONS_TOPIC, self._on_violation, 100)
+        self.node.create_subscription(String, own(VIOLATIONS_TOPIC), self._on_violation, 100)
         self.node.create_subscription(DiagnosticArray, DIAGNOSTICS_TOPIC, self._on_diag, 10)
         self._executor = SingleThreadedExecutor(context=self._ctx)
         self._executor.add_node(self.node)

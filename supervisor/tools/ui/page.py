@@ -212,6 +212,7 @@ function renderHealth() {
     rows.push(["step", `${esc(st.policy)}: ${esc(st.ticks)} ticks, ${esc(Number(st.tick_rate_hz || 0).toFixed(1))} ticks/s`]);
     rows.push(["received", `${esc(st.received)} messages, ${esc(Number(st.receive_rate_hz || 0).toFixed(1))} msg/s, ` +
                `<span class="${st.lost ? "fail" : ""}">${esc(st.lost)} lost</span>`]);
+    if (st.events_dropped) rows.push(["events", `<span class="fail">${esc(st.events_dropped)} not shown (more than a document holds)</span>`]);
     rows.push(["violations", `${esc(st.violations)}; reloads ${esc(st.reloads)}; recording ${st.recording ? "on" : "off"}`]);
     rows.push(["watchdog", wd.enabled ? `on, every ${esc(wd.interval_s)} s` : "off (not under systemd)"]);
   }
@@ -234,9 +235,10 @@ function renderRequirements() {
     const learned = M.learned[r.id] || {};
     const text = r.text || learned.text || "";
     const formula = r.formula || learned.formula || "";
+    const stale = (r.stale_inputs || []).length ? `<div class="stale">stale: ${esc(r.stale_inputs.join(", "))}</div>` : "";
     return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" data-violations="${count}">` +
       `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
-      `<td><span class="state state-${esc(state)}">${esc(state)}</span></td>` +
+      `<td><span class="state state-${esc(state)}">${esc(state)}</span>${stale}</td>` +
       `<td>${count}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
       `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
   });
