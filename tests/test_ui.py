@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 import threading
 import time
@@ -459,3 +460,69 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         if ui is not None:
             ui.child.stop()
         d.close()
+
+
+# ---------------------------------------------------------------- the unit
+
+
+UI_UNIT = ROOT / "supervisor/data/systemd/safety-supervisor-ui.service"
+
+
+def test_ui_unit_verifies_clean_and_is_hardened(tmp_path: Path) -> None:
+    import shutil
+    import subprocess
+
+    from test_packaging import SHIPPED_EXE, _console_script, _need
+
+    from supervisor.tools.install import render_unit, unit_directives
+
+    tool = _need("systemd-analyze", "systemd")
+    text = UI_UNIT.read_text()
+    (start,) = unit_directives(text, "ExecStart")
+    assert "--bind 127.0.0.1:" in start and "--token-file /etc/safety-supervisor/ui.token" in start
+    assert "safety-operators" in unit_directives(text, "SupplementaryGroups")
+    path = tmp_path / "safety-supervisor-ui.service"
+    path.write_text(render_unit(text, paths={SHIPPED_EXE: _console_script()}))
+    r = subprocess.run(
+        [tool, "verify", "--man=no", str(path)], capture_output=True, text=True, timeout=60
+    )
+    assert r.returncode == 0 and r.stderr == "", (r.returncode, r.stdout, r.stderr)
+    shutil.copy(UI_UNIT, path)
+    r = subprocess.run(
+        [tool, "security", "--offline=true", str(path)], capture_output=True, text=True, timeout=60
+    )
+    m = re.search(r"Overall exposure level for \S+: (\d+(?:\.\d+)?)", r.stdout)
+    assert m and float(m.group(1)) <= 2.0, r.stdout[-2000:]
+
+
+def test_install_service_installs_the_ui_unit_and_a_private_token(tmp_path: Path) -> None:
+    from test_packaging import _args
+
+    from supervisor.tools import install
+    from supervisor.tools.ui.token import TOKEN_FILE
+
+    plan = install.make_plan(_args(tmp_path, "--user", "robosafe"))
+    by_path = {s.write: s for s in plan.steps if s.write is not None}
+    unit = by_path[tmp_path / "units/safety-supervisor-ui.service"].content.decode()
+    assert install.unit_directives(unit, "User") == ["robosafe"]
+    (start,) = install.unit_directives(unit, "ExecStart")
+    assert start.startswith(f"{tmp_path}/opt/venv/bin/safety-supervisor ui ")
+    if not TOKEN_FILE.exists():
+        token = by_path[TOKEN_FILE]
+        assert token.mode == 0o640 and len(token.content.strip()) >= 40
+        chown = next(s for s in plan.steps if s.argv and s.argv[0] == "chown")
+        assert chown.argv == ("chown", "root:robosafe", str(TOKEN_FILE))
+        assert token.content not in install.format_plan(plan, dry_run=True).encode()
+
+
+def test_a_world_readable_token_is_refused(tmp_path: Path) -> None:
+    from monitors.errors import UserError
+    from supervisor.tools.ui.token import read_token
+
+    path = tmp_path / "ui.token"
+    path.write_bytes(TOKEN)
+    path.chmod(0o644)
+    with pytest.raises(UserError, match="every user"):
+        read_token(path)
+    path.chmod(0o640)
+    assert read_token(path) == TOKEN

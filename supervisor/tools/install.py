@@ -12,7 +12,9 @@ What it does, in order (each step is printed before it runs):
    from, else what pip installed the running package from (the same wheel, or
    the same version from the package index);
 4. the unit and the logrotate snippet shipped in :mod:`supervisor.data`, with
-   the prefix and the user substituted;
+   the prefix and the user substituted, and the operator page's unit
+   (``safety-supervisor-ui.service``) with its token
+   (``/etc/safety-supervisor/ui.token``, mode 0640 root:<user>, made once);
 5. ``systemctl daemon-reload``.
 
 The plan is data (a list of :class:`Step`), computed once from the arguments
@@ -46,10 +48,12 @@ import supervisor
 from monitors.errors import UserError
 from supervisor import data
 from supervisor.names import OPERATORS_GROUP
+from supervisor.tools.ui.token import TOKEN_FILE, TOKEN_MODE, new_token
 
 NAME = "safety-supervisor"
 PROG = "install-service"
 UNIT_NAME = data.UNIT_NAME
+UI_UNIT_NAME = "safety-supervisor-ui.service"  # beside the daemon's unit in supervisor.data
 DEFAULT_PREFIX = "/opt/safety-supervisor"
 DEFAULT_CONFIG = "srobot.yaml"  # a shipped example (supervisor.data)
 CONFIG_DIR = Path("/etc/safety-supervisor")
@@ -355,6 +359,7 @@ def make_plan(args: argparse.Namespace) -> Plan:
         raise UserError(f"cannot read config: {e.strerror or e}", file=str(config)) from e
     python, python_note = choose_python(args.python)
     unit_src, unit_text = _template(source, data.systemd_unit())
+    ui_src, ui_text = _template(source, data.systemd_unit().with_name(UI_UNIT_NAME))
     rot_src, rot_text = _template(source, data.logrotate_snippet())
     venv = prefix / "venv"
     exe = venv / "bin" / NAME
@@ -466,6 +471,34 @@ def make_plan(args: argparse.Namespace) -> Plan:
     )
     steps.append(
         Step(
+            f"install the operator page's unit (safety-supervisor ui, user {user})",
+            write=unit_dir / UI_UNIT_NAME,
+            content=render_unit(ui_text, prefix=str(prefix), user=user).encode(),
+            origin=str(ui_src),
+        )
+    )
+    # The page's resets need this token; the UI (the service user) reads it, root
+    # hands it to operators.  Never overwritten: operators may have it already.
+    token_skip = "exists, not overwritten" if TOKEN_FILE.exists() else None
+    steps.append(
+        Step(
+            "create the operator page's token",
+            write=TOKEN_FILE,
+            content=new_token(),
+            mode=TOKEN_MODE,
+            origin="256 random bits",
+            skip=token_skip,
+        )
+    )
+    steps.append(
+        Step(
+            f"let the service user {user} read the token",
+            argv=("chown", f"root:{user}", str(TOKEN_FILE)),
+            skip=token_skip,
+        )
+    )
+    steps.append(
+        Step(
             f"install the logrotate snippet (user {user})",
             write=rot_dir / NAME,
             content=render_logrotate(rot_text, user=user).encode(),
@@ -498,6 +531,11 @@ def make_plan(args: argparse.Namespace) -> Plan:
     next_steps.append(
         f"Let operators reset latched mitigations: usermod -aG {OPERATORS_GROUP} USER "
         "(then `safety-supervisor reset` as that user, after logging in again)."
+    )
+    next_steps.append(
+        f"The operator page (optional): systemctl enable --now {UI_UNIT_NAME}; it listens on "
+        "127.0.0.1:8321 (from elsewhere: ssh -L 8321:127.0.0.1:8321 ROBOT); its resets need "
+        f"the token in {TOKEN_FILE} (sudo cat it once per operator)."
     )
     next_steps.append(
         f"After editing the config: systemctl reload {UNIT_NAME} (runs check first; a "

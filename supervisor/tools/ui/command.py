@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import re
 import signal
 import sys
 import threading
@@ -40,6 +41,15 @@ def bind_arg(text: str) -> tuple[str, int]:
     return host, number
 
 
+def namespace_arg(text: str) -> str:
+    """A ROS namespace as argparse's type (rclpy's own error spans several lines)."""
+    if text != "/" and not re.fullmatch(
+        r"/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*/?", text
+    ):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a ROS namespace (e.g. /robot1)")
+    return text
+
+
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "ui", help="the operator's web page: live state, events, resets (its own process)"
@@ -60,6 +70,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--namespace",
+        type=namespace_arg,
         default="/",
         metavar="NS",
         help="the daemon's ros.namespace (default /): where its status and violations are",
@@ -101,15 +112,9 @@ def cmd_ui(args: argparse.Namespace) -> int:
         host, port = args.bind
         raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None
 
-    from rclpy.exceptions import InvalidNamespaceException
-
     from supervisor.tools.ui.node import UiNode
 
-    try:
-        node = UiNode(hub, args.namespace)
-    except InvalidNamespaceException as e:
-        server.server_close()
-        raise UserError(f"--namespace {args.namespace!r}: {e}", file=PROG) from None
+    node = UiNode(hub, args.namespace)
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())

@@ -25,9 +25,17 @@ def read_token(path: Path) -> bytes:
     """The token in ``path`` (surrounding whitespace dropped); a UserError naming
     the file when it cannot be read or is too short."""
     try:
+        mode = path.stat().st_mode
         token = path.read_bytes().strip()
     except OSError as e:
         raise UserError(f"cannot read the token: {e.strerror or e}", file=str(path)) from None
+    if mode & 0o006:
+        # a token every local user can read gives every local user the resets
+        raise UserError(
+            "the token is readable or writable by every user",
+            file=str(path),
+            hint=f"chmod {TOKEN_MODE:04o} {path}",
+        )
     if len(token) < MIN_TOKEN_CHARS:
         raise UserError(
             f"the token is shorter than {MIN_TOKEN_CHARS} characters",
