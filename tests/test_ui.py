@@ -320,6 +320,10 @@ def test_the_page_shows_the_status_live_and_resets_with_the_token(served: Any) -
 # ---------------------------------------------------------------- over DDS
 
 
+def violations(d: Any) -> int:
+    return sum(r["event"] == "violation" for r in d.records())
+
+
 def config_sha(d: Any) -> str:
     return next(r["config_sha256"] for r in d.records() if "config_sha256" in r)
 
@@ -359,6 +363,18 @@ class UiProcess:
     def state(self) -> dict[str, Any]:
         return json.loads(http(self.url + "api/state")[2])
 
+    def wait_status(self, timeout: float = 20) -> None:
+        """Until two status documents arrived: the daemon's participant is
+        discovered (its violations' writer with it; about 2 s here)."""
+        from rosutil import wait_until
+
+        first = wait_until("a status document", lambda: self.state()["status"], timeout)
+        wait_until(
+            "a second status document",
+            lambda: (self.state()["status"] or {}).get("now") != first["now"],
+            timeout,
+        )
+
 
 @pytest.mark.ros
 @pytest.mark.slow
@@ -377,6 +393,7 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         d.wait_notify("READY=1", timeout=60)
         port = free_port()
         ui = UiProcess(tmp_path, port, token_file, tmp_path / "ctl.sock")
+        ui.wait_status()
         robot = Robot(robot_node)
         robot.matched()
         robot.warm_up(d, S0)
@@ -434,26 +451,37 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         rec = d.wait_record(lambda r: r.get("reason") == "operator reset", "the UI's reset")
         assert rec["via"] == "ui" and rec["client"] == "127.0.0.1", rec
         assert rec["requirement"] == "*"
-
-        # the UI killed: the daemon monitors on; a restarted UI shows the state again
-        ui.child.kill()
-        pw.stop()
-        pw = None
-        n = sum(r["event"] == "violation" for r in d.records())
-        robot.until(
-            VIOLATING,
-            d,
-            lambda r: (
-                r["event"] == "violation"
-                and sum(x["event"] == "violation" for x in d.records()) > n
-            ),
-            "a violation while the UI is down",
+        time.sleep(1.1)  # the daemon's rate limit: one reset per second
+        assert post_reset(base, {"requirement": "state_req103"}, Authorization=auth) == 200
+        one = d.wait_record(
+            lambda r: r.get("reason") == "operator reset" and r["requirement"] != "*",
+            "the UI's reset of one requirement",
         )
+        assert (one["requirement"], one["via"]) == ("state_req103", "ui"), one
+
+        # the UI killed: the daemon monitors on; the page (left open) reconnects to
+        # the restarted UI and shows the state again, a new violation included
+        ui.child.kill()
+        wait_js(page, "document.getElementById('conn').textContent === 'reconnecting'")
+        n = violations(d)
+        robot.until(VIOLATING, d, lambda r: violations(d) > n, "a violation while the UI is down")
+        for _ in range(10):
+            robot.publish(S0)
+            time.sleep(0.05)
         ui = UiProcess(tmp_path, port, token_file, tmp_path / "ctl.sock")
-        pw, page, console, requests = open_page(ui.url)
-        wait_until("the requirements after the restart",
-                   lambda: want <= set(requirement_rows(page)), 15)  # fmt: skip
-        assert console == [], console
+        ui.wait_status()
+        wait_js(page, "document.getElementById('conn').textContent === 'live'", 15)
+        wait_until("the status after the restart",
+                   lambda: sha[:16] in page.inner_text("#health"), 10)  # fmt: skip
+        assert want <= set(requirement_rows(page))
+        shown = page.locator("#feed li[data-event='violation']").count()
+        n = violations(d)
+        robot.until(VIOLATING, d, lambda r: violations(d) > n, "a violation after the restart")
+        wait_until("the new violation on the page",
+                   lambda: page.locator("#feed li[data-event='violation']").count() > shown, 5)  # fmt: skip
+        # the reconnection attempts while the UI was down are the only complaints
+        assert [m for m in console if "ERR_CONNECTION_REFUSED" not in m] == [], console
+        assert all(u.startswith(ui.url) for u in requests), requests
     finally:
         if pw is not None:
             pw.stop()
