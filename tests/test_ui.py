@@ -482,6 +482,8 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         # the reconnection attempts while the UI was down are the only complaints
         assert [m for m in console if "ERR_CONNECTION_REFUSED" not in m] == [], console
         assert all(u.startswith(ui.url) for u in requests), requests
+        assert ui.child.stop() == 0, ui.stderr.read_text()  # SIGTERM with a stream open
+        ui = None
     finally:
         if pw is not None:
             pw.stop()

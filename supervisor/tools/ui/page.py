@@ -296,8 +296,9 @@ function renderOpView() {
       `<line x1="${x}" y1="${Y0 + 6}" x2="${x - 6}" y2="${Y0 + 18}" stroke="${colour}" stroke-width="3"/>` +
       `<line x1="${x}" y1="${Y0 + 6}" x2="${x + 6}" y2="${Y0 + 18}" stroke="${colour}" stroke-width="3"/></g>`;
   }
-  s += `<text x="10" y="200" font-size="12" id="opstate">${esc(CLASSES[cls] || "class " + cls)}` +
-    `${cls > 0 ? ` at ${esc(d)} m (${zone} zone)` : ""}; controller OpState ${esc(op)}: ${esc(OPSTATES[op] || "?")}</text>`;
+  s += `<text x="10" y="192" font-size="12" id="opstate"><tspan>${esc(CLASSES[cls] || "class " + cls)}` +
+    `${cls > 0 ? ` at ${esc(d)} m (${zone} zone)` : ""}</tspan>` +
+    `<tspan x="10" dy="15">controller OpState ${esc(op)}: ${esc(OPSTATES[op] || "?")}</tspan></text>`;
   $("opview").innerHTML = s;
 }
 
