@@ -76,7 +76,7 @@ def _paths(names: list[str]) -> list[Path]:
     paths = [Path(n) for n in names]
     for p in paths:
         if not p.exists():
-            raise UserError(f"no such bag or trace: {p}")
+            raise UserError("no such bag or trace", file=str(p))
     return paths
 
 
