@@ -82,6 +82,13 @@ def add_parser(sub: Any) -> None:
         help="the daemon's control socket (default: the one its status document names, "
         "else where `reset` looks)",
     )
+    p.add_argument(
+        "--fleet",
+        default=None,
+        metavar="FILE",
+        help="several robots: a YAML list of {name, namespace, domain}; the page lists "
+        "every supervisor on their domains, each linking to its own page",
+    )
 
 
 def _token(args: argparse.Namespace) -> bytes | None:
@@ -97,6 +104,8 @@ def cmd_ui(args: argparse.Namespace) -> int:
     from supervisor.tools.ui.server import UiServer, reset_availability
 
     token = _token(args)
+    if args.fleet is not None:
+        return _fleet(args, token)
 
     def socket_path(status: dict[str, Any] | None = None) -> str | None:
         if args.socket:
@@ -118,6 +127,12 @@ def cmd_ui(args: argparse.Namespace) -> int:
     stop = threading.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         signal.signal(signum, lambda *_: stop.set())
+    _serve(server, node, token, stop)
+    return 0
+
+
+def _serve(server: Any, node: Any, token: bytes | None, stop: threading.Event) -> None:
+    """Serve until SIGTERM or Ctrl-C (``stop``), then stop the server and the node."""
     thread = threading.Thread(target=server.serve_forever, name="ui-http", daemon=True)
     thread.start()
     mode = "resets with the token" if token is not None else "read-only: no token"
@@ -129,4 +144,30 @@ def cmd_ui(args: argparse.Namespace) -> int:
         server.stop()
         node.close()
     print("safety-supervisor ui: stopped", file=sys.stderr, flush=True)
+
+
+def _fleet(args: argparse.Namespace, token: bytes | None) -> int:
+    """The fleet view (docs/reference/commands.md, ``ui``, "The fleet")."""
+    from supervisor.tools.ui.fleet import Fleet, load_fleet, local_reset_availability
+    from supervisor.tools.ui.server import UiServer, reset_availability
+
+    for option, given in (("--namespace", args.namespace != "/"), ("--socket", args.socket)):
+        if given:
+            # each robot's namespace is in the file; its socket in its status document
+            raise UserError(f"{option} is for one robot, not with --fleet", file=PROG)
+    robots = load_fleet(Path(args.fleet))
+    fleet = Fleet(robots, lambda doc: local_reset_availability(doc, token, reset_availability))
+    try:
+        server = UiServer(args.bind, None, token, lambda: None, fleet=fleet)
+    except OSError as e:
+        host, port = args.bind
+        raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None
+
+    from supervisor.tools.ui.node import FleetNode
+
+    node = FleetNode(fleet)
+    stop = threading.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, lambda *_: stop.set())
+    _serve(server, node, token, stop)
     return 0

@@ -13,6 +13,7 @@ import threading
 from typing import Any
 
 from supervisor.names import DIAGNOSTICS_TOPIC, STATUS_TOPIC, VIOLATIONS_TOPIC
+from supervisor.tools.ui.fleet import Fleet, Robot, namespace_of, violations_topic
 from supervisor.tools.ui.hub import Hub
 
 NODE_NAME = "safety_supervisor_ui"
@@ -92,6 +93,113 @@ class UiNode:
         import rclpy
 
         self._stop.set()
+        self._thread.join(2.0)
+        self._executor.shutdown()
+        self.node.destroy_node()
+        rclpy.shutdown(context=self._ctx)
+
+
+DISCOVERY_S = 1.0  # how often each domain's graph is searched for status topics
+
+
+class FleetNode:
+    """The fleet's ROS side: one rclpy context, node and executor thread per DDS
+    domain (a context is bound to one domain), each subscribing to its robots'
+    status and violations and searching its graph for other supervisors.
+
+    Subscriptions are created in the domain's own thread, between spins, so no
+    two threads touch one executor.  /diagnostics is not read: every daemon of a
+    domain publishes there, so it cannot be told which robot it is from."""
+
+    def __init__(self, fleet: Fleet) -> None:
+        self._fleet = fleet
+        self._stop = threading.Event()
+        self._domains = [_Domain(fleet, d, self._stop) for d in fleet.domains()]
+
+    def close(self) -> None:
+        self._stop.set()
+        for d in self._domains:
+            d.close()
+
+
+class _Domain:
+    def __init__(self, fleet: Fleet, domain: int, stop: threading.Event) -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.signals import SignalHandlerOptions
+
+        self._fleet = fleet
+        self.domain = domain
+        self._stop = stop
+        self._ctx = Context()
+        rclpy.init(
+            context=self._ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO
+        )
+        self.node = Node(NODE_NAME, context=self._ctx)
+        self._executor = SingleThreadedExecutor(context=self._ctx)
+        self._executor.add_node(self.node)
+        self._watched: set[str] = set()
+        for robot in fleet.robots():
+            if robot.domain == domain:
+                self._subscribe(robot)
+        self._thread = threading.Thread(target=self._spin, name=f"ui-ros-{domain}", daemon=True)
+        self._thread.start()
+
+    def _subscribe(self, robot: Robot) -> None:
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+
+        if robot.topic in self._watched:
+            return
+        self._watched.add(robot.topic)
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+
+        def on_status(msg: Any) -> None:
+            doc = _json(msg, f"a status document on {robot.topic}")
+            if doc is not None:
+                self._fleet.on_status(robot, doc)
+
+        def on_violation(msg: Any) -> None:
+            doc = _json(msg, f"a violation record of {robot.topic}")
+            if doc is not None:
+                self._fleet.on_violation(robot, doc)
+
+        # as UiNode: the status latched, a burst of violations not cut short
+        self.node.create_subscription(String, robot.topic, on_status, latched)
+        self.node.create_subscription(String, violations_topic(robot.namespace), on_violation, 100)
+
+    def _discover(self) -> None:
+        for topic, types in self.node.get_topic_names_and_types():
+            if topic in self._watched or "std_msgs/msg/String" not in types:
+                continue
+            namespace = namespace_of(topic)
+            if namespace is not None:
+                robot, _new = self._fleet.watch(self.domain, namespace)
+                self._subscribe(robot)
+
+    def _spin(self) -> None:
+        import time
+
+        next_search = 0.0
+        while not self._stop.is_set() and self._ctx.ok():
+            if time.monotonic() >= next_search:
+                next_search = time.monotonic() + DISCOVERY_S
+                try:
+                    self._discover()
+                except Exception as e:  # noqa: BLE001 - the graph query must not end the UI
+                    print(f"safety-supervisor ui: WARNING: domain {self.domain}: {e}",
+                          file=sys.stderr, flush=True)  # fmt: skip
+            self._executor.spin_once(timeout_sec=0.1)
+
+    def close(self) -> None:
+        import rclpy
+
         self._thread.join(2.0)
         self._executor.shutdown()
         self.node.destroy_node()

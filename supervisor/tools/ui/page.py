@@ -4,7 +4,10 @@ It works offline (no CDN, no build step).  The script opens ``/events`` (Server-
 Events): a snapshot first, then each status document, violation record and
 /diagnostics update as it arrives; ages tick and sparklines are drawn in the
 browser from the values it has seen.  ``__NONCE__`` is replaced per response (the
-Content-Security-Policy admits this script only).  docs/reference/commands.md, ``ui``.
+Content-Security-Policy admits this script only).  ``__BASE__`` is where the page's
+stream and reset are (empty for the one robot; ``/robot/<id>`` in the fleet) and
+``__FLEET__`` the fleet page to link back to (empty: no link).
+docs/reference/commands.md, ``ui``.
 """
 
 from __future__ import annotations
@@ -56,6 +59,7 @@ svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
 <body>
 <header>
   <h1>safety-supervisor</h1>
+  <a id="fleet-link" href="__FLEET__" style="color:#fff">fleet</a>
   <span id="component" class="muted"></span>
   <span id="supervisor"></span>
   <span id="quiet"></span>
@@ -104,6 +108,8 @@ const SPARK_S = 30;          // seconds of values a sparkline shows
 const QUIET_S = 2.5;         // no status document for this long: the daemon is quiet
 const FEED_MAX = 200;
 const TOKEN_KEY = "safety-supervisor-ui-token";
+const BASE = "__BASE__";     // this robot's paths in the fleet ("" for the one robot)
+if (!"__FLEET__") document.getElementById("fleet-link").remove();
 const ZONES = [[3, "red"], [7, "yellow"]];   // sRobot: red < 3 m, yellow 3-7 m, green beyond
 const CLASSES = {0: "nobody", 1: "trained worker", 2: "untrained person"};
 const OPSTATES = {0: "normal", 1: "alert", 2: "alert + slow down", 3: "stop + UV off"};
@@ -336,7 +342,7 @@ async function reset(requirement) {
   $("resetmsg").textContent = "resetting ...";
   let res;
   try {
-    res = await fetch("/api/reset", {
+    res = await fetch(BASE + "/api/reset", {
       method: "POST", headers: {"Content-Type": "application/json", "Authorization": "Bearer " + token},
       body: JSON.stringify(body),
     });
@@ -362,10 +368,128 @@ $("tokenbox").addEventListener("submit", (e) => {
 // ------------------------------------------------------------------ live updates
 
 function connect() {
-  const es = new EventSource("/events");
+  const es = new EventSource(BASE + "/events");
   es.onopen = () => { M.connected = true; render(); };
   es.onmessage = (e) => handle(JSON.parse(e.data));
   es.onerror = () => { M.connected = false; render(); };  // EventSource reconnects itself
+}
+render();
+connect();
+</script>
+</body>
+</html>
+"""
+
+# The fleet page: one row per supervisor, each linking to its robot's page.  Rows are
+# never removed: a supervisor whose status stops is LOST, in red, with when it was
+# last seen (its row's ``lost_after_s``: 3 status periods; docs/reference/commands.md).
+FLEET_PAGE = r"""<!doctype html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<link rel="icon" href="data:,">
+<title>safety-supervisor fleet</title>
+<style>
+body { font: 14px/1.4 system-ui, sans-serif; margin: 0; color: #222; background: #f6f6f4; }
+header { background: #263238; color: #fff; padding: 8px 16px; display: flex; gap: 16px;
+         align-items: center; }
+header h1 { font-size: 18px; margin: 0; }
+main { padding: 12px; }
+section { background: #fff; border: 1px solid #ddd; border-radius: 6px; padding: 8px 12px; }
+table { border-collapse: collapse; width: 100%; }
+td, th { text-align: left; padding: 3px 6px; border-bottom: 1px solid #eee; vertical-align: top; }
+th { font-weight: 600; color: #555; }
+.muted { color: #777; }
+.state { padding: 1px 8px; border-radius: 9px; font-weight: 600; white-space: nowrap; }
+.state-live { background: #c8e6c9; color: #1b5e20; }
+.state-lost { background: #d32f2f; color: #fff; }
+.state-waiting { background: #eee; color: #555; }
+tr.lost td { color: #b71c1c; }
+.open { color: #b71c1c; font-weight: 600; }
+.fail { color: #b71c1c; font-weight: 600; }
+#conn.off { color: #ffab91; }
+</style>
+</head>
+<body>
+<header>
+  <h1>safety-supervisor fleet</h1>
+  <span id="count" class="muted"></span>
+  <span id="conn" class="off">connecting</span>
+</header>
+<main>
+<section>
+  <table>
+    <thead><tr><th>robot</th><th>state</th><th>host</th><th>component</th><th>config</th>
+      <th>uptime</th><th>ticks/s</th><th>msg/s</th><th>lost msgs</th><th>open violations</th>
+      <th>last status</th></tr></thead>
+    <tbody id="robots"></tbody>
+  </table>
+</section>
+</main>
+<script nonce="__NONCE__">
+"use strict";
+const R = {};               // robot id -> {row, at: performance.now() when received}
+let connected = false;
+const $ = (id) => document.getElementById(id);
+const esc = (s) => String(s ?? "").replace(/[&<>"']/g,
+  (c) => ({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;"}[c]));
+const num = (v, d) => v == null ? "" : Number(v).toFixed(d);
+const fmtAge = (s) => s == null ? "never" : (s < 10 ? s.toFixed(1) : s.toFixed(0)) + " s ago";
+const fmtTs = (ts) => ts ? String(ts).replace("T", " ").replace(/\.\d+Z$/, "Z") : "";
+const fmtDur = (s) => {
+  if (s == null) return "";
+  s = Math.floor(s); const h = Math.floor(s / 3600), m = Math.floor(s % 3600 / 60);
+  return (h ? h + " h " : "") + (h || m ? m + " min " : "") + (s % 60) + " s";
+};
+
+function age(e) {
+  return e.row.age_s == null ? null : e.row.age_s + (performance.now() - e.at) / 1000;
+}
+
+function render() {
+  $("conn").textContent = connected ? "live" : "reconnecting";
+  $("conn").className = connected ? "" : "off";
+  const entries = Object.values(R).sort((a, b) => a.row.name.localeCompare(b.row.name));
+  let lost = 0;
+  $("robots").innerHTML = entries.map((e) => {
+    const r = e.row, a = age(e);
+    const state = a == null ? "waiting" : (a > r.lost_after_s ? "lost" : "live");
+    if (state === "lost") lost += 1;
+    const where = `domain ${esc(r.domain)}, ${esc(r.topic)}${r.configured ? "" : " (discovered)"}`;
+    const label = state === "lost" ? `LOST <span class="muted" style="color:#fff">since ${esc(fmtTs(r.last_seen))}</span>`
+      : state === "waiting" ? "no status yet" : "live";
+    const open = (r.open || []).length
+      ? `<span class="open">${r.open.length}</span> <span class="muted">${esc(r.open.join(", "))}</span>` : "0";
+    const uptime = state === "live" && r.uptime_s != null ? r.uptime_s + (performance.now() - e.at) / 1000 : r.uptime_s;
+    return `<tr class="robot ${state}" data-robot="${esc(r.id)}" data-state="${state}" data-open="${(r.open || []).length}">` +
+      `<td><a href="/robot/${encodeURIComponent(r.id)}"><b>${esc(r.name)}</b></a><div class="muted">${where}</div></td>` +
+      `<td><span class="state state-${state}">${label}</span></td>` +
+      `<td>${esc(r.host)}</td><td>${esc(r.component)}</td>` +
+      `<td><code>${esc((r.config_sha256 || "").slice(0, 12))}</code></td>` +
+      `<td>${esc(fmtDur(uptime))}</td><td>${num(r.tick_rate_hz, 1)}</td><td>${num(r.receive_rate_hz, 1)}</td>` +
+      `<td class="${r.lost ? "fail" : ""}">${esc(r.lost)}</td><td>${open}</td>` +
+      `<td class="age">${esc(fmtAge(a))}</td></tr>`;
+  }).join("") || `<tr><td colspan="11" class="muted">no supervisors known yet</td></tr>`;
+  $("count").textContent = `${entries.length} supervisors` + (lost ? `, ${lost} lost` : "");
+}
+setInterval(render, 250);   // ages tick and a silent robot turns LOST between updates
+
+function handle(msg) {
+  const t = performance.now();
+  if (msg.type === "snapshot") {
+    for (const r of msg.robots) R[r.id] = {row: r, at: t};  // rows are never removed
+  } else if (msg.type === "robot") {
+    R[msg.robot.id] = {row: msg.robot, at: t};
+  }
+  render();
+}
+
+function connect() {
+  const es = new EventSource("/fleet/events");
+  es.onopen = () => { connected = true; render(); };
+  es.onmessage = (e) => handle(JSON.parse(e.data));
+  es.onerror = () => { connected = false; render(); };  // EventSource reconnects itself
 }
 render();
 connect();

@@ -25,6 +25,7 @@ import ipaddress
 import json
 import os
 import queue
+import re
 import secrets
 import socket
 import stat
@@ -36,12 +37,15 @@ from typing import Any
 
 from monitors.errors import UserError
 from supervisor.tools.reset import request
+from supervisor.tools.ui.fleet import Fleet, local_reset_availability
 from supervisor.tools.ui.hub import Hub
-from supervisor.tools.ui.page import PAGE
+from supervisor.tools.ui.page import FLEET_PAGE, PAGE
 
 KEEPALIVE_S = 10.0  # an SSE comment this often: a closed browser is noticed, proxies keep it
 MAX_BODY = 4096
 RESET_TIMEOUT_S = 5.0
+# A robot's page in the fleet and its stream, state and reset (fleet names: fleet.NAME_RE)
+ROBOT_PATH = re.compile(r"/robot/([A-Za-z0-9_.-]+)(/events|/api/state|/api/reset)?")
 
 
 def reset_availability(socket_path: str | None, token: bytes | None) -> dict[str, Any]:
@@ -106,10 +110,12 @@ class UiServer(ThreadingHTTPServer):
     def __init__(
         self,
         address: tuple[str, int],
-        hub: Hub,
+        hub: Hub | None,
         token: bytes | None,
         socket_path: Callable[[], str | None],
+        fleet: Fleet | None = None,
     ) -> None:
+        """``fleet``: the fleet view (then ``hub`` is unused: each robot has its own)."""
         try:
             family = socket.AF_INET6 if ipaddress.ip_address(address[0]).version == 6 else None
         except ValueError:
@@ -118,6 +124,7 @@ class UiServer(ThreadingHTTPServer):
             self.address_family = family
         super().__init__(address, Handler)
         self.hub = hub
+        self.fleet = fleet
         self.token = token
         self.socket_path = socket_path
         self.host_ok = allowed_hosts(address[0], self.server_address[1])
@@ -130,7 +137,10 @@ class UiServer(ThreadingHTTPServer):
 
     def stop(self) -> None:
         self.stopping.set()
-        self.hub.close()
+        if self.hub is not None:
+            self.hub.close()
+        if self.fleet is not None:
+            self.fleet.close()
         self.shutdown()
         self.server_close()
 
@@ -193,16 +203,49 @@ class Handler(BaseHTTPRequestHandler):
         if not self._host_ok():
             return
         path = self.path.split("?", 1)[0]
-        if path == "/":
+        hub = self.server.hub
+        if self.server.fleet is not None:
+            self._fleet_get(self.server.fleet, path)
+        elif hub is None:
+            self._not_found()
+        elif path == "/":
             self._page()
         elif path == "/events":
-            self._events()
+            self._events(hub.subscribe, hub.unsubscribe)
         elif path == "/api/state":
-            self._json(HTTPStatus.OK, self.server.hub.snapshot())
+            self._json(HTTPStatus.OK, hub.snapshot())
         else:
-            self._json(HTTPStatus.NOT_FOUND, {"ok": False, "message": "not found"})
+            self._not_found()
 
-    def _page(self) -> None:
+    def _not_found(self) -> None:
+        self._json(HTTPStatus.NOT_FOUND, {"ok": False, "message": "not found"})
+
+    def _fleet_get(self, fleet: Fleet, path: str) -> None:
+        """The fleet's paths (docs/reference/commands.md, ``ui``, "The fleet")."""
+        if path == "/" and fleet.configured == 1:
+            # one robot listed: its page is the UI's page, the fleet one click away
+            self._send(HTTPStatus.SEE_OTHER, b"", "text/plain",
+                       {"Location": f"/robot/{fleet.first().id}"})  # fmt: skip
+        elif path in ("/", "/fleet"):
+            self._page(FLEET_PAGE)
+        elif path == "/fleet/events":
+            self._events(fleet.subscribe, fleet.unsubscribe)
+        elif path == "/api/fleet":
+            self._json(HTTPStatus.OK, fleet.snapshot())
+        elif (m := ROBOT_PATH.fullmatch(path)) and (robot := fleet.robot(m[1])) is not None:
+            if m[2] is None:
+                base = f"/robot/{robot.id}"
+                self._page(PAGE.replace("__BASE__", base).replace("__FLEET__", "/fleet"))
+            elif m[2] == "/events":
+                self._events(robot.hub.subscribe, robot.hub.unsubscribe)
+            elif m[2] == "/api/state":
+                self._json(HTTPStatus.OK, robot.hub.snapshot())
+            else:
+                self._not_found()
+        else:
+            self._not_found()
+
+    def _page(self, page: str = PAGE) -> None:
         nonce = secrets.token_urlsafe(16)
         # Nothing may load from elsewhere; the one inline script runs by its nonce.
         csp = (
@@ -210,7 +253,9 @@ class Handler(BaseHTTPRequestHandler):
             "connect-src 'self'; img-src 'self' data:; base-uri 'none'; form-action 'none'; "
             "frame-ancestors 'none'"
         )
-        body = PAGE.replace("__NONCE__", nonce).encode()
+        # the single robot's page: its stream and reset at /, no fleet to go back to
+        page = page.replace("__BASE__", "").replace("__FLEET__", "")
+        body = page.replace("__NONCE__", nonce).encode()
         self._send(
             HTTPStatus.OK,
             body,
@@ -218,9 +263,12 @@ class Handler(BaseHTTPRequestHandler):
             {"Content-Security-Policy": csp, "X-Frame-Options": "DENY"},
         )
 
-    def _events(self) -> None:
-        hub = self.server.hub
-        q = hub.subscribe()
+    def _events(
+        self,
+        subscribe: Callable[[], queue.Queue[str | None]],
+        unsubscribe: Callable[[queue.Queue[str | None]], None],
+    ) -> None:
+        q = subscribe()
         try:
             self.send_response(HTTPStatus.OK)
             self.send_header("Content-Type", "text/event-stream")
@@ -243,15 +291,29 @@ class Handler(BaseHTTPRequestHandler):
         except OSError:
             pass  # the browser went away
         finally:
-            hub.unsubscribe(q)
+            unsubscribe(q)
 
     # ------------------------------------------------------------ POST
 
     def do_POST(self) -> None:  # noqa: N802 - http.server's name
         if not self._host_ok():
             return
-        if self.path != "/api/reset":
-            self._json(HTTPStatus.NOT_FOUND, {"ok": False, "message": "not found"})
+        path = self.path.split("?", 1)[0]
+        fleet = self.server.fleet
+        target: tuple[Hub, Callable[[], str | None], dict[str, Any]] | None = None
+        if fleet is None and path == "/api/reset" and self.server.hub is not None:
+            socket_path = self.server.socket_path()
+            state = reset_availability(socket_path, self.server.token)
+            target = (self.server.hub, lambda: socket_path, state)
+        elif fleet is not None and (m := ROBOT_PATH.fullmatch(path)) and m[2] == "/api/reset":
+            robot = fleet.robot(m[1])
+            if robot is not None:
+                doc = robot.hub.status
+                named = doc.get("control_socket") if isinstance(doc, dict) else None
+                state = local_reset_availability(doc, self.server.token, reset_availability)
+                target = (robot.hub, lambda: named if isinstance(named, str) else None, state)
+        if target is None:
+            self._not_found()
             return
         if not self._same_origin():
             self._json(HTTPStatus.FORBIDDEN, {"ok": False, "message": "cross-origin request"})
@@ -287,12 +349,17 @@ class Handler(BaseHTTPRequestHandler):
                 {"ok": False, "message": 'the body must be {} or {"requirement": "ID"}'},
             )
             return
-        self._reset(requirement)
+        self._reset(requirement, *target)
 
-    def _reset(self, requirement: str | None) -> None:
+    def _reset(
+        self,
+        requirement: str | None,
+        hub: Hub,
+        socket_path: Callable[[], str | None],
+        state: dict[str, Any],
+    ) -> None:
         client = self.client_address[0]
-        path = self.server.socket_path()
-        state = reset_availability(path, self.server.token)
+        path = socket_path()
         if not state["available"] or path is None:
             self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"ok": False, "message": state["why"]})
             return
@@ -309,7 +376,7 @@ class Handler(BaseHTTPRequestHandler):
         message = str(answer.get("message", ""))
         what = f"reset {requirement or 'all'} from {client}"
         print(f"safety-supervisor ui: {what}: {message}", flush=True)
-        self.server.hub.note(
+        hub.note(
             {"event": "ui", "requirement": requirement or "*", "what": what, "detail": message}
         )
         self._json(HTTPStatus.OK, {"ok": answer.get("ok") is True, "message": message})
