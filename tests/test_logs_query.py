@@ -280,6 +280,7 @@ class _Follow:
         return self.proc.returncode, err
 
 
+@pytest.mark.slow
 def test_follow_across_rotation(tmp_path: Path) -> None:
     live = tmp_path / "v.jsonl"
     log = ViolationLog(live, "sRobot", "ab" * 32, echo=False)
@@ -323,6 +324,7 @@ def test_follow_across_rotation(tmp_path: Path) -> None:
         log.close()
 
 
+@pytest.mark.slow
 def test_follow_table_and_ctrl_c(tmp_path: Path) -> None:
     live = tmp_path / "v.jsonl"
     with ViolationLog(live, "sRobot", "ab" * 32, echo=False) as log:

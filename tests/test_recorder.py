@@ -322,6 +322,7 @@ def _gone(pid: int, timeout: float) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_kill_9_of_the_daemon_leaves_a_closed_bag(tmp_path):
     # The writer process sees EOF when the daemon dies and closes the bag itself.
     child = _child(
@@ -387,6 +388,7 @@ def test_kill_9_of_the_writer_leaves_a_file_readable_up_to_its_last_flushed_chun
     ]
 
 
+@pytest.mark.slow
 def test_a_stalled_writer_never_stalls_the_caller(tmp_path):
     # The writer stopped (SIGSTOP): the pipe fills, then the queue; message() keeps
     # returning and counts what does not fit, and after SIGCONT the rest is written.

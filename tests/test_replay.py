@@ -105,10 +105,9 @@ def decisions(path: Path) -> list[dict[str, Any]]:
     return [{k: v for k, v in r.items() if k not in drop} for r in iter_records(str(path))]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("policy", ["on_message", "on_trigger"])
-@pytest.mark.parametrize(
-    "seed", [1, pytest.param(2, marks=pytest.mark.slow), pytest.param(3, marks=pytest.mark.slow)]
-)
+@pytest.mark.parametrize("seed", [1, 2, 3])
 def test_bulk_stepping_writes_what_message_by_message_writes(tmp_path, policy, seed):
     bag = write_bag(tmp_path / "bag", messages(seed, 6000))
     cfg = config(tmp_path, policy=policy)

@@ -276,6 +276,7 @@ def many_int64(n):
 @pytest.mark.parametrize(
     "plugin,ext", [(StoragePlugin.MCAP, "mcap"), (StoragePlugin.SQLITE3, "db3")]
 )
+@pytest.mark.slow
 def test_a_truncated_bag_gives_everything_before_the_damage_then_the_place(tmp_path, plugin, ext):
     cfg = config(tmp_path)
     msgs, expected = many_int64(60_000)  # several MCAP chunks, many sqlite pages

@@ -117,6 +117,7 @@ def test_report_from_the_log_alone(logged: tuple[Path, Path, Path], tmp_path: Pa
     assert html.count('class="mk violation"') == 3
 
 
+@pytest.mark.slow
 def test_report_with_the_bag_replays_the_whole_window(
     logged: tuple[Path, Path, Path], tmp_path: Path
 ) -> None:
@@ -137,6 +138,7 @@ def test_report_with_the_bag_replays_the_whole_window(
     assert speed["v"] == SPEEDS
 
 
+@pytest.mark.slow
 def test_rotated_and_compressed_logs_and_a_broken_chain(
     logged: tuple[Path, Path, Path], tmp_path: Path
 ) -> None:
@@ -165,6 +167,7 @@ def test_rotated_and_compressed_logs_and_a_broken_chain(
     assert "data-ok='false'" in html
 
 
+@pytest.mark.slow
 def test_errors_are_one_line_naming_the_file(
     logged: tuple[Path, Path, Path], tmp_path: Path
 ) -> None:
