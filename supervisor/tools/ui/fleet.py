@@ -17,7 +17,7 @@ import re
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -338,6 +338,3 @@ class Fleet:
                 with contextlib.suppress(queue.Empty):
                     q.get_nowait()
                 q.put_nowait(None)
-
-    def __iter__(self) -> Iterator[Robot]:
-        return iter(self.robots())
