@@ -282,3 +282,140 @@ def test_the_fleet_page_shows_a_silent_robot_as_lost(fleet_served: Any) -> None:
         assert all(u.startswith(server.url()) for u in requests), requests
     finally:
         pw.stop()
+
+
+# ---------------------------------------------------------------- over DDS
+
+
+ROBOT_CONFIG = """\
+component: R{n}
+step: {{policy: on_message, stale_after_ms: 200}}
+variables:
+  speed: {{type: double, topic: /speed, msg: std_msgs/msg/Float64}}
+requirements:
+  - id: limit_{n}
+    text: R{n} shall always satisfy speed <= 2.0
+    on_violation: [note]
+mitigations:
+  note: {{log: {{message: violated}}}}
+ros: {{namespace: /robot{n}}}
+control: {{socket: ctl.sock}}
+"""
+
+
+def other_domain(domain: int) -> int:
+    """A second domain beside the test run's (random, 1-200: tests/rosutil.py)."""
+    return domain + 1 if domain < 232 else domain - 1
+
+
+class FleetUi:
+    """``safety-supervisor ui --fleet FILE`` as a child on the test run's domain."""
+
+    def __init__(self, tmp: Path, fleet_file: Path, token_file: Path) -> None:
+        from rosutil import DOMAIN_ID
+        from test_ui import free_port
+
+        from supervisor.tools.children import Child, ros_env
+
+        port = free_port()
+        self.url = f"http://127.0.0.1:{port}/"
+        argv = [sys.executable, "-m", "supervisor", "ui", "--bind", f"127.0.0.1:{port}",
+                "--token-file", str(token_file), "--fleet", str(fleet_file)]  # fmt: skip
+        self.stderr = tmp / "ui.stderr"
+        self.child = Child("ui", argv, env=ros_env(DOMAIN_ID), cwd=ROOT, stderr=self.stderr)
+        deadline = time.monotonic() + 30
+        while True:
+            try:
+                if http(self.url + "api/fleet")[0] == 200:
+                    return
+            except OSError:
+                pass
+            if not self.child.alive() or time.monotonic() > deadline:
+                raise AssertionError(f"ui did not start\n{self.stderr.read_text()}")
+            time.sleep(0.1)
+
+    def rows(self) -> dict[str, dict[str, Any]]:
+        return {r["id"]: r for r in json.loads(http(self.url + "api/fleet")[2])["robots"]}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_the_fleet_of_real_supervisors_in_two_namespaces_and_two_domains(tmp_path: Path) -> None:
+    from rosutil import DOMAIN_ID, Daemon, wait_until
+
+    second = other_domain(DOMAIN_ID)
+    daemons: dict[int, Daemon] = {}
+    ui: FleetUi | None = None
+    pw = None
+    try:
+        for n, domain in ((1, DOMAIN_ID), (2, DOMAIN_ID), (3, second)):
+            d = tmp_path / f"r{n}"
+            d.mkdir()
+            (d / "c.yaml").write_text(ROBOT_CONFIG.format(n=n))
+            env = {"ROS_DOMAIN_ID": str(second)} if domain != DOMAIN_ID else None
+            daemons[n] = Daemon(d, d / "c.yaml", env=env)
+        for d in daemons.values():
+            d.wait_notify("READY=1", timeout=60)
+        # robot1 listed on the run's domain, robot3 on the second; robot2 discovered
+        fleet_file = tmp_path / "fleet.yaml"
+        fleet_file.write_text(
+            f"- {{name: robot1, namespace: /robot1}}\n"
+            f"- {{name: robot3, namespace: /robot3, domain: {second}}}\n"
+        )
+        token_file = tmp_path / "ui.token"
+        token_file.write_bytes(TOKEN + b"\n")
+        token_file.chmod(0o640)
+        ui = FleetUi(tmp_path, fleet_file, token_file)
+        found = f"d{DOMAIN_ID}-robot2"
+
+        def all_live() -> bool:
+            rows = ui.rows() if ui else {}
+            return {"robot1", "robot3", found} <= set(rows) and all(
+                r["state"] == "live" for r in rows.values()
+            )
+
+        wait_until("three live supervisors", all_live, 30, lambda: str(ui and ui.rows()))
+        rows = ui.rows()
+        assert rows["robot3"]["domain"] == second and rows["robot3"]["component"] == "R3"
+        assert rows[found]["component"] == "R2" and not rows[found]["configured"]
+        assert rows["robot1"]["host"] == HERE
+
+        pw, page, console, requests = open_page(ui.url)
+        page.wait_for_selector(f"tr.robot[data-robot='{found}'][data-state='live']")
+        shown = fleet_rows(page)
+        assert {"robot1", "robot3", found} <= set(shown)
+        assert all(shown[r]["state"] == "live" for r in ("robot1", "robot3", found)), shown
+
+        # robot2 stopped: LOST within a few seconds, and still there
+        t0 = time.monotonic()
+        daemons[2].terminate()
+        page.wait_for_selector(f"tr.robot[data-robot='{found}'][data-state='lost']", timeout=8000)
+        assert time.monotonic() - t0 < 6.0
+        shown = fleet_rows(page)
+        assert "LOST" in shown[found]["text"] and shown["robot1"]["state"] == "live"
+        page.wait_for_timeout(1000)
+        assert fleet_rows(page)[found]["state"] == "lost"  # not removed
+
+        # each link leads to that robot's page, with only its requirements
+        for rid, req, other in (("robot1", "limit_1", "limit_3"), ("robot3", "limit_3", "limit_1")):
+            page.goto(ui.url + "fleet")
+            page.click(f"tr.robot[data-robot='{rid}'] a")
+            page.wait_for_selector(f"tr.req[data-requirement='{req}']")
+            assert page.url == ui.url + f"robot/{rid}"
+            assert page.locator(f"tr.req[data-requirement='{other}']").count() == 0
+            assert f"R{rid[-1]}" in page.inner_text("#component")
+            # its socket is on this machine and the token is set: resets are offered
+            wait_js(page, "!document.getElementById('reset-all').disabled")
+        assert console == [], console
+        assert all(u.startswith(ui.url) for u in requests), requests
+        assert ui.child.stop() == 0, ui.stderr.read_text()
+        ui = None
+        for n in (1, 3):
+            daemons[n].terminate()
+    finally:
+        if pw is not None:
+            pw.stop()
+        if ui is not None:
+            ui.child.stop()
+        for d in daemons.values():
+            d.close()
