@@ -39,21 +39,14 @@ numpy; any other field is deserialised message by message.
 from __future__ import annotations
 
 import json
-import mmap
-import os
-import struct
-import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from itertools import islice
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-import apsw
 import numpy as np
 import yaml
 from rosbags.interfaces import Nodetype
-from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from mitigations.rosmsg import COMPATIBLE
@@ -61,34 +54,23 @@ from monitors.errors import UserError
 from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
 from supervisor.names import VIOLATIONS_TOPIC
-
-# The daemon's JSON records on ROS: the full record stream (with markers) and the
-# violations topic (docs/reference/ros-interfaces.md); both std_msgs/msg/String.
-RECORDS_TOPIC = "/safety_supervisor/records"
-RECORD_TOPICS = (RECORDS_TOPIC, VIOLATIONS_TOPIC)
-STRING = "std_msgs/msg/String"
-CHUNK = 100_000
-
-ValueEvent = tuple[int, str, list[tuple[str, Any]]]
-RecordEvent = tuple[int, Literal["record"], dict[str, Any]]
-Event = ValueEvent | RecordEvent
-Progress = Callable[[int, int | None], None]  # (messages read, total if known)
-_DTYPES: dict[str, Any] = {"bool": np.bool_, "int64": np.int64, "double": np.float64}
-
-
-def _field(msg: Any, path: str) -> Any:
-    """A dotted field of a deserialised message (as mitigations/rosmsg.py's get_field)."""
-    for part in path.split("."):
-        msg = getattr(msg, part)
-    return msg
-
-
-def normalise_type(name: str) -> str:
-    """'std_msgs/Int64', 'std_msgs::msg::Int64' -> 'std_msgs/msg/Int64'."""
-    parts = [p for p in name.replace("::", "/").split("/") if p]
-    if len(parts) == 2:
-        parts = [parts[0], "msg", parts[1]]
-    return "/".join(parts)
+from supervisor.tools.replay.mcap import Mcap
+from supervisor.tools.replay.sqlite import Sqlite
+from supervisor.tools.replay.storage import (
+    CHUNK,
+    DTYPES,
+    RECORD_TOPICS,
+    RECORDS_TOPIC,
+    STRING,
+    Damage,
+    Event,
+    Progress,
+    Raw,
+    Source,
+    field_value,
+    normalise_type,
+)
+from supervisor.tools.replay.trace import Trace
 
 
 @dataclass
@@ -118,56 +100,6 @@ class Batch:
 
 
 @dataclass
-class _Raw:
-    """Messages of one source as read: receive times, topic ids and the payloads,
-    message i's being ``buf[start[i]:end[i]]`` (one buffer, so that a fixed field
-    is gathered for all messages at once); a JSON-lines trace has ``items``."""
-
-    t_ns: np.ndarray  # int64
-    topic: np.ndarray  # int32, index into Recording.topics
-    buf: bytes = b""
-    start: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
-    end: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
-    items: list[Any] | None = None
-
-    def __len__(self) -> int:
-        return len(self.t_ns)
-
-    def payload(self, i: int) -> bytes:
-        return self.buf[self.start[i] : self.end[i]]
-
-    def part(self, i: int, j: int) -> _Raw:
-        items = self.items[i:j] if self.items is not None else None
-        return _Raw(
-            self.t_ns[i:j], self.topic[i:j], self.buf, self.start[i:j], self.end[i:j], items
-        )
-
-    def in_order(self) -> _Raw:
-        """Sorted by receive time (stable: equal times keep the file's order)."""
-        if len(self.t_ns) < 2 or bool((np.diff(self.t_ns) >= 0).all()):
-            return self
-        o = np.argsort(self.t_ns, kind="stable")
-        items = [self.items[i] for i in o] if self.items is not None else None
-        return _Raw(self.t_ns[o], self.topic[o], self.buf, self.start[o], self.end[o], items)
-
-
-def _raw(ts: list[int], topics: list[int], payloads: list[bytes]) -> _Raw:
-    lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=len(payloads))
-    end = np.cumsum(lengths)
-    return _Raw(
-        np.asarray(ts, dtype=np.int64),
-        np.asarray(topics, dtype=np.int32),
-        b"".join(payloads),
-        end - lengths,
-        end,
-    )
-
-
-class _Damage(Exception):
-    """A source ends here; its message locates the damage (the source adds the file)."""
-
-
-@dataclass
 class _TopicReader:
     """How one topic's payloads become values."""
 
@@ -182,476 +114,10 @@ class _TopicReader:
     dtypes: list[Any] = field(default_factory=list)
 
 
-class _Source:
-    """One file or bag directory: its topics and a stream of raw chunks."""
-
-    label: str
-    topics: dict[str, str]  # topic -> recorded type
-    counts: dict[str, int] | None  # messages per topic, when the bag's metadata says
-    store: Typestore
-
-    def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[_Raw]:
-        raise NotImplementedError
-
-
-def _typestore(defs: list[tuple[str, str, str]]) -> Typestore:
-    """Types from the recording's own definitions (name, encoding, text); rosbags'
-    Jazzy types fill in what a recording does not define."""
-    types: dict[str, Any] = {}
-    for name, encoding, text in defs:
-        if not text:
-            continue
-        try:
-            if encoding in ("ros2idl", "idl"):
-                sep = "=" * 80 + "\n"
-                parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [text]
-                for part in parts:
-                    types.update(
-                        get_types_from_idl(
-                            part.split("\n", 1)[1] if part.startswith("IDL: ") else part
-                        )
-                    )
-            else:
-                types.update(get_types_from_msg(text, normalise_type(name)))
-        except Exception:  # noqa: BLE001 - a definition rosbags cannot parse: use Jazzy's
-            continue
-    store = get_typestore(Stores.EMPTY)
-    store.register(types)
-    jazzy = get_typestore(Stores.ROS2_JAZZY)
-    store.register({k: v for k, v in jazzy.fielddefs.items() if k not in store.fielddefs})
-    return store
-
-
-# --- sqlite3 storage ------------------------------------------------------------------
-
-
-class _Sqlite(_Source):
-    def __init__(self, path: Path, counts: dict[str, int] | None = None) -> None:
-        self.path = path
-        self.label = str(path)
-        self.counts = counts
-        self._tmp: Path | None = None
-        self._cut = False  # truncated: read a copy whose header counts the pages present
-        try:
-            con = self._connect()
-            rows = con.execute("SELECT id, name, type FROM topics").fetchall()
-        except apsw.Error:
-            # A truncated file: its header still counts the lost pages, which makes
-            # sqlite refuse it whole. A copy that counts only the pages present reads
-            # up to the damage.
-            self._cut = True
-            con = self._connect()
-            try:
-                rows = con.execute("SELECT id, name, type FROM topics").fetchall()
-            except apsw.Error as e:
-                con.close()
-                self._drop()
-                raise UserError(
-                    f"not a readable rosbag2 sqlite3 file ({e})", file=self.label
-                ) from None
-        self._ids = {tid: name for tid, name, _ in rows}
-        self.topics = {name: normalise_type(typ) for _, name, typ in rows}
-        defs: list[tuple[str, str, str]] = []
-        try:
-            defs = con.execute(
-                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
-            ).fetchall()
-        except apsw.Error:
-            pass  # bags before version 8 have no definitions
-        con.close()
-        self._drop()
-        self.store = _typestore(defs)
-
-    def _connect(self) -> apsw.Connection:
-        path = self._patched() if self._cut else self.path
-        return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
-
-    def _drop(self) -> None:
-        if self._tmp is not None:
-            self._tmp.unlink(missing_ok=True)
-            self._tmp = None
-
-    def _patched(self) -> Path:
-        data = bytearray(self.path.read_bytes())
-        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
-            raise UserError("not an sqlite3 file", file=self.label)
-        size = struct.unpack_from(">H", data, 16)[0]
-        page = 65536 if size == 1 else size
-        pages = len(data) // page
-        del data[pages * page :]
-        struct.pack_into(">I", data, 28, pages)
-        fd, name = tempfile.mkstemp(suffix=".db3")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        self._tmp = Path(name)
-        return self._tmp
-
-    def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[_Raw]:
-        wanted = {tid: ids[name] for tid, name in self._ids.items() if name in ids}
-        # Only the wanted topics' rows: the extra topics' payloads are never fetched.
-        marks = ",".join("?" * len(wanted))
-        query = (
-            f"SELECT timestamp, topic_id, data FROM messages WHERE topic_id IN ({marks}) "
-            "ORDER BY timestamp"
-        )
-        n, last = 0, None
-        con = self._connect()
-        try:
-            lut = np.full(max(wanted, default=0) + 1, -1, dtype=np.int32)
-            for tid, k in wanted.items():
-                lut[tid] = k
-            try:
-                cur = con.execute(query, list(wanted))
-                while rows := list(islice(cur, chunk)):
-                    ts, tids, data = zip(*rows, strict=True)
-                    n += len(rows)
-                    last = ts[-1]
-                    raw = _raw(list(ts), [], list(data))
-                    raw.topic = lut[np.asarray(tids, dtype=np.int64)]
-                    yield raw
-                return
-            except apsw.Error:
-                pass
-            # A failed read loses its chunk's rows: read them again one by one up to the
-            # damage, so that every readable message is replayed.
-            ts_: list[int] = []
-            tops: list[int] = []
-            data_: list[bytes] = []
-            try:
-                cur = con.execute(f"{query} LIMIT -1 OFFSET ?", [*wanted, n])
-                while row := cur.fetchone():
-                    ts_.append(row[0])
-                    tops.append(wanted[row[1]])
-                    data_.append(row[2])
-                    last = row[0]
-            except apsw.Error as e:
-                if ts_:
-                    yield _raw(ts_, tops, data_)
-                n += len(ts_)
-                where = f"{n} messages read" + (
-                    f", the last at t_ns {last}" if last is not None else ""
-                )
-                raise _Damage(f"damaged database ({e}); {where}") from None
-            if ts_:
-                yield _raw(ts_, tops, data_)
-        finally:
-            con.close()
-            self._drop()
-
-
-# --- MCAP storage ---------------------------------------------------------------------
-# The records are read here with struct and numpy (format: https://mcap.dev/spec): the
-# `mcap` package's reader decodes every message record in Python (about 0.3 M/s), and
-# the chunk's message index gives every message's time and place at once.
-
-MAGIC = b"\x89MCAP0\r\n"
-_REC = struct.Struct("<BQ")  # opcode, length
-_MSG = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_MSG_HEAD = 9 + _MSG.size  # record header + message header: the payload's offset
-SCHEMA, CHANNEL, MESSAGE, CHUNK_OP, MESSAGE_INDEX, FOOTER, DATA_END = 3, 4, 5, 6, 7, 2, 15
-STATISTICS = 11
-_INDEX = np.dtype([("t", "<u8"), ("o", "<u8")])
-
-
-def _string(buf: Any, pos: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", buf, pos)
-    return bytes(buf[pos + 4 : pos + 4 + n]).decode(), pos + 4 + n
-
-
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    try:
-        if compression == "zstd":
-            import zstandard
-
-            return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        if compression == "lz4":
-            import lz4.frame
-
-            return lz4.frame.decompress(data)
-    except Exception as e:  # noqa: BLE001 - any failure here is a damaged chunk
-        raise _Damage(f"a {compression} chunk does not decompress ({e})") from None
-    if compression:
-        raise _Damage(f"a chunk is compressed with '{compression}', which is not supported")
-    return data
-
-
-class _Mcap(_Source):
-    """An MCAP file read from the start, record by record, so that a file without its
-    summary (a recorder killed) reads up to where it ends."""
-
-    def __init__(
-        self,
-        path: Path,
-        counts: dict[str, int] | None = None,
-        topics: dict[str, str] | None = None,
-    ) -> None:
-        self.path = path
-        self.label = str(path)
-        self.counts = counts
-        self._schemas: dict[int, tuple[str, str, str]] = {}
-        self._channels: dict[int, tuple[str, int]] = {}
-        self.topics = dict(topics or {})
-        if not self._summary():
-            # No summary (a recorder killed): a pass over the file finds the channels,
-            # skipping chunks whose indexes name known channels only.
-            try:
-                for _ in self._records({}, head=True):
-                    pass
-            except _Damage as e:
-                if not self.topics:
-                    raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
-        self.store = _typestore(list(self._schemas.values()))
-
-    def _summary(self) -> bool:
-        """Every schema and channel (and the message counts) from the summary at the
-        end of the file, if it has an intact one."""
-        try:
-            with self.path.open("rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
-                return self._summary_of(mm, len(mm))
-        except (OSError, ValueError):
-            return False  # empty or unreadable: the pass over the file says why
-
-    def _summary_of(self, mm: mmap.mmap, size: int) -> bool:
-        foot = size - len(MAGIC) - 9 - 20
-        if foot < len(MAGIC) or mm[:8] != MAGIC or mm[size - len(MAGIC) :] != MAGIC:
-            return False
-        op, length = _REC.unpack_from(mm, foot)
-        (start,) = struct.unpack_from("<Q", mm, foot + 9)
-        if op != FOOTER or length != 20 or not len(MAGIC) <= start < foot:
-            return False
-        counts: dict[str, int] = {}
-        stats: list[tuple[int, int]] = []
-        pos = start
-        try:
-            while pos + 9 <= foot:
-                op, length = _REC.unpack_from(mm, pos)
-                body = pos + 9
-                if body + length > foot:
-                    return False
-                if op == SCHEMA:
-                    self._schema(mm, body)
-                elif op == CHANNEL:
-                    self._channel(mm, body)
-                elif op == STATISTICS:
-                    (n,) = struct.unpack_from("<I", mm, body + 42)
-                    stats = list(struct.iter_unpack("<HQ", mm[body + 46 : body + 46 + n]))
-                pos = body + length
-        except (struct.error, UnicodeDecodeError):
-            return False
-        for cid, n in stats:
-            if cid in self._channels:
-                topic = self._channels[cid][0]
-                counts[topic] = counts.get(topic, 0) + n
-        if self.counts is None and stats:
-            self.counts = counts
-        return True
-
-    def _schema(self, buf: Any, pos: int) -> None:
-        (sid,) = struct.unpack_from("<H", buf, pos)
-        name, pos = _string(buf, pos + 2)
-        encoding, pos = _string(buf, pos)
-        (n,) = struct.unpack_from("<I", buf, pos)
-        self._schemas[sid] = (
-            name,
-            encoding,
-            bytes(buf[pos + 4 : pos + 4 + n]).decode("utf-8", "replace"),
-        )
-
-    def _channel(self, buf: Any, pos: int) -> None:
-        cid, sid = struct.unpack_from("<HH", buf, pos)
-        topic, _ = _string(buf, pos + 4)
-        self._channels[cid] = (topic, sid)
-        if sid in self._schemas:
-            self.topics.setdefault(topic, normalise_type(self._schemas[sid][0]))
-
-    def _records(self, ids: dict[str, int], head: bool = False) -> Iterator[_Raw]:
-        """The wanted messages, chunk by chunk; with head, only the types up to the
-        first message."""
-        try:
-            f = self.path.open("rb")
-        except OSError as e:
-            raise _Damage(e.strerror or str(e)) from None
-        with f:
-            size = os.fstat(f.fileno()).st_size
-            if size < len(MAGIC):
-                raise _Damage(
-                    "the file is empty" if not size else "the file ends early (at byte 0)"
-                )
-            mm = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-            try:
-                if mm[: len(MAGIC)] != MAGIC:
-                    raise _Damage("not an MCAP file (no MCAP magic at its start)")
-                yield from self._data_section(mm, size, ids, head)
-            finally:
-                mm.close()
-
-    def _data_section(
-        self, mm: mmap.mmap, size: int, ids: dict[str, int], head: bool
-    ) -> Iterator[_Raw]:
-        self._count = 0
-        self._last_t: int | None = None
-        pos = len(MAGIC)
-        pending: tuple[int, int] | None = None  # the last chunk, until its indexes are read
-        indexes: dict[int, np.ndarray] = {}
-        loose: tuple[list[int], list[int], list[bytes]] = ([], [], [])
-        try:
-            while True:
-                if pos + 9 > size:
-                    raise _Damage("the file ends early")
-                op, length = _REC.unpack_from(mm, pos)
-                body = pos + 9
-                if body + length > size:
-                    raise _Damage(f"the record at byte {pos} is cut short: the file ends early")
-                if op == MESSAGE_INDEX and pending is not None:
-                    (cid,) = struct.unpack_from("<H", mm, body)
-                    (n,) = struct.unpack_from("<I", mm, body + 2)
-                    indexes[cid] = np.frombuffer(mm, _INDEX, n // 16, body + 6).copy()
-                else:
-                    if pending is not None:
-                        if head:
-                            self._head_chunk(mm, pending, indexes)
-                        else:
-                            yield from self._chunk(mm, pending, indexes, ids)
-                        pending, indexes = None, {}
-                    if op == SCHEMA:
-                        self._schema(mm, body)
-                    elif op == CHANNEL:
-                        self._channel(mm, body)
-                    elif op == MESSAGE:
-                        cid, _, t, _ = _MSG.unpack_from(mm, body)
-                        self._count += 1
-                        self._last_t = t
-                        k = ids.get(self._channels.get(cid, ("", 0))[0], -1)
-                        if k >= 0:
-                            loose[0].append(t)
-                            loose[1].append(k)
-                            loose[2].append(mm[body + _MSG.size : body + length])
-                    elif op == CHUNK_OP:
-                        if loose[0]:
-                            yield _raw(*loose).in_order()
-                            loose = ([], [], [])
-                        pending = (pos, body)
-                    elif op in (DATA_END, FOOTER):
-                        break
-                pos = body + length
-        except _Damage as e:
-            # the last whole chunk is readable even without its indexes
-            if pending is not None:
-                yield from self._chunk(mm, pending, {}, ids)
-            if loose[0]:
-                yield _raw(*loose).in_order()
-            where = f"after byte {pos}, {self._count} messages read"
-            if self._last_t is not None:
-                where += f", the last at t_ns {self._last_t}"
-            raise _Damage(f"damaged: {e} ({where})") from None
-        except (struct.error, ValueError, UnicodeDecodeError) as e:
-            raise _Damage(f"damaged: a malformed record at byte {pos} ({e})") from None
-        if pending is not None:
-            yield from self._chunk(mm, pending, indexes, ids)
-        if loose[0]:
-            yield _raw(*loose).in_order()
-
-    def _chunk(
-        self,
-        mm: mmap.mmap,
-        at: tuple[int, int],
-        indexes: dict[int, np.ndarray],
-        ids: dict[str, int],
-    ) -> Iterator[_Raw]:
-        pos, body = at
-        _, _, usize, _ = struct.unpack_from("<QQQI", mm, body)
-        compression, p = _string(mm, body + 28)
-        (n,) = struct.unpack_from("<Q", mm, p)
-        buf = _decompress(compression, mm[p + 8 : p + 8 + n], usize)
-        if indexes and all(c in self._channels for c in indexes):
-            raw = self._indexed(buf, indexes, ids)
-        else:
-            raw = self._scan(buf, ids, pos)
-        if len(raw):
-            yield raw.in_order()
-
-    def _head_chunk(
-        self, mm: mmap.mmap, at: tuple[int, int], indexes: dict[int, np.ndarray]
-    ) -> None:
-        """The schemas and channels a chunk defines, if its indexes name new ones."""
-        if indexes and all(c in self._channels for c in indexes):
-            return
-        for _ in self._chunk(mm, at, {}, {}):
-            pass
-
-    def _indexed(self, buf: bytes, indexes: dict[int, np.ndarray], ids: dict[str, int]) -> _Raw:
-        """Every message's time and place from the chunk's indexes, with numpy."""
-        self._count += sum(len(ix) for ix in indexes.values())
-        lasts = [int(ix["t"].max()) for ix in indexes.values() if len(ix)]
-        if lasts:
-            self._last_t = max(lasts)
-        want = [
-            (ix, ids[self._channels[c][0]])
-            for c, ix in indexes.items()
-            if self._channels[c][0] in ids
-        ]
-        if not want:
-            return _Raw(np.empty(0, np.int64), np.empty(0, np.int32))
-        t = np.concatenate([ix["t"] for ix, _ in want]).astype(np.int64)
-        o = np.concatenate([ix["o"] for ix, _ in want]).astype(np.int64)
-        top = np.concatenate([np.full(len(ix), k, np.int32) for ix, k in want])
-        order = np.lexsort((o, t))  # by time, then as written
-        t, o, top = t[order], o[order], top[order]
-        arr = np.frombuffer(buf, np.uint8)
-        if len(o) and (o.max() + _MSG_HEAD > len(arr) or (arr[o] != MESSAGE).any()):
-            raise _Damage("a message index points outside its chunk's messages")
-        lengths = arr[(o + 1)[:, None] + np.arange(8)].copy().view("<u8").reshape(len(o))
-        end = o + 9 + lengths.astype(np.int64)
-        if len(end) and end.max() > len(arr):
-            raise _Damage("a message in a chunk is cut short")
-        return _Raw(t, top, buf, o + _MSG_HEAD, end)
-
-    def _scan(self, buf: bytes, ids: dict[str, int], at: int) -> _Raw:
-        """A chunk without indexes, record by record."""
-        ts: list[int] = []
-        tops: list[int] = []
-        starts: list[int] = []
-        ends: list[int] = []
-        cmap: dict[int, int] = {}
-        pos, size = 0, len(buf)
-        while pos + 9 <= size:
-            op, length = _REC.unpack_from(buf, pos)
-            body = pos + 9
-            if body + length > size:
-                raise _Damage(f"a record in the chunk at byte {at} is cut short")
-            if op == MESSAGE:
-                cid, _, t, _ = _MSG.unpack_from(buf, body)
-                self._count += 1
-                self._last_t = t
-                if cid not in cmap:
-                    cmap[cid] = ids.get(self._channels.get(cid, ("", 0))[0], -1)
-                if cmap[cid] >= 0:
-                    ts.append(t)
-                    tops.append(cmap[cid])
-                    starts.append(body + _MSG.size)
-                    ends.append(body + length)
-            elif op == SCHEMA:
-                self._schema(buf, body)
-            elif op == CHANNEL:
-                self._channel(buf, body)
-                cmap.clear()
-            pos = body + length
-        return _Raw(
-            np.asarray(ts, np.int64),
-            np.asarray(tops, np.int32),
-            buf,
-            np.asarray(starts, np.int64),
-            np.asarray(ends, np.int64),
-        )
-
-    def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[_Raw]:
-        return self._records(ids)
-
-
 # --- rosbag2 directories --------------------------------------------------------------
 
 
-def _bag_dir(path: Path) -> list[_Source]:
+def bag_dir(path: Path) -> list[Source]:
     meta = path / "metadata.yaml"
     try:
         info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
@@ -674,105 +140,14 @@ def _bag_dir(path: Path) -> list[_Source]:
         t["topic_metadata"]["name"]: int(t.get("message_count") or 0)
         for t in info.get("topics_with_message_count") or []
     }
-    sources: list[_Source] = []
+    sources: list[Source] = []
     for k, f in enumerate(files):
         if not f.exists():
             raise UserError(f"the bag's file {f.name} is missing", file=str(path))
         # the bag's counts are per topic over all its files: give them to the first
         part = counts if k == 0 else {}
-        sources.append(_Mcap(f, part, topics) if f.suffix == ".mcap" else _Sqlite(f, part))
+        sources.append(Mcap(f, part, topics) if f.suffix == ".mcap" else Sqlite(f, part))
     return sources
-
-
-# --- JSON-lines traces ----------------------------------------------------------------
-
-
-class _Trace(_Source):
-    def __init__(self, path: Path, cfg: Config) -> None:
-        self.path = path
-        self.label = str(path)
-        self.counts = None
-        self.store = get_typestore(Stores.EMPTY)
-        self.vars = {v.name: v for v in cfg.inputs if v.topic}
-        self.topics = {v.topic: normalise_type(v.msg or "") for v in self.vars.values() if v.topic}
-        self.topics[RECORDS_TOPIC] = STRING
-
-    def _value(self, v: Variable, value: Any) -> Any:
-        ok = {
-            "bool": isinstance(value, bool),
-            "int64": isinstance(value, int)
-            and not isinstance(value, bool)
-            and -(2**63) <= value < 2**63,
-            "double": isinstance(value, int | float) and not isinstance(value, bool),
-        }[v.type]
-        if not ok:
-            raise ValueError(f"'{v.name}' is {v.type}; {json.dumps(value)} is not")
-        return float(value) if v.type == "double" else value
-
-    def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[_Raw]:
-        ts: list[int] = []
-        tops: list[int] = []
-        items: list[Any] = []
-
-        def out() -> _Raw:
-            return _Raw(np.asarray(ts, np.int64), np.asarray(tops, np.int32), items=items)
-
-        last = -1
-        try:
-            f = self.path.open(encoding="utf-8")
-        except OSError as e:
-            raise UserError(f"cannot read the trace ({e.strerror})", file=self.label) from None
-        with f:
-            for lineno, line in enumerate(f, 1):
-                if not line.strip():
-                    continue
-                try:
-                    t, topic, item = self._line(line)
-                    if t < last:
-                        raise ValueError(f"t_ns {t} is before the previous line's {last}")
-                except ValueError as e:
-                    if ts:
-                        yield out()
-                    raise _Damage(f"line {lineno}: {e}") from None
-                last = t
-                if topic in ids:
-                    ts.append(t)
-                    tops.append(ids[topic])
-                    items.append(item)
-                if len(ts) >= chunk:
-                    yield out()
-                    ts, tops, items = [], [], []
-        if ts:
-            yield out()
-
-    def _line(self, line: str) -> tuple[int, str, Any]:
-        try:
-            obj = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"not JSON ({e.msg}, column {e.colno})") from None
-        schema = '{"t_ns": N, "name": VARIABLE, "value": V} or {"t_ns": N, "record": {...}}'
-        if not isinstance(obj, dict) or set(obj) not in (
-            {"t_ns", "name", "value"},
-            {"t_ns", "record"},
-        ):
-            raise ValueError(f"expected {schema}, got {line.strip()[:80]}")
-        t = obj["t_ns"]
-        if not isinstance(t, int) or isinstance(t, bool) or t < 0:
-            raise ValueError(
-                f"t_ns must be a whole number of nanoseconds >= 0, got {json.dumps(t)}"
-            )
-        if "record" in obj:
-            if not isinstance(obj["record"], dict):
-                raise ValueError("record must be a JSON object")
-            return t, RECORDS_TOPIC, obj["record"]
-        name = obj["name"]
-        v = self.vars.get(name) if isinstance(name, str) else None
-        if v is None or v.topic is None:
-            known = ", ".join(self.vars) or "none"
-            raise ValueError(
-                f"{json.dumps(name)} is not a topic variable of the config (known: {known})"
-            )
-        return t, v.topic, (name, self._value(v, obj["value"]))
 
 
 # --- the recording --------------------------------------------------------------------
@@ -783,7 +158,7 @@ def _column_dtype(leaf: str, vtype: str) -> Any:
     if leaf == "bool":
         return np.bool_
     prim = PRIMITIVES.get(leaf)
-    return np.dtype(prim[1].lstrip("<")) if prim is not None else _DTYPES[vtype]
+    return np.dtype(prim[1].lstrip("<")) if prim is not None else DTYPES[vtype]
 
 
 def _leaf_type(store: Typestore, msgtype: str, path: str) -> str:
@@ -808,7 +183,7 @@ def _leaf_type(store: Typestore, msgtype: str, path: str) -> str:
 class Recording:
     """Recordings opened for a config; see the module docstring."""
 
-    def __init__(self, sources: list[_Source], cfg: Config) -> None:
+    def __init__(self, sources: list[Source], cfg: Config) -> None:
         self.sources = sources
         self.cfg = cfg
         self.warnings: list[str] = []
@@ -868,7 +243,7 @@ class Recording:
             lines.append(f"{label}: ignored (not in the config): {', '.join(sorted(topics))}")
         return "\n".join([*lines, *self.warnings])
 
-    def _readers(self, src: _Source) -> dict[int, _TopicReader]:
+    def _readers(self, src: Source) -> dict[int, _TopicReader]:
         out: dict[int, _TopicReader] = {}
         for topic, tid in self.ids.items():
             if topic not in src.topics:
@@ -881,9 +256,9 @@ class Recording:
             plans: list[FieldPlan | None] = []
             dtypes: list[Any] = []
             for v in variables:
-                if isinstance(src, _Trace):
+                if isinstance(src, Trace):
                     plans.append(None)
-                    dtypes.append(_DTYPES[v.type])
+                    dtypes.append(DTYPES[v.type])
                     continue
                 try:
                     leaf = _leaf_type(src.store, msgtype, v.field)
@@ -904,7 +279,7 @@ class Recording:
         return out
 
     def _decode(
-        self, src: _Source, readers: dict[int, _TopicReader], raw: _Raw, first: int
+        self, src: Source, readers: dict[int, _TopicReader], raw: Raw, first: int
     ) -> tuple[Batch, str | None]:
         """Columns of one raw chunk; on a message that does not decode, the columns
         of the messages before it and the located error."""
@@ -933,7 +308,7 @@ class Recording:
                     if rd.record:
                         records[i] = item
                 for v in rd.variables:
-                    col = np.zeros(n, dtype=_DTYPES[v.type])
+                    col = np.zeros(n, dtype=DTYPES[v.type])
                     mask = np.zeros(n, dtype=np.bool_)
                     for i in rows.tolist():
                         name, value = raw.items[i]
@@ -975,7 +350,7 @@ class Recording:
                     try:
                         msg = src.store.deserialize_cdr(raw.payload(i), rd.msgtype)
                         for v in slow:
-                            cols[v.name][i] = _field(msg, v.field)
+                            cols[v.name][i] = field_value(msg, v.field)
                     except Exception as e:  # noqa: BLE001 - any failure here is the data's
                         fail(i, rd.topic, f"does not decode as {rd.msgtype} ({e})")
                         break
@@ -992,13 +367,13 @@ class Recording:
 
     @staticmethod
     def _agrees(
-        src: _Source, rd: _TopicReader, v: Variable, raw: _Raw, rows: np.ndarray, got: np.ndarray
+        src: Source, rd: _TopicReader, v: Variable, raw: Raw, rows: np.ndarray, got: np.ndarray
     ) -> bool:
         """A bulk read past strings and sequences, checked against rosbags'
         deserialiser on a few messages (first, middle, last)."""
         for k in {0, len(rows) // 2, len(rows) - 1}:
             try:
-                want = _field(
+                want = field_value(
                     src.store.deserialize_cdr(raw.payload(int(rows[k])), rd.msgtype), v.field
                 )
             except Exception:  # noqa: BLE001 - the per-message path will locate it
@@ -1008,7 +383,7 @@ class Recording:
         return True
 
     @staticmethod
-    def _record(src: _Source, payload: bytes) -> dict[str, Any]:
+    def _record(src: Source, payload: bytes) -> dict[str, Any]:
         try:
             text = src.store.deserialize_cdr(payload, STRING).data  # type: ignore[attr-defined]
         except Exception as e:  # noqa: BLE001
@@ -1021,7 +396,7 @@ class Recording:
             raise ValueError("not a JSON object")
         return rec
 
-    def _source_batches(self, src: _Source, chunk: int) -> Iterator[Batch | UserError]:
+    def _source_batches(self, src: Source, chunk: int) -> Iterator[Batch | UserError]:
         """One source's batches; damage ends them with the located error."""
         readers = self._topic_readers[self.sources.index(src)]
         ids = {
@@ -1045,12 +420,12 @@ class Recording:
                     if error:
                         yield UserError(error, file=src.label)
                         return
-        except _Damage as e:
+        except Damage as e:
             yield UserError(str(e), file=src.label)
         except UserError as e:
             yield e
 
-    def _warn_order(self, src: _Source, t: int) -> None:
+    def _warn_order(self, src: Source, t: int) -> None:
         text = (
             f"warning: {src.label}: messages before t_ns {t} come after it in the file; "
             "they are replayed in file order"
@@ -1184,25 +559,25 @@ def _merge(parts: list[Batch]) -> Batch | None:
     )
 
 
-def _open_one(path: Path, cfg: Config) -> list[_Source]:
+def _open_one(path: Path, cfg: Config) -> list[Source]:
     if not path.exists():
         raise UserError("no such file or directory", file=str(path))
     if path.is_dir():
         if (path / "metadata.yaml").exists():
-            return _bag_dir(path)
+            return bag_dir(path)
         files = sorted([*path.glob("*.mcap"), *path.glob("*.db3")])
         if not files:
             raise UserError(
                 "not a rosbag2 bag: no metadata.yaml, .mcap or .db3 file", file=str(path)
             )
         # a bag directory whose recorder died before writing metadata.yaml
-        return [_Mcap(f) if f.suffix == ".mcap" else _Sqlite(f) for f in files]
+        return [Mcap(f) if f.suffix == ".mcap" else Sqlite(f) for f in files]
     if path.suffix == ".mcap":
-        return [_Mcap(path)]
+        return [Mcap(path)]
     if path.suffix == ".db3":
-        return [_Sqlite(path)]
+        return [Sqlite(path)]
     if path.suffix in (".jsonl", ".json", ".ndjson"):
-        return [_Trace(path, cfg)]
+        return [Trace(path, cfg)]
     raise UserError(
         f"unknown recording format '{path.suffix}'",
         file=str(path),

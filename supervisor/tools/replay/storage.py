@@ -1,0 +1,130 @@
+"""What every reader of a recording gives (supervisor/tools/replay/sources.py): raw
+chunks of receive times, topic ids and payloads, and where the damage is."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from supervisor.names import VIOLATIONS_TOPIC
+
+# The daemon's JSON records on ROS: the full record stream (with markers) and the
+# violations topic (docs/reference/ros-interfaces.md); both std_msgs/msg/String.
+RECORDS_TOPIC = "/safety_supervisor/records"
+RECORD_TOPICS = (RECORDS_TOPIC, VIOLATIONS_TOPIC)
+STRING = "std_msgs/msg/String"
+CHUNK = 100_000
+
+ValueEvent = tuple[int, str, list[tuple[str, Any]]]
+RecordEvent = tuple[int, Literal["record"], dict[str, Any]]
+Event = ValueEvent | RecordEvent
+Progress = Callable[[int, int | None], None]  # (messages read, total if known)
+DTYPES: dict[str, Any] = {"bool": np.bool_, "int64": np.int64, "double": np.float64}
+
+
+def field_value(msg: Any, path: str) -> Any:
+    """A dotted field of a deserialised message (as mitigations/rosmsg.py's get_field)."""
+    for part in path.split("."):
+        msg = getattr(msg, part)
+    return msg
+
+
+def normalise_type(name: str) -> str:
+    """'std_msgs/Int64', 'std_msgs::msg::Int64' -> 'std_msgs/msg/Int64'."""
+    parts = [p for p in name.replace("::", "/").split("/") if p]
+    if len(parts) == 2:
+        parts = [parts[0], "msg", parts[1]]
+    return "/".join(parts)
+
+
+@dataclass
+class Raw:
+    """Messages of one source as read: receive times, topic ids and the payloads,
+    message i's being ``buf[start[i]:end[i]]`` (one buffer, so that a fixed field
+    is gathered for all messages at once); a JSON-lines trace has ``items``."""
+
+    t_ns: np.ndarray  # int64
+    topic: np.ndarray  # int32, index into Recording.topics
+    buf: bytes = b""
+    start: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    end: np.ndarray = field(default_factory=lambda: np.empty(0, np.int64))
+    items: list[Any] | None = None
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+    def payload(self, i: int) -> bytes:
+        return self.buf[self.start[i] : self.end[i]]
+
+    def part(self, i: int, j: int) -> Raw:
+        items = self.items[i:j] if self.items is not None else None
+        return Raw(self.t_ns[i:j], self.topic[i:j], self.buf, self.start[i:j], self.end[i:j], items)
+
+    def in_order(self) -> Raw:
+        """Sorted by receive time (stable: equal times keep the file's order)."""
+        if len(self.t_ns) < 2 or bool((np.diff(self.t_ns) >= 0).all()):
+            return self
+        o = np.argsort(self.t_ns, kind="stable")
+        items = [self.items[i] for i in o] if self.items is not None else None
+        return Raw(self.t_ns[o], self.topic[o], self.buf, self.start[o], self.end[o], items)
+
+
+def raw_chunk(ts: list[int], topics: list[int], payloads: list[bytes]) -> Raw:
+    lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=len(payloads))
+    end = np.cumsum(lengths)
+    return Raw(
+        np.asarray(ts, dtype=np.int64),
+        np.asarray(topics, dtype=np.int32),
+        b"".join(payloads),
+        end - lengths,
+        end,
+    )
+
+
+class Damage(Exception):
+    """A source ends here; its message locates the damage (the source adds the file)."""
+
+
+class Source:
+    """One file or bag directory: its topics and a stream of raw chunks."""
+
+    label: str
+    topics: dict[str, str]  # topic -> recorded type
+    counts: dict[str, int] | None  # messages per topic, when the bag's metadata says
+    store: Typestore
+
+    def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
+        raise NotImplementedError
+
+
+def typestore_of(defs: list[tuple[str, str, str]]) -> Typestore:
+    """Types from the recording's own definitions (name, encoding, text); rosbags'
+    Jazzy types fill in what a recording does not define."""
+    types: dict[str, Any] = {}
+    for name, encoding, text in defs:
+        if not text:
+            continue
+        try:
+            if encoding in ("ros2idl", "idl"):
+                sep = "=" * 80 + "\n"
+                parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [text]
+                for part in parts:
+                    types.update(
+                        get_types_from_idl(
+                            part.split("\n", 1)[1] if part.startswith("IDL: ") else part
+                        )
+                    )
+            else:
+                types.update(get_types_from_msg(text, normalise_type(name)))
+        except Exception:  # noqa: BLE001 - a definition rosbags cannot parse: use Jazzy's
+            continue
+    store = get_typestore(Stores.EMPTY)
+    store.register(types)
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    store.register({k: v for k, v in jazzy.fielddefs.items() if k not in store.fielddefs})
+    return store
