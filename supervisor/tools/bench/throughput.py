@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -24,8 +25,15 @@ def throughput(
     burst: int = 0,
     wd_usec: int | None = None,
     record: bool = False,
+    on_go: Callable[[float], None] | None = None,
+    before_stop: Callable[[], None] | None = None,
 ) -> dict[str, Any]:
-    """One run; ``record``: the daemon runs with ``--record DIR`` (in the run's dir)."""
+    """One run; ``record``: the daemon runs with ``--record DIR`` (in the run's dir);
+    ``on_go``: called with the monotonic time the publisher was told to go, so another
+    experiment can act during the publishing (the UI experiment kills its UI halfway);
+    it must not block, the publisher's ``done`` is waited for after it; ``before_stop``:
+    called once the receivers drained and the CPU figures were read, before the daemon
+    is stopped (the UI experiment waits there for what the daemon still publishes)."""
     work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
@@ -70,11 +78,15 @@ def throughput(
         cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
         go = time.monotonic()
         pub.send("go")
+        if on_go is not None:
+            on_go(go)
         done = pub.wait_event("done", seconds * 4 + 30, everyone)
         sent: dict[str, int] = done["sent"]
         drained = _wait_drained(pub, baselines, sent, done["wall"], everyone)
         gap = daemon.longest_ping_gap(go, time.monotonic())
         cpu1 = {k: cpu_seconds(p) for k, p in pids.items()}
+        if before_stop is not None:
+            before_stop()
         cpu_exit = daemon.stop_cleanly()
         stop = daemon.stop_record()
         closed = _record_closed(daemon.records()) if record else None
