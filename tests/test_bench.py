@@ -29,8 +29,9 @@ def _number(x: Any) -> bool:
 
 def _bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
-    # The recording and replay parts have tests of their own (tests/test_bench_replay.py).
-    skip = ["--skip-record", "--skip-replay"]
+    # The recording, replay and UI parts have tests of their own (tests/test_bench_replay.py,
+    # tests/test_bench_ui.py).
+    skip = ["--skip-record", "--skip-replay", "--skip-ui"]
     return subprocess.run(
         [sys.executable, "-m", "supervisor", "bench", *skip, *args],
         cwd=ROOT,

@@ -28,6 +28,8 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    its time goes (trigger -> violation record, detection -> halt published).
 3. Recording overhead (:mod:`~supervisor.tools.bench.recording`): the throughput
    run's daemon at one offered rate without and with ``run --record DIR``.
+   The UI load (:mod:`~supervisor.tools.bench.ui`): the same without a UI, with
+   ``ui`` and open event streams, and with the UI killed and restarted halfway.
 4. Replay throughput (:mod:`~supervisor.tools.bench.replay`): generated bags
    replayed in this process, messages/s per case, and the monitor's ticks/s.
 
@@ -65,6 +67,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "seconds": 5.0,
         "latency_trials": 1000,
         "record_rates": "20000",
+        "ui_rates": "20000",
+        "ui_seconds": 10.0,
         "replay_messages": 1_000_000,
     },
     "quick": {
@@ -72,6 +76,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "seconds": 2.0,
         "latency_trials": 100,
         "record_rates": "20000",
+        "ui_rates": "20000",
+        "ui_seconds": 8.0,
         "replay_messages": 200_000,
     },
 }
@@ -150,6 +156,27 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="offered msg/s of the recording overhead runs (default 20000)",
     )
     p.add_argument(
+        "--ui-rates",
+        type=_rates,
+        default=None,
+        metavar="R,R,...",
+        help="offered msg/s of the UI load runs (default 20000)",
+    )
+    p.add_argument(
+        "--ui-seconds",
+        type=_positive(float),
+        default=None,
+        metavar="S",
+        help="per UI load run, the UI killed halfway in the last (default 10; --quick 8)",
+    )
+    p.add_argument(
+        "--ui-clients",
+        type=_positive(int),
+        default=10,
+        metavar="N",
+        help="event streams open on the UI (default 10)",
+    )
+    p.add_argument(
         "--replay-messages",
         type=_positive(int),
         default=None,
@@ -166,6 +193,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--skip-latency", action="store_true")
     p.add_argument("--skip-record", action="store_true", help="leave out the recording overhead")
     p.add_argument("--skip-replay", action="store_true", help="leave out the replay throughput")
+    p.add_argument("--skip-ui", action="store_true", help="leave out the UI load")
     p.add_argument(
         "--naive",
         action="store_true",

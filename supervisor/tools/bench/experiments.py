@@ -17,6 +17,7 @@ from supervisor.tools.bench.recording import recording_overhead
 from supervisor.tools.bench.replay import replay_bench
 from supervisor.tools.bench.session import session
 from supervisor.tools.bench.throughput import throughput
+from supervisor.tools.bench.ui import ui_load
 
 
 def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
@@ -52,6 +53,19 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
             results["recording"] = [
                 recording_overhead(s, plan, rate, args.seconds, say, wd_usec=args.watchdog_usec)
                 for rate in args.record_rates
+            ]
+        if not args.skip_ui:
+            results["ui"] = [
+                ui_load(
+                    s,
+                    plan,
+                    rate,
+                    args.ui_seconds,
+                    say,
+                    clients=args.ui_clients,
+                    wd_usec=args.watchdog_usec,
+                )
+                for rate in args.ui_rates
             ]
         if not args.skip_latency:
             results["latency"] = latency(s, plan, args.latency_trials, say)

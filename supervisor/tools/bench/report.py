@@ -23,6 +23,8 @@ def format_results(r: dict[str, Any]) -> str:
         lines += ["", *_format_throughput(r["throughput"])]
     if "recording" in r:
         lines += ["", *_format_recording(r["recording"])]
+    if "ui" in r:
+        lines += ["", *_format_ui(r["ui"])]
     if "latency" in r:
         lines += ["", *_format_latency(r["latency"])]
     if "replay" in r:
@@ -53,6 +55,66 @@ def _format_recording(rows: list[dict[str, Any]]) -> list[str]:
             f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')} % up to exit; goal within "
             f"{row['goal_pct']:g} %{verdict}"
         )
+    return lines
+
+
+def _spread(sp: dict[str, float] | None, fmt: str) -> str:
+    """min-max of per-client figures (``ui``'s spreads)."""
+    if sp is None:
+        return "-"
+    lo, hi = format(sp["min"], fmt), format(sp["max"], fmt)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _ui_case(row: dict[str, Any], clients: int) -> str:
+    return row["case"].replace("clients", f"{clients} clients")
+
+
+def _restart_text(ui: dict[str, Any]) -> str:
+    """After the UI was killed: how long until the clients were back, and had status."""
+    rs = ui.get("restart")
+    if rs is None:
+        return "  ui killed: the restart did not happen (the run ended first)"
+    where = "while the publisher ran" if rs["within_run"] else "NOT while the publisher ran"
+    return (
+        f"  ui SIGKILLed {rs['killed_after_s']:.1f} s into the run, started again in "
+        f"{rs['restart_took_s']:.2f} s: {rs['clients_reconnected']}/{ui['clients']} clients "
+        f"connected again after {_spread(rs['connected_again_s'], '.2f')} s, "
+        f"{rs['clients_with_status_again']} had the daemon's status again after "
+        f"{_spread(rs['status_again_s'], '.2f')} s ({where})"
+    )
+
+
+def _format_ui(rows: list[dict[str, Any]]) -> list[str]:
+    lines = []
+    for row in rows:
+        n = row["clients"]
+        lines += [
+            f"UI load: the daemon at {row['offered']:g} msg/s for {row['seconds']:g} s without "
+            f"a UI, with `ui` and {n} clients on /events, and with the UI killed halfway and "
+            "restarted",
+            f"  {'case':<26} {'sent':>8} {'received':>8} {'lost':>6} {'CPU us/msg':>10} "
+            f"{'diff %':>7} {'events/client':>13} {'in run':>9} {'gap s':>6} {'ui ms/s':>7}",
+        ]
+        for c in row["cases"]:
+            ui = c["ui"] or {}
+            cpu = ui.get("ui_cpu_ms_per_s") or ui.get("ui_cpu_ms_per_s_until_kill")
+            lines.append(
+                f"  {_ui_case(c, n):<26} {c['sent']:>8} {c['received']:>8} {c['lost']:>6} "
+                f"{_f(c['cpu_us_per_msg'], '.1f'):>10} {_f(c['cpu_diff_pct'], '+.1f'):>7} "
+                f"{_spread(ui.get('events'), 'g'):>13} {_spread(ui.get('events_in_run'), 'g'):>9} "
+                f"{_f(ui.get('longest_gap_s'), '.2f'):>6} {_f(cpu, '.1f'):>7}"
+            )
+        restarted = row["cases"][2]["ui"]
+        lines += [
+            _restart_text(restarted),
+            "  (events/client: SSE events each client received in all and while the publisher "
+            "ran; gap: the longest time a client had none then; ui ms/s: the UI's CPU per "
+            "second while the publisher ran, until the kill in the last case)",
+            f"  daemon CPU per message with the UI: {_f(row['cases'][1]['cpu_diff_pct'], '+.1f')}"
+            f" %, killed and restarted {_f(row['cases'][2]['cpu_diff_pct'], '+.1f')} %; goal "
+            f"within {row['goal_pct']:g} % and no more lost",
+        ]
     return lines
 
 
@@ -144,6 +206,28 @@ def format_markdown(r: dict[str, Any]) -> str:
                     f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {rec.get('written', '')} "
                     f"| {rec.get('dropped', '')} | {_f(rec.get('mb_on_disk'), '.1f')} | {diff} |"
                 )
+    if "ui" in r:
+        for row in r["ui"]:
+            n = row["clients"]
+            out += [
+                "",
+                f"## UI load (`ui` with {n} clients on /events, {row['offered']:g} msg/s, "
+                f"{row['seconds']:g} s)",
+                "",
+                "| case | sent | received | lost | CPU us/msg | CPU difference % | events per "
+                "client | while publishing | longest gap s | ui CPU ms/s |",
+                "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+            ]
+            for c in row["cases"]:
+                ui = c["ui"] or {}
+                cpu = ui.get("ui_cpu_ms_per_s") or ui.get("ui_cpu_ms_per_s_until_kill")
+                out.append(
+                    f"| {_ui_case(c, n)} | {c['sent']} | {c['received']} | {c['lost']} "
+                    f"| {_f(c['cpu_us_per_msg'], '.1f')} | {_f(c['cpu_diff_pct'], '+.1f')} "
+                    f"| {_spread(ui.get('events'), 'g')} | {_spread(ui.get('events_in_run'), 'g')} "
+                    f"| {_f(ui.get('longest_gap_s'), '.2f')} | {_f(cpu, '.1f')} |"
+                )
+            out += ["", _restart_text(row["cases"][2]["ui"]).strip()]
     if "latency" in r:
         lat = r["latency"]
         out += [
