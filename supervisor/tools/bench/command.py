@@ -177,6 +177,11 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="event streams open on the UI (default 10)",
     )
     p.add_argument(
+        "--ui-chromium",
+        action="store_true",
+        help="also one page in headless Chromium on the UI (needs /usr/bin/chromium, playwright)",
+    )
+    p.add_argument(
         "--replay-messages",
         type=_positive(int),
         default=None,

@@ -64,6 +64,7 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                     say,
                     clients=args.ui_clients,
                     wd_usec=args.watchdog_usec,
+                    chromium=args.ui_chromium,
                 )
                 for rate in args.ui_rates
             ]

@@ -85,6 +85,30 @@ def _restart_text(ui: dict[str, Any]) -> str:
     )
 
 
+def _chromium_text(row: dict[str, Any]) -> list[str]:
+    """The one headless Chromium page (``--ui-chromium``), apart from the HTTP clients."""
+    lines = []
+    for c in row["cases"][1:]:
+        page = (c["ui"] or {}).get("chromium")
+        if page is None:
+            continue
+        what = f"  headless Chromium page ({c['case']}):"
+        if page["error"] is not None:
+            lines.append(f"{what} not opened: {page['error']}")
+            continue
+        text = (
+            f"{what} {page['events']} events, {page['events_in_run']} while the publisher ran, "
+            f"longest gap {page['longest_gap_s']:.2f} s, {page['connects']} streams opened"
+        )
+        if page["status_again_s"] is not None or page["connected_again_s"] is not None:
+            text += (
+                f"; connected again after {_f(page['connected_again_s'])} s, status again "
+                f"after {_f(page['status_again_s'])} s"
+            )
+        lines.append(text)
+    return lines
+
+
 def _format_ui(rows: list[dict[str, Any]]) -> list[str]:
     lines = []
     for row in rows:
@@ -108,6 +132,7 @@ def _format_ui(rows: list[dict[str, Any]]) -> list[str]:
         restarted = row["cases"][2]["ui"]
         lines += [
             _restart_text(restarted),
+            *_chromium_text(row),
             "  (events/client: SSE events each client received in all and while the publisher "
             "ran; gap: the longest time a client had none then; ui ms/s: the UI's CPU per "
             "second while the publisher ran, until the kill in the last case)",
@@ -228,6 +253,7 @@ def format_markdown(r: dict[str, Any]) -> str:
                     f"| {_f(ui.get('longest_gap_s'), '.2f')} | {_f(cpu, '.1f')} |"
                 )
             out += ["", _restart_text(row["cases"][2]["ui"]).strip()]
+            out += [f"\n{line.strip()}" for line in _chromium_text(row)]
     if "latency" in r:
         lat = r["latency"]
         out += [

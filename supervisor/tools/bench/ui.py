@@ -51,6 +51,7 @@ CLIENTS = 10
 # publisher is still running.
 SECONDS = 10.0
 HOST = "127.0.0.1"
+CHROMIUM = "/usr/bin/chromium"  # Debian's, as tests/test_ui.py uses
 READ_TIMEOUT_S = 30.0  # longer than the server's keepalive (10 s): only a dead stream trips it
 START_TIMEOUT_S = 60.0
 STATUS_AGAIN_TIMEOUT_S = 30.0  # after the run, before the daemon is stopped
@@ -59,15 +60,55 @@ DEFAULT_RETRY_S = 3.0  # EventSource's usual default, until the server sends ret
 CASES = ("no ui", "ui + clients", "ui killed and restarted")
 
 
-class SseClient:
+class Stream:
+    """What one page received from ``/events``: when each stream was opened, and each
+    event with the time it arrived."""
+
+    def __init__(self) -> None:
+        self.connects: list[float] = []  # monotonic time each stream was opened
+        # (monotonic time, type, carries a status document, index into connects)
+        self.events: list[tuple[float, str, bool, int]] = []
+
+    def _event(self, data: bytes | str, index: int) -> None:
+        try:
+            doc = json.loads(data)
+        except ValueError:
+            doc = {}
+        kind = str(doc.get("type", "?")) if isinstance(doc, dict) else "?"
+        # A snapshot carries the status too once the UI has one (the latched document).
+        status = kind == "status" or (kind == "snapshot" and bool(doc.get("status")))
+        self.events.append((time.monotonic(), kind, status, index))
+
+    def counts(self, start: float, end: float) -> dict[str, Any]:
+        """Events in all and in ``[start, end]``, and the longest time without one there."""
+        inside = [t for t, *_ in self.events if start <= t <= end]
+        marks = [start, *inside, end]
+        return {
+            "events": len(self.events),
+            "events_in_run": len(inside),
+            "status_events": sum(1 for e in self.events if e[2]),
+            "connects": len(self.connects),
+            "longest_gap_s": max(b - a for a, b in zip(marks, marks[1:], strict=False)),
+        }
+
+    def status_again(self, killed: float) -> tuple[float | None, float | None]:
+        """(connected again, first status document again): monotonic times on the
+        first stream opened after ``killed``; None when it never was."""
+        after = [i for i, t in enumerate(self.connects) if t > killed]
+        if not after:
+            return None, None
+        first = after[0]
+        status = next((t for t, _k, st, i in self.events if st and i >= first), None)
+        return self.connects[first], status
+
+
+class SseClient(Stream):
     """One open page's event stream, ``GET /events`` read on a thread of its own and
     opened again after the server's ``retry:`` when it ends or cannot connect."""
 
     def __init__(self, port: int, name: str) -> None:
+        super().__init__()
         self.port = port
-        self.connects: list[float] = []  # monotonic time each stream was opened
-        # (monotonic time, type, carries a status document, index into connects)
-        self.events: list[tuple[float, str, bool, int]] = []
         self._retry = DEFAULT_RETRY_S
         self._stop = threading.Event()
         self._lock = threading.Lock()
@@ -113,16 +154,6 @@ class SseClient:
                 self._sock = None
             conn.close()
 
-    def _event(self, data: bytes, index: int) -> None:
-        try:
-            doc = json.loads(data)
-        except ValueError:
-            doc = {}
-        kind = str(doc.get("type", "?")) if isinstance(doc, dict) else "?"
-        # A snapshot carries the status too once the UI has one (the latched document).
-        status = kind == "status" or (kind == "snapshot" and bool(doc.get("status")))
-        self.events.append((time.monotonic(), kind, status, index))
-
     def stop(self) -> None:
         self._stop.set()
         with self._lock:
@@ -132,27 +163,65 @@ class SseClient:
                     self._sock.shutdown(socket.SHUT_RDWR)
         self._thread.join(READ_TIMEOUT_S)
 
-    def counts(self, start: float, end: float) -> dict[str, Any]:
-        """Events in all and in ``[start, end]``, and the longest time without one there."""
-        inside = [t for t, *_ in self.events if start <= t <= end]
-        marks = [start, *inside, end]
-        return {
-            "events": len(self.events),
-            "events_in_run": len(inside),
-            "status_events": sum(1 for e in self.events if e[2]),
-            "connects": len(self.connects),
-            "longest_gap_s": max(b - a for a, b in zip(marks, marks[1:], strict=False)),
-        }
 
-    def status_again(self, killed: float) -> tuple[float | None, float | None]:
-        """(connected again, first status document again): monotonic times on the
-        first stream opened after ``killed``; None when it never was."""
-        after = [i for i, t in enumerate(self.connects) if t > killed]
-        if not after:
-            return None, None
-        first = after[0]
-        status = next((t for t, _k, st, i in self.events if st and i >= first), None)
-        return self.connects[first], status
+class ChromiumPage(Stream):
+    """The UI's page in headless Chromium (playwright), on a thread of its own: the
+    playwright objects belong to the thread that made them. Its EventSource's messages
+    are counted from the DevTools protocol (the page's CSP forbids injected scripts);
+    the browser reconnects by itself."""
+
+    def __init__(self, port: int) -> None:
+        super().__init__()
+        self.url = f"http://{HOST}:{port}/"
+        self.error: str | None = None
+        self._opened = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="chromium", daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def available() -> bool:
+        import importlib.util
+
+        return Path(CHROMIUM).exists() and importlib.util.find_spec("playwright") is not None
+
+    def _run(self) -> None:
+        from playwright.sync_api import sync_playwright
+
+        pw = sync_playwright().start()
+        try:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            page = browser.new_page()
+            cdp = page.context.new_cdp_session(page)
+            cdp.send("Network.enable")
+            cdp.on("Network.responseReceived", self._response)
+            cdp.on("Network.eventSourceMessageReceived", self._message)
+            page.goto(self.url)
+            self._opened.set()
+            while not self._stop.is_set():
+                page.wait_for_timeout(50)  # lets playwright deliver the protocol's events
+            browser.close()
+        except Exception as e:  # noqa: BLE001 - optional: reported, the bench goes on
+            self.error = f"{type(e).__name__}: {e}"
+        finally:
+            self._opened.set()
+            pw.stop()
+
+    def _response(self, ev: dict[str, Any]) -> None:
+        # The stream's headers: opened (a refused attempt while the UI is down has none).
+        response = ev.get("response", {})
+        if str(response.get("url", "")).endswith("/events") and response.get("status") == 200:
+            self.connects.append(time.monotonic())
+
+    def _message(self, ev: dict[str, Any]) -> None:
+        self._event(str(ev.get("data", "")), len(self.connects) - 1)
+
+    def wait_opened(self, timeout: float) -> None:
+        self._opened.wait(timeout)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(START_TIMEOUT_S)
 
 
 def free_port() -> int:
@@ -240,11 +309,14 @@ def _case(
     clients: int,
     restart: bool,
     wd_usec: int | None,
+    chromium: bool,
 ) -> dict[str, Any]:
     work = Path(tempfile.mkdtemp(prefix=f"ui-{rate:g}-{int(restart)}-", dir=s.tmp))
     ui = UiChild(s, work, free_port())
     ui.wait_listening()
     readers = [SseClient(ui.port, f"sse-{i}") for i in range(clients)]
+    page = ChromiumPage(ui.port) if chromium and ChromiumPage.available() else None
+    streams: list[Stream] = [*readers, *([page] if page is not None else [])]
     marks: dict[str, float] = {}
     first_pid = ui.child.pid
     done = threading.Event()  # the run is over (or failed): stop acting
@@ -286,13 +358,18 @@ def _case(
             return
         deadline = time.monotonic() + STATUS_AGAIN_TIMEOUT_S
         while time.monotonic() < deadline:
-            if all(r.status_again(marks["killed"])[1] is not None for r in readers):
+            if all(r.status_again(marks["killed"])[1] is not None for r in streams):
                 return
             time.sleep(0.05)  # polling the client threads
 
     try:
         deadline = time.monotonic() + START_TIMEOUT_S
-        while not all(r.connects for r in readers):
+        if page is not None:
+            page.wait_opened(START_TIMEOUT_S)
+        while not all(r.connects for r in streams):
+            if page is not None and page.error is not None:
+                streams.remove(page)
+                continue
             if time.monotonic() > deadline:
                 raise BenchError(
                     f"ui: {clients} clients not connected within {START_TIMEOUT_S:g} s"
@@ -308,7 +385,7 @@ def _case(
         released.set()
         if sampler is not None:
             sampler.join()
-        for r in readers:
+        for r in streams:
             r.stop()
     go = marks["go"]
     end = go + row["seconds"]
@@ -325,6 +402,8 @@ def _case(
         "ui_cpu_ms_per_s_until_kill": None,
         "restart": None,
     }
+    if chromium:
+        out["ui"]["chromium"] = _page_result(page, go, end, marks.get("restarted"))
     if "ui_cpu1" in marks and not restart:
         out["ui"]["ui_cpu_ms_per_s"] = (
             1e3 * (marks["ui_cpu1"] - marks["ui_cpu0"]) / (marks["end"] - go)
@@ -354,6 +433,25 @@ def _case(
     return out
 
 
+def _page_result(
+    page: ChromiumPage | None, go: float, end: float, restarted: float | None
+) -> dict[str, Any]:
+    """The Chromium page's counts, as a client's; ``error`` when it could not be opened."""
+    if page is None:
+        return {"error": f"{CHROMIUM} or playwright is not installed"}
+    if page.error is not None:
+        return {"error": page.error}
+    out: dict[str, Any] = {"error": None, **page.counts(go, end)}
+    out["connected_again_s"] = out["status_again_s"] = None
+    if restarted is not None:
+        connected, status = page.status_again(restarted)
+        if connected is not None:
+            out["connected_again_s"] = connected - restarted
+        if status is not None:
+            out["status_again_s"] = status - restarted
+    return out
+
+
 def _pct(new: float | None, old: float | None) -> float | None:
     return None if new is None or not old else 100.0 * (new - old) / old
 
@@ -371,8 +469,10 @@ def ui_load(
     *,
     clients: int = CLIENTS,
     wd_usec: int | None = None,
+    chromium: bool = False,
 ) -> dict[str, Any]:
-    """The three runs at ``rate`` msg/s for ``seconds``, without the UI first."""
+    """The three runs at ``rate`` msg/s for ``seconds``, without the UI first;
+    ``chromium``: also one page in headless Chromium in the UI's runs."""
     cases: list[dict[str, Any]] = []
     for name in CASES:
         say(f"ui load, {name}: throughput at {rate:g} msg/s for {seconds:g} s")
@@ -380,7 +480,8 @@ def ui_load(
             row = _daemon(throughput(s, plan, rate, seconds, False, wd_usec=wd_usec))
             row["ui"] = None
         else:
-            row = _case(s, plan, rate, seconds, clients, name != "ui + clients", wd_usec)
+            restart = name != "ui + clients"
+            row = _case(s, plan, rate, seconds, clients, restart, wd_usec, chromium)
         row["case"] = name
         cases.append(row)
     base = cases[0]
