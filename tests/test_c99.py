@@ -456,6 +456,9 @@ FUNCTION_CASES = [
         for rel in ("<", "=")
     ),
     "floor(d0) = ceil(d1)",
+    "hypot(d0, d1) <= d1",
+    "hypot(d0, d1) = hypot(d1, d0)",
+    "hypot(i0, d1) > 1.0",
     "floor(i0) < i1",
     "sqrt(i0) >= 3",
     "ite(b0, i0, d0) < d1",

@@ -37,6 +37,7 @@ ENV = {"i": "int64", "j": "int64", "x": "double", "b": "bool"}
         ("abs(x)", "double"),
         ("sqrt(i)", "double"),
         ("floor(x)", "double"),  # C's floor returns a double
+        ("hypot(i, x)", "double"),  # the planar speed from two components
         ("sin(x) < 0.5", "bool"),
         ("ite(b, i, j)", "int64"),
         ("ite(b, i, x)", "double"),

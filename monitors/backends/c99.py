@@ -170,6 +170,8 @@ _C_MATH = {
     "ceil": "ceil",
 }  # fmt: skip
 _HELPERS.update({f"fn_{c}": f"double {c}(double x);" for c in _C_MATH.values()})
+_C_MATH2 = {"hypot": "hypot"}  # two double arguments
+_HELPERS.update({f"fn_{c}": f"double {c}(double x, double y);" for c in _C_MATH2.values()})
 _HELPER_DEPS = {"div": ("wrap",)}
 
 
@@ -177,10 +179,10 @@ def _math_names(spec: MonitorSpec) -> set[str]:
     """The C math functions the spec's formulas may call on doubles."""
     formulas = [r.formula for r in spec.requirements] + [d.expr for d in spec.defines]
     return {
-        _C_MATH[g.name]
+        {**_C_MATH, **_C_MATH2}[g.name]
         for f in formulas
         for g in subterms(f)
-        if isinstance(g, Call) and g.name in _C_MATH
+        if isinstance(g, Call) and (g.name in _C_MATH or g.name in _C_MATH2)
     }
 
 
@@ -366,7 +368,7 @@ class _Gen:
     def call(self, name: str, args: list[tuple[str, str]], result: str) -> str:
         """An arithmetic function; arguments are variables or constants (no side
         effects), so a ternary may name one twice."""
-        if name not in _C_MATH and name not in ("min", "max", "ite"):
+        if name not in _C_MATH and name not in _C_MATH2 and name not in ("min", "max", "ite"):
             # user functions are expanded by the config before C is generated
             raise UserError(f"function {name}/{len(args)} is not defined")
         if name == "ite":
@@ -384,6 +386,9 @@ class _Gen:
             return f"({xs[1]} < {xs[0]} ? {xs[1]} : {xs[0]})"
         if name == "max":
             return f"({xs[1]} > {xs[0]} ? {xs[1]} : {xs[0]})"
+        if name in _C_MATH2:
+            self.use(f"fn_{_C_MATH2[name]}")
+            return f"{_C_MATH2[name]}({xs[0]}, {xs[1]})"
         self.use(f"fn_{_C_MATH[name]}")
         return f"{_C_MATH[name]}({xs[0]})"
 

@@ -11,7 +11,7 @@ Syntax (FRET's past-time output, fully parenthesized when printed):
   temporal   Y p (previous, false at tick 0)   Z p (weak previous, true at tick 0)
              H p, O p, H[l,r] p, O[l,r] p, a S b, a S[l,r] b, a T b, a T[l,r] b
   constants  TRUE FALSE, integer and real literals; FTP is Z FALSE.
-  functions  abs min max sqrt exp log sin cos tan asin acos atan floor ceil ite
+  functions  abs min max sqrt exp log sin cos tan asin acos atan floor ceil hypot ite
              (ARITH_FUNCTIONS: C99's <math.h> meaning; docs/reference/fretish.md)
 """
 
@@ -34,7 +34,7 @@ UNARY_TEMPORAL = ("Y", "Z", "H", "O")
 # when every argument is int64; the others are C's double functions.
 ARITH_FUNCTIONS: dict[str, int] = {
     "abs": 1, "min": 2, "max": 2, "sqrt": 1, "exp": 1, "log": 1, "sin": 1, "cos": 1,
-    "tan": 1, "asin": 1, "acos": 1, "atan": 1, "floor": 1, "ceil": 1, "ite": 3,
+    "tan": 1, "asin": 1, "acos": 1, "atan": 1, "floor": 1, "ceil": 1, "hypot": 2, "ite": 3,
 }  # fmt: skip
 # ite(c, a, b) is FRET's if-then-else value: a where c holds, else b (Booleans or
 # numbers; an int64 branch beside a double one is converted to double).

@@ -25,8 +25,11 @@ Value semantics shared with the C backend (documented in the README):
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 from monitors.errors import UserError
 from monitors.ir.formula import (
@@ -127,6 +130,20 @@ _MATH = {
 }  # fmt: skip
 
 
+def _libm_hypot(x: float, y: float) -> float:
+    """C's hypot itself: Python's math.hypot has an algorithm of its own, which may
+    differ from libm's in the last bit, and the C monitor calls libm's."""
+    global _HYPOT
+    if _HYPOT is None:
+        libm = ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6")
+        _HYPOT = libm.hypot
+        _HYPOT.restype, _HYPOT.argtypes = ctypes.c_double, [ctypes.c_double, ctypes.c_double]
+    return float(_HYPOT(x, y))
+
+
+_HYPOT: Any = None
+
+
 def _c_math(name: str, x: float) -> float:
     """C's double function ``name`` at ``x``: Python's math calls the same libm but
     raises where C returns a special value."""
@@ -165,6 +182,8 @@ def call(name: str, args: Sequence[Value]) -> Value:
         a, b = xs
         return (b if b < a else a) if name == "min" else (b if b > a else a)
     ys = [float(a) for a in args]
+    if name == "hypot":
+        return _libm_hypot(ys[0], ys[1])
     if name == "abs":
         return math.fabs(ys[0])
     if name in ("min", "max"):
