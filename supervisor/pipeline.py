@@ -218,6 +218,9 @@ def check_variables(
                 continue  # imported from FRET without a topic: judged with the unused below
             try:
                 assert v.msg is not None
+                if v.event:  # no field: the message type must exist
+                    message_class(v.msg)
+                    continue
                 check_field(v.msg, v.field, v.type)
             except UserError as e:
                 e.message = f"variable '{v.name}': {e.message}"

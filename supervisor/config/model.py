@@ -73,6 +73,9 @@ class Variable:
     stale_after_ms: float | None = None
     range: tuple[float, float] | None = None
     imported_from: str | None = None  # the FRET or OGMA file that declared it, if any
+    # true only at the tick at which its message arrived (an estop button, any
+    # message whose arrival is the fact); no field is read
+    event: bool = False
 
 
 @dataclass

@@ -44,6 +44,7 @@ VAR_KEYS = {
     "stale_after_ms",
     "role",
     "range",
+    "event",
 }
 
 
@@ -194,6 +195,30 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             spec, "depth", f"variable '{name}'", default=depth, minimum=1, maximum=MAX_DEPTH
         )
         var.stale_after_ms = number(spec, "stale_after_ms", f"variable '{name}'")
+        event = spec.get("event", False)
+        if not isinstance(event, bool):
+            raise error_at(f"variable '{name}': event must be true or false", spec, "event")
+        if event:
+            if var.define is not None:
+                raise error_at(
+                    f"variable '{name}': an event comes from a topic, not a define", spec, "event"
+                )
+            if vtype != "bool":
+                raise error_at(
+                    f"variable '{name}': an event is bool (true at the tick its message "
+                    f"arrived), not {vtype}",
+                    spec,
+                    "type",
+                )
+            for key in ("field", "initial"):
+                if key in spec:
+                    raise error_at(
+                        f"variable '{name}': an event reads no {key} (its message's arrival "
+                        "is the value)",
+                        spec,
+                        key,
+                    )
+            var.event = True
         if "initial" in spec:
             var.initial = typed_value(spec["initial"], vtype, spec, "initial", name)
         if "range" in spec:

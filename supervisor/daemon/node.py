@@ -448,6 +448,9 @@ class SupervisorNode:
         if values is None:
             values = []
             for v in s.vars:
+                if v.event:  # its message's arrival is the value
+                    values.append((v.name, True))
+                    continue
                 try:
                     values.append((v.name, get_field(msg, v.field)))
                 except AttributeError as e:  # cannot happen after check; report
@@ -468,7 +471,7 @@ class SupervisorNode:
             return None
         out = []
         for v, plan in zip(s.vars, s.plans, strict=True):
-            x = plan.read(data) if plan is not None else None
+            x = True if v.event else plan.read(data) if plan is not None else None
             if x is None:
                 return None
             out.append((v.name, x))
@@ -476,7 +479,7 @@ class SupervisorNode:
             s.checks -= 1
             msg = deserialize_message(data, s.msg_type)
             try:
-                want = [(v.name, get_field(msg, v.field)) for v in s.vars]
+                want = [(v.name, True if v.event else get_field(msg, v.field)) for v in s.vars]
             except AttributeError:
                 return None
             if any(a != b and a == a for (_, a), (_, b) in zip(want, out, strict=True)):

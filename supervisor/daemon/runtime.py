@@ -43,6 +43,7 @@ class InputSpec:
     type: str  # bool | int64 | double
     initial: Any = None
     stale_after_ns: int | None = None
+    event: bool = False  # true at the step after its message, false otherwise
 
 
 @dataclass
@@ -85,6 +86,14 @@ class _Input:
     nan: int = 0  # NaN doubles accepted (the formula decides; reported all the same)
     lost: int = 0  # skipped in the publishers' sequence numbers (supervisor.daemon.loss)
     own: int = 0  # the supervisor's own messages on this topic, never taken as input
+
+
+def _limit(spec: InputSpec, default_after_ns: int | None) -> int | None:
+    """An input's silence limit: its own, else the step's; an event (an estop that
+    is rarely pressed) only its own, as silence is its normal state."""
+    if spec.event:
+        return spec.stale_after_ns
+    return spec.stale_after_ns or default_after_ns
 
 
 def coerce(value: Any, vtype: str) -> tuple[Any, str | None]:
@@ -134,6 +143,8 @@ class Runtime:
         for inp in self._in:
             if inp.spec.initial is not None:
                 inp.value, inp.has_value = inp.spec.initial, True
+            if inp.spec.event:  # false until its first message: never blocks stepping
+                inp.value, inp.has_value = False, True
         if self.policy == "on_trigger" and self.trigger not in self._index:
             raise ValueError(f"trigger '{self.trigger}' is not an input")
         if self.policy == "periodic" and not self.period_ns:
@@ -210,7 +221,8 @@ class Runtime:
         accepted = []
         for name, raw in values:
             inp = self._in[self._index[name]]
-            value, why = coerce(raw, inp.spec.type)
+            # an event's value is its message's arrival
+            value, why = (True, None) if inp.spec.event else coerce(raw, inp.spec.type)
             if why is not None:
                 inp.rejected += 1
                 events.append(InputEvent("input_rejected", name, t_ns, why))
@@ -281,18 +293,18 @@ class Runtime:
             for inp in self._in
             if not inp.stale
             and inp.last_ns is not None
-            and (after := inp.spec.stale_after_ns or default_after_ns)
+            and (after := _limit(inp.spec, default_after_ns))
         ]
         return min(times) if times else None
 
     def stale_after(self, name: str, default_after_ns: int | None) -> int | None:
         """Input ``name``'s silence limit in ns (None: never stale)."""
-        return self._in[self._index[name]].spec.stale_after_ns or default_after_ns
+        return _limit(self._in[self._index[name]].spec, default_after_ns)
 
     def check_stale(self, t_ns: int, default_after_ns: int | None) -> list[InputEvent]:
         events = []
         for inp in self._in:
-            after = inp.spec.stale_after_ns or default_after_ns
+            after = _limit(inp.spec, default_after_ns)
             if not after or inp.stale:
                 continue
             since = inp.last_ns
@@ -320,6 +332,8 @@ class Runtime:
         flags = self.monitor.tick(values)
         for inp in self._in:
             inp.fresh = False
+            if inp.spec.event:
+                inp.value = False  # its tick is over
         self._pending_since = None
         snap = dict(zip((i.spec.name for i in self._in), values, strict=True))
         result = StepResult(self.tick, t_ns, [i for i, f in enumerate(flags) if f], snap)

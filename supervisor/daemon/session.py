@@ -46,6 +46,7 @@ def build_runtime(project: Project, monitor: Any) -> Runtime:
             v.type,
             initial=v.initial,
             stale_after_ns=int(v.stale_after_ms * 1e6) if v.stale_after_ms else None,
+            event=v.event,
         )
         for v in cfg.inputs
     ]

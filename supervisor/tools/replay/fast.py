@@ -31,7 +31,12 @@ def quiet(core: Core) -> bool:
     """Nothing but stepping can happen before the next message."""
     rt = core.session.runtime
     return (
-        rt.policy in POLICIES and not core.supervision.active and rt.ready and not rt.stale_inputs()
+        rt.policy in POLICIES
+        and not core.supervision.active
+        and rt.ready
+        and not rt.stale_inputs()
+        # an event is true for one step only: forward filling cannot say that
+        and not any(inp.spec.event for inp in rt._in)  # noqa: SLF001
     )
 
 

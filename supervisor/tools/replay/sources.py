@@ -256,7 +256,7 @@ class Recording:
             plans: list[FieldPlan | None] = []
             dtypes: list[Any] = []
             for v in variables:
-                if isinstance(src, Trace):
+                if isinstance(src, Trace) or v.event:  # an event reads no field
                     plans.append(None)
                     dtypes.append(DTYPES[v.type])
                     continue
@@ -326,6 +326,11 @@ class Recording:
                 continue
             slow: list[Variable] = []
             for j, (v, plan) in enumerate(zip(rd.variables, rd.plans, strict=True)):
+                if v.event:  # true on every message of its topic: its arrival
+                    col = np.zeros(n, dtype=np.bool_)
+                    col[rows] = True
+                    values[v.name] = col
+                    continue
                 got = plan.gather(arr, raw.start[rows], raw.end[rows]) if plan else None
                 if (
                     got is not None
