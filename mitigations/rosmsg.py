@@ -75,6 +75,90 @@ def field_type(msg_class: type, path: str) -> str:
     raise AssertionError("unreachable")
 
 
+# What a variable may make of an array field (config ``reduce:``; docs/reference/config.md).
+REDUCTIONS = ("min", "max", "mean", "sum", "count", "len", "any", "all")
+
+
+def element_type(t: str) -> str | None:
+    """The element type of an array or sequence type ('sequence<float>', 'float[360]',
+    'sequence<float, 10>'), or None for any other type."""
+    if t.startswith("sequence<") and t.endswith(">"):
+        return t[len("sequence<") : -1].split(",")[0].strip()
+    if t.endswith("]") and "[" in t:
+        return t[: t.index("[")]
+    return None
+
+
+def check_reduction(msg_name: str, path: str, reduce: str, var_type: str) -> str:
+    """Validate ``reduce`` over the array field msg_name.path for a var_type variable;
+    returns the element type."""
+    leaf = field_type(message_class(msg_name), path)
+    element = element_type(leaf)
+    if element is None:
+        raise UserError(f"field '{path}' of {msg_name} is {leaf}, not an array: reduce needs one")
+    if reduce in ("len", "count"):
+        wants, why = {"int64", "double"}, "a count"
+    elif reduce in ("any", "all"):
+        if element != "boolean":
+            raise UserError(
+                f"reduce: {reduce} needs an array of booleans; '{path}' holds {element}"
+            )
+        wants, why = {"bool"}, "true or false"
+    else:
+        if element not in REAL_TYPES | INT_TYPES:
+            raise UserError(f"reduce: {reduce} needs an array of numbers; '{path}' holds {element}")
+        ints = element in INT_TYPES and reduce != "mean"
+        wants, why = ({"int64", "double"} if ints else {"double"}), f"{reduce} of {element}"
+    if var_type not in wants:
+        raise UserError(
+            f"reduce: {reduce} over '{path}' gives {why}, which cannot feed a {var_type} variable"
+        )
+    return element
+
+
+def reduce_values(values: Any, how: str, bounds: tuple[float, float] | None = None) -> Any:
+    """``how`` over an array's elements.  Readings that are NaN are not readings and
+    are left out; with ``bounds`` (a LaserScan's range_min..range_max, REP 117) so are
+    infinite ones and those outside the bounds.  With no reading left: min is +inf,
+    max -inf, mean NaN, sum 0, count 0 (len counts every element)."""
+    import numpy as np
+
+    if how == "len":
+        return len(values)
+    if how in ("any", "all"):
+        flags = [bool(x) for x in values]
+        return any(flags) if how == "any" else all(flags)
+    arr = np.asarray(values)
+    integral = arr.dtype.kind in "iu" or (arr.size == 0 and how not in ("mean",))
+    if arr.dtype.kind == "f":
+        keep = ~np.isnan(arr)
+        if bounds is not None:
+            keep &= np.isfinite(arr) & (arr >= bounds[0]) & (arr <= bounds[1])
+        arr = arr[keep]
+        integral = False
+    if how == "count":
+        return int(arr.size)
+    if arr.size == 0:
+        return {"min": float("inf"), "max": float("-inf"), "mean": float("nan"), "sum": 0.0}[how]
+    with np.errstate(all="ignore"):  # inf - inf is NaN, as in C: said by the value
+        result = {"min": arr.min, "max": arr.max, "mean": arr.mean, "sum": arr.sum}[how]()
+    return int(result) if integral and how != "mean" else float(result)
+
+
+def read_value(msg: Any, path: str, reduce: str | None = None) -> Any:
+    """The value a variable reads: the field at ``path``, reduced when ``reduce`` says
+    so.  A LaserScan's ``ranges`` honour its own range_min and range_max (REP 117)."""
+    value = get_field(msg, path)
+    if reduce is None:
+        return value
+    bounds = None
+    head, _, last = path.rpartition(".")
+    parent = get_field(msg, head) if head else msg
+    if last == "ranges" and hasattr(parent, "range_min") and hasattr(parent, "range_max"):
+        bounds = (float(parent.range_min), float(parent.range_max))
+    return reduce_values(value, reduce, bounds)
+
+
 def check_field(msg_name: str, path: str, var_type: str) -> str:
     """Validate that msg_name.path exists and can feed a variable of var_type."""
     leaf = field_type(message_class(msg_name), path)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from mitigations.actions.ssh import preflight
-from mitigations.rosmsg import build_message, check_field, message_class
+from mitigations.rosmsg import build_message, check_field, check_reduction, message_class
 from mitigations.settings import PublishSettings, SshSettings
 from monitors.backends.build import build_library
 from monitors.backends.c99 import write_c
@@ -220,6 +220,9 @@ def check_variables(
                 assert v.msg is not None
                 if v.event:  # no field: the message type must exist
                     message_class(v.msg)
+                    continue
+                if v.reduce is not None:
+                    check_reduction(v.msg, v.field, v.reduce, v.type)
                     continue
                 check_field(v.msg, v.field, v.type)
             except UserError as e:

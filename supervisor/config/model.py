@@ -76,6 +76,7 @@ class Variable:
     # true only at the tick at which its message arrived (an estop button, any
     # message whose arrival is the fact); no field is read
     event: bool = False
+    reduce: str | None = None  # min, max, ... over the array field (mitigations/rosmsg.py)
 
 
 @dataclass

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from mitigations.rosmsg import REDUCTIONS
 from monitors.errors import UserError
 from monitors.ir.formula import Formula, FormulaSyntaxError, name_problem, parse_formula
 from monitors.ir.spec import TYPE_ALIASES
@@ -45,6 +46,7 @@ VAR_KEYS = {
     "role",
     "range",
     "event",
+    "reduce",
 }
 
 
@@ -195,6 +197,26 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             spec, "depth", f"variable '{name}'", default=depth, minimum=1, maximum=MAX_DEPTH
         )
         var.stale_after_ms = number(spec, "stale_after_ms", f"variable '{name}'")
+        reduce = spec.get("reduce")
+        if reduce is not None:
+            if var.define is not None:
+                raise error_at(
+                    f"variable '{name}': reduce reads a topic's array field, not a define",
+                    spec,
+                    "reduce",
+                )
+            if reduce not in REDUCTIONS:
+                raise error_at(
+                    f"variable '{name}': unknown reduce '{reduce}'",
+                    spec,
+                    "reduce",
+                    "one of: " + ", ".join(REDUCTIONS),
+                )
+            if "field" not in spec and not (base and base.field != "data"):
+                raise error_at(
+                    f"variable '{name}': reduce needs the array's field:", spec, "reduce"
+                )
+            var.reduce = str(reduce)
         event = spec.get("event", False)
         if not isinstance(event, bool):
             raise error_at(f"variable '{name}': event must be true or false", spec, "event")

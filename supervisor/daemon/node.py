@@ -56,7 +56,7 @@ from mitigations.actions import PublisherKey, build_action
 from mitigations.actions.base import Outcome
 from mitigations.actions.publish import PublishAction
 from mitigations.engine import Engine, Request
-from mitigations.rosmsg import get_field, message_class
+from mitigations.rosmsg import message_class, read_value
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
@@ -452,7 +452,7 @@ class SupervisorNode:
                     values.append((v.name, True))
                     continue
                 try:
-                    values.append((v.name, get_field(msg, v.field)))
+                    values.append((v.name, read_value(msg, v.field, v.reduce)))
                 except AttributeError as e:  # cannot happen after check; report
                     self.core.reject(v.name, t, str(e))
         if values:
@@ -479,7 +479,10 @@ class SupervisorNode:
             s.checks -= 1
             msg = deserialize_message(data, s.msg_type)
             try:
-                want = [(v.name, True if v.event else get_field(msg, v.field)) for v in s.vars]
+                want = [
+                    (v.name, True if v.event else read_value(msg, v.field, v.reduce))
+                    for v in s.vars
+                ]
             except AttributeError:
                 return None
             if any(a != b and a == a for (_, a), (_, b) in zip(want, out, strict=True)):

@@ -49,7 +49,7 @@ import yaml
 from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
-from mitigations.rosmsg import COMPATIBLE
+from mitigations.rosmsg import COMPATIBLE, read_value
 from monitors.errors import UserError
 from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
@@ -256,7 +256,8 @@ class Recording:
             plans: list[FieldPlan | None] = []
             dtypes: list[Any] = []
             for v in variables:
-                if isinstance(src, Trace) or v.event:  # an event reads no field
+                if isinstance(src, Trace) or v.event or v.reduce:
+                    # an event reads no field; a reduction reads each message whole
                     plans.append(None)
                     dtypes.append(DTYPES[v.type])
                     continue
@@ -355,7 +356,7 @@ class Recording:
                     try:
                         msg = src.store.deserialize_cdr(raw.payload(i), rd.msgtype)
                         for v in slow:
-                            cols[v.name][i] = field_value(msg, v.field)
+                            cols[v.name][i] = read_value(msg, v.field, v.reduce)
                     except Exception as e:  # noqa: BLE001 - any failure here is the data's
                         fail(i, rd.topic, f"does not decode as {rd.msgtype} ({e})")
                         break
