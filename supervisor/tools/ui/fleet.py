@@ -9,8 +9,6 @@ is :class:`.node.FleetNode`).  docs/reference/commands.md, ``ui``.
 
 from __future__ import annotations
 
-import contextlib
-import json
 import os
 import queue
 import re
@@ -27,7 +25,8 @@ from monitors.errors import UserError
 from supervisor.config.fields import check_keys, error_at
 from supervisor.config.yamlload import LineDict, LineList, load_yaml
 from supervisor.names import STATUS_TOPIC, VIOLATIONS_TOPIC
-from supervisor.tools.ui.hub import CLIENT_QUEUE, Hub, utc_now
+from supervisor.tools.ui.hub import Hub, utc_now
+from supervisor.tools.ui.streams import Streams
 
 NAME_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")  # also the robot's path: /robot/<name>
 NS_RE = re.compile(r"/|(/[A-Za-z_][A-Za-z0-9_]*)+")
@@ -202,7 +201,7 @@ class Fleet:
         self._reset_state = reset_state
         self._robots: dict[str, Robot] = {}
         self._by_topic: dict[tuple[int, str], Robot] = {}
-        self._clients: set[queue.Queue[str | None]] = set()
+        self._streams = Streams()
         self.configured = len(robots)
         for spec in robots:
             self._add(spec.name, spec.name, spec.domain, spec.namespace, configured=True)
@@ -304,37 +303,17 @@ class Fleet:
         return {"type": "snapshot", "robots": [self.row(r) for r in self.robots()]}
 
     def subscribe(self) -> queue.Queue[str | None]:
-        q: queue.Queue[str | None] = queue.Queue(CLIENT_QUEUE)
-        with self._lock:
-            self._clients.add(q)
-        q.put(json.dumps(self.snapshot()))
-        return q
+        return self._streams.subscribe(self.snapshot)
 
     def unsubscribe(self, q: queue.Queue[str | None]) -> None:
-        with self._lock:
-            self._clients.discard(q)
+        self._streams.unsubscribe(q)
 
     def close(self) -> None:
         with self._lock:
-            clients = list(self._clients)
-            self._clients.clear()
             hubs = [r.hub for r in self._robots.values()]
-        for q in clients:
-            with contextlib.suppress(queue.Full):
-                q.put_nowait(None)
+        self._streams.close()
         for hub in hubs:
             hub.close()
 
     def _broadcast(self, message: dict[str, Any]) -> None:
-        line = json.dumps(message)
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            try:
-                q.put_nowait(line)
-            except queue.Full:
-                # as Hub: a browser that stopped reading is dropped; it reconnects
-                self.unsubscribe(q)
-                with contextlib.suppress(queue.Empty):
-                    q.get_nowait()
-                q.put_nowait(None)
+        self._streams.broadcast(message)

@@ -17,7 +17,6 @@ Sources (docs/reference/ros-interfaces.md, "What the UI reads"):
 
 from __future__ import annotations
 
-import contextlib
 import json
 import queue
 import threading
@@ -27,8 +26,9 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
+from supervisor.tools.ui.streams import Streams
+
 FEED_LENGTH = 200  # entries a newly opened page gets
-CLIENT_QUEUE = 1000  # messages a slow browser may fall behind before it is dropped
 
 
 def utc_now() -> str:
@@ -61,7 +61,7 @@ class Hub:
         # violations shown from the topic, not yet seen in a status document's events:
         # by (requirement, tick)
         self._pending: Counter[tuple[str, Any]] = Counter()
-        self._clients: set[queue.Queue[str | None]] = set()
+        self._streams = Streams()
 
     # ------------------------------------------------------------ inputs
 
@@ -157,40 +157,17 @@ class Hub:
         return out
 
     def subscribe(self) -> queue.Queue[str | None]:
-        """A queue of SSE ``data`` lines; its first item is the snapshot, so
-        nothing published after the snapshot is missed."""
-        q: queue.Queue[str | None] = queue.Queue(CLIENT_QUEUE)
-        with self._lock:
-            self._clients.add(q)
-        q.put(json.dumps(self.snapshot()))
-        return q
+        """A queue of SSE ``data`` lines, the snapshot first (streams.py)."""
+        return self._streams.subscribe(self.snapshot)
 
     def unsubscribe(self, q: queue.Queue[str | None]) -> None:
-        with self._lock:
-            self._clients.discard(q)
+        self._streams.unsubscribe(q)
 
     def close(self) -> None:
-        """Ends every stream (None wakes its handler)."""
-        with self._lock:
-            clients = list(self._clients)
-            self._clients.clear()
-        for q in clients:
-            with contextlib.suppress(queue.Full):
-                q.put_nowait(None)
+        self._streams.close()
 
     def _broadcast(self, message: dict[str, Any]) -> None:
-        line = json.dumps(message)
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            try:
-                q.put_nowait(line)
-            except queue.Full:
-                # a browser that stopped reading: drop it; it reconnects with a snapshot
-                self.unsubscribe(q)
-                with contextlib.suppress(queue.Empty):
-                    q.get_nowait()
-                q.put_nowait(None)
+        self._streams.broadcast(message)
 
     @staticmethod
     def _entry(ev: dict[str, Any]) -> dict[str, Any]:
