@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import gzip
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -20,11 +19,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from browser import CHROMIUM, open_page
 
 from mitigations.violationlog.reader import iter_records
 from supervisor.cli import main
-
-CHROMIUM = "/usr/bin/chromium"
 
 CONFIG = """\
 component: R
@@ -205,31 +203,11 @@ def test_errors_are_one_line_naming_the_file(
 # ---------------------------------------------------------------- in the browser
 
 
-def open_page(path: Path) -> tuple[Any, Any, list[str], list[str]]:
-    """The page in headless Chromium: (playwright, page, console messages, requests)."""
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not Path(CHROMIUM).exists():
-        # CI (.ci/run) installs it and sets this: there the page must be opened
-        if os.environ.get("SAFETY_SUPERVISOR_REQUIRE_BROWSER") == "1":
-            pytest.fail(f"SAFETY_SUPERVISOR_REQUIRE_BROWSER=1 but {CHROMIUM} is missing")
-        pytest.skip("Debian's chromium is not installed")
-    pw = sync_api.sync_playwright().start()
-    browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-    page = browser.new_page(viewport={"width": 1300, "height": 900})
-    console: list[str] = []
-    requests: list[str] = []
-    page.on("console", lambda m: console.append(f"{m.type}: {m.text}"))
-    page.on("pageerror", lambda e: console.append(f"pageerror: {e}"))
-    page.on("request", lambda r: requests.append(r.url))
-    page.goto(path.as_uri())
-    return pw, page, console, requests
-
-
 def check_page(path: Path, log: Path) -> Any:
     """Opens offline, quietly; one marker per violation; zoom and hover work."""
     records = list(iter_records(str(log)))
     violated = {r["requirement"] for r in records if r["event"] == "violation"}
-    pw, page, console, requests = open_page(path)
+    pw, page, console, requests = open_page(path.as_uri())
     try:
         rows = page.eval_on_selector_all(
             ".req-row", "rs => rs.map(r => [r.dataset.requirement, +r.dataset.violations])"

@@ -10,7 +10,6 @@ in the daemon's log, and the UI killed and restarted while the daemon monitors.
 from __future__ import annotations
 
 import json
-import os
 import re
 import socket
 import threading
@@ -22,12 +21,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from browser import open_page
 
 from supervisor.tools.ui.hub import Hub
 from supervisor.tools.ui.server import UiServer, reset_availability
 
 ROOT = Path(__file__).resolve().parent.parent
-CHROMIUM = "/usr/bin/chromium"
 TOKEN = b"test-token-0123456789abcdef"
 
 
@@ -211,26 +210,6 @@ def test_a_short_or_missing_token_file_is_one_line(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------- in the browser
-
-
-def open_page(url: str) -> tuple[Any, Any, list[str], list[str]]:
-    """The page in headless Chromium: (playwright, page, console messages, requests)."""
-    sync_api = pytest.importorskip("playwright.sync_api")
-    if not Path(CHROMIUM).exists():
-        # CI (.ci/run) installs it and sets this: there the page must be opened
-        if os.environ.get("SAFETY_SUPERVISOR_REQUIRE_BROWSER") == "1":
-            pytest.fail(f"SAFETY_SUPERVISOR_REQUIRE_BROWSER=1 but {CHROMIUM} is missing")
-        pytest.skip("Debian's chromium is not installed")
-    pw = sync_api.sync_playwright().start()
-    browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-    page = browser.new_page(viewport={"width": 1300, "height": 900})
-    console: list[str] = []
-    requests: list[str] = []
-    page.on("console", lambda m: console.append(f"{m.type}: {m.text}"))
-    page.on("pageerror", lambda e: console.append(f"pageerror: {e}"))
-    page.on("request", lambda r: requests.append(r.url))
-    page.goto(url)
-    return pw, page, console, requests
 
 
 def requirement_rows(page: Any) -> dict[str, dict[str, Any]]:

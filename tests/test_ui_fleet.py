@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_ui import ROOT, TOKEN, FakeControl, http, open_page, post_reset, status_doc, wait_js
+from browser import open_page
+from test_ui import ROOT, TOKEN, FakeControl, http, post_reset, status_doc, wait_js
 
 from monitors.errors import UserError
 from supervisor.tools.ui.fleet import Fleet, RobotSpec, load_fleet, local_reset_availability
