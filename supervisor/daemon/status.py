@@ -139,6 +139,7 @@ class StatusBoard:
                 }
             )
         inputs = []
+        latest = rt.snapshot()
         for name, st in stats.items():
             v = types.get(name)
             last_ns = st["last_ns"]
@@ -147,7 +148,7 @@ class StatusBoard:
                     "name": name,
                     "topic": v.topic if v else None,
                     "type": v.type if v else None,
-                    "value": rt.snapshot().get(name),
+                    "value": latest.get(name),
                     "age_s": None if last_ns is None else round((now_ns - last_ns) / 1e9, 3),
                     "stale": bool(st["stale"]),
                     "messages": st["messages"],
