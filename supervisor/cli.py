@@ -169,6 +169,34 @@ def _print_project(project: object) -> int:
     return sum(1 for r in project.requirements if not r.ok) + len(project.errors)
 
 
+def _print_variables(project: object) -> None:
+    """What each variable reads and the C type it becomes (docs/reference/commands.md)."""
+    from monitors.ir.formula import to_fret
+    from supervisor.inputs.readers import C_TYPES, check_input
+    from supervisor.pipeline import Project
+
+    assert isinstance(project, Project)
+    rows = []
+    for v in project.config.variables.values():
+        if v.define is not None:
+            rows.append((v.name, "define", "", "", to_fret(v.define), "", C_TYPES[v.type]))
+            continue
+        if v.topic is None:
+            continue  # no topic: an error said so already
+        try:
+            d = check_input(v)
+        except UserError:
+            continue  # said in the errors above
+        rows.append((v.name, d.kind, d.topic, d.message, d.path, d.reduction, d.c_type))
+    if not rows:
+        return
+    head = ("variable", "kind", "topic", "message", "reads", "reduce", "C type")
+    widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
+    _out("variables:")
+    for r in [head, *rows]:
+        _out("  " + "  ".join(f"{str(x):<{w}}" for x, w in zip(r, widths, strict=True)).rstrip())
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from supervisor.analysis_report import format_analysis, validate
     from supervisor.pipeline import compile_project
@@ -177,6 +205,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     checked = validate(args.config, args.k)  # the same validation as run and reload
     project = checked.project
     failures = _print_project(project)
+    _print_variables(project)
     n = len(project.requirements)
     if failures:
         _out(

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from mitigations.actions.ssh import preflight
-from mitigations.rosmsg import build_message, check_field, check_reduction, message_class
+from mitigations.rosmsg import build_message, message_class
 from mitigations.settings import PublishSettings, SshSettings
 from monitors.backends.build import build_library
 from monitors.backends.c99 import write_c
@@ -31,6 +31,7 @@ from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
 from supervisor.config import Config, RequirementEntry, Variable, load_config
 from supervisor.config.ros import reset_service_warning
+from supervisor.inputs.readers import check_input
 
 
 @dataclass
@@ -217,14 +218,7 @@ def check_variables(
             if v.topic is None:
                 continue  # imported from FRET without a topic: judged with the unused below
             try:
-                assert v.msg is not None
-                if v.event:  # no field: the message type must exist
-                    message_class(v.msg)
-                    continue
-                if v.reduce is not None:
-                    check_reduction(v.msg, v.field, v.reduce, v.type)
-                    continue
-                check_field(v.msg, v.field, v.type)
+                check_input(v)
             except UserError as e:
                 e.message = f"variable '{v.name}': {e.message}"
                 errors.append(_located(e, cfg.path, v.line))

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from mitigations.rosmsg import reduce_values
+from supervisor.inputs.reductions import reduce_values
 from monitors.errors import UserError
 from supervisor.config import load_config
 from supervisor.pipeline import project_for

@@ -76,7 +76,19 @@ class Variable:
     # true only at the tick at which its message arrived (an estop button, any
     # message whose arrival is the fact); no field is read
     event: bool = False
-    reduce: str | None = None  # min, max, ... over the array field (mitigations/rosmsg.py)
+    reduce: str | None = None  # min, max, ... over an array (supervisor/inputs/reductions.py)
+    # Services and actions (supervisor/inputs/interfaces.py): topic and msg are
+    # then the introspection or status topic's, field is within the call's part.
+    service: str | None = None
+    srv: str | None = None
+    call: str | None = None  # request | response
+    action: str | None = None
+    statuses: tuple[str, ...] = ()
+    # Derived from another input's messages (topic and msg are that input's).
+    age_of: str | None = None
+    stamp: str | None = None  # the time stamp's field; None: header.stamp
+    rate_of: str | None = None
+    window_ms: float = 1000.0
 
 
 @dataclass

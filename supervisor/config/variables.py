@@ -6,7 +6,6 @@ import re
 from pathlib import Path
 from typing import Any
 
-from mitigations.rosmsg import REDUCTIONS
 from monitors.errors import UserError
 from monitors.ir.formula import Formula, FormulaSyntaxError, name_problem, parse_formula
 from monitors.ir.spec import TYPE_ALIASES
@@ -17,6 +16,7 @@ from supervisor.config.fields import (
     file_names,
     number,
     relative_to,
+    suggest,
     to_number,
     typed_value,
     whole_number,
@@ -25,6 +25,16 @@ from supervisor.config.fret import load_fret_export
 from supervisor.config.model import Variable
 from supervisor.config.ogma import load_ogma_variables
 from supervisor.config.yamlload import LineDict
+from supervisor.inputs.interfaces import (
+    ACTION_STATUS_MSG,
+    SERVICE_CALLS,
+    action_status_topic,
+    goal_statuses,
+    service_event_type,
+    service_topic,
+)
+from supervisor.inputs.paths import parse_path
+from supervisor.inputs.reductions import REDUCTIONS
 
 ROLES = ("input", "output", "internal")
 QOS_PRESETS = ("auto", "reliable", "best_effort", "sensor_data")
@@ -47,7 +57,27 @@ VAR_KEYS = {
     "range",
     "event",
     "reduce",
+    "service",
+    "srv",
+    "call",
+    "action",
+    "status",
+    "age_of",
+    "stamp",
+    "rate_of",
+    "window_ms",
 }
+# Where an input's value comes from: exactly one of these (or define:).
+SOURCES = ("topic", "service", "action", "age_of", "rate_of")
+# The keys each source takes besides the common ones.
+SOURCE_KEYS = {
+    "topic": {"msg", "field", "reduce", "event"},
+    "service": {"srv", "call", "field", "reduce", "event"},
+    "action": {"status", "event"},
+    "age_of": {"stamp"},
+    "rate_of": {"window_ms"},
+}
+MAX_WINDOW_MS = 3_600_000.0  # an hour: longer is a typo, and the arrivals are kept
 
 
 def check_name(name: str, where: Any, key: str | None = None) -> None:
@@ -164,26 +194,7 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             var.define_text = str(define_text)
             var.define = parse_define(str(define_text), vs.file, spec.key_line("define"))
         else:
-            var.topic = str(spec.get("topic") or (base.topic if base else "") or "") or None
-            var.msg = str(spec.get("msg") or (base.msg if base else "") or "") or None
-            var.field = str(spec.get("field") or (base.field if base else "data"))
-            if not var.topic:
-                raise error_at(
-                    f"variable '{name}' has no topic (and no define)",
-                    vs,
-                    name,
-                    "add topic: /name and msg: pkg/msg/Type, or define: <expression>",
-                )
-            if not var.topic.startswith("/"):
-                raise error_at(
-                    f"variable '{name}': topic '{var.topic}' must be absolute (start with '/')",
-                    spec,
-                    "topic",
-                )
-            if not var.msg:
-                raise error_at(
-                    f"variable '{name}' needs msg: the ROS 2 message type of {var.topic}", vs, name
-                )
+            _source(var, spec, base, vs)
         var.qos = str(spec.get("qos", "auto"))
         if var.qos not in QOS_PRESETS:
             raise error_at(
@@ -197,50 +208,7 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             spec, "depth", f"variable '{name}'", default=depth, minimum=1, maximum=MAX_DEPTH
         )
         var.stale_after_ms = number(spec, "stale_after_ms", f"variable '{name}'")
-        reduce = spec.get("reduce")
-        if reduce is not None:
-            if var.define is not None:
-                raise error_at(
-                    f"variable '{name}': reduce reads a topic's array field, not a define",
-                    spec,
-                    "reduce",
-                )
-            if reduce not in REDUCTIONS:
-                raise error_at(
-                    f"variable '{name}': unknown reduce '{reduce}'",
-                    spec,
-                    "reduce",
-                    "one of: " + ", ".join(REDUCTIONS),
-                )
-            if "field" not in spec and not (base and base.field != "data"):
-                raise error_at(
-                    f"variable '{name}': reduce needs the array's field:", spec, "reduce"
-                )
-            var.reduce = str(reduce)
-        event = spec.get("event", False)
-        if not isinstance(event, bool):
-            raise error_at(f"variable '{name}': event must be true or false", spec, "event")
-        if event:
-            if var.define is not None:
-                raise error_at(
-                    f"variable '{name}': an event comes from a topic, not a define", spec, "event"
-                )
-            if vtype != "bool":
-                raise error_at(
-                    f"variable '{name}': an event is bool (true at the tick its message "
-                    f"arrived), not {vtype}",
-                    spec,
-                    "type",
-                )
-            for key in ("field", "initial"):
-                if key in spec:
-                    raise error_at(
-                        f"variable '{name}': an event reads no {key} (its message's arrival "
-                        "is the value)",
-                        spec,
-                        key,
-                    )
-            var.event = True
+        _reduce_and_event(var, spec)
         if "initial" in spec:
             var.initial = typed_value(spec["initial"], vtype, spec, "initial", name)
         if "range" in spec:
@@ -252,4 +220,218 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
                 raise error_at(f"variable '{name}': range [{lo:g}, {hi:g}] is empty", spec, "range")
             var.range = (lo, hi)
         out[name] = var
+    _derived_sources(out, vs.file)
     return out
+
+
+def _source(var: Variable, spec: LineDict, base: Variable | None, vs: LineDict) -> None:
+    """Where input ``var`` reads its value: a topic's field, a service's calls, an
+    action's goal states, or another input's stamps or arrivals."""
+    name = var.name
+    given = [k for k in SOURCES if spec.get(k) is not None]
+    if len(given) > 1:
+        raise error_at(
+            f"variable '{name}' has both {given[0]} and {given[1]}: one source each",
+            spec,
+            given[1],
+        )
+    source = given[0] if given else "topic"
+    allowed = SOURCE_KEYS[source]
+    for key in set().union(*SOURCE_KEYS.values()) - allowed:
+        if key in spec and not (key in ("msg", "field") and base is not None):
+            raise error_at(
+                f"variable '{name}': {key} does not go with {source}",
+                spec,
+                key,
+                f"{source} takes: {', '.join(sorted(allowed)) or 'no other key'}",
+            )
+    if source == "topic":
+        var.topic = str(spec.get("topic") or (base.topic if base else "") or "") or None
+        var.msg = str(spec.get("msg") or (base.msg if base else "") or "") or None
+        var.field = str(spec.get("field") or (base.field if base else "data"))
+        if not var.topic:
+            raise error_at(
+                f"variable '{name}' has no topic (and no define)",
+                vs,
+                name,
+                "add topic: /name and msg: pkg/msg/Type, or define: <expression>",
+            )
+        _absolute(var.topic, spec, "topic", name)
+        if not var.msg:
+            raise error_at(
+                f"variable '{name}' needs msg: the ROS 2 message type of {var.topic}", vs, name
+            )
+    elif source == "service":
+        var.service = str(spec["service"])
+        _absolute(var.service, spec, "service", name)
+        if not spec.get("srv"):
+            raise error_at(
+                f"variable '{name}' needs srv: the service's type (pkg/srv/Name)", spec, "service"
+            )
+        var.srv = str(spec["srv"])
+        call = spec.get("call")
+        if call not in SERVICE_CALLS:
+            raise error_at(
+                f"variable '{name}': call must be request or response",
+                spec,
+                "call" if "call" in spec else "service",
+                "request: the call was made (its fields); response: it came back",
+            )
+        var.call = str(call)
+        try:
+            var.msg = service_event_type(var.srv)
+        except UserError as e:
+            raise error_at(f"variable '{name}': {e.message}", spec, "srv", e.hint) from None
+        var.topic = service_topic(var.service)
+        if spec.get("field") is not None:
+            var.field = str(spec["field"])
+        elif not spec.get("event"):
+            raise error_at(
+                f"variable '{name}' reads no field of the {call}",
+                spec,
+                "service",
+                f"add field: (a field of {var.srv}'s {call}) or event: true",
+            )
+        elif spec.get("reduce") is not None:
+            raise error_at(f"variable '{name}': reduce needs a field:", spec, "reduce")
+        if not spec.get("event") and "initial" not in spec:
+            raise error_at(
+                f"variable '{name}' has no value before the first {call}: give it initial:",
+                spec,
+                "service",
+            )
+    elif source == "action":
+        var.action = str(spec["action"])
+        _absolute(var.action, spec, "action", name)
+        if spec.get("status") is None:
+            raise error_at(
+                f"variable '{name}' needs status: the goal states it watches",
+                spec,
+                "action",
+                "e.g. status: [accepted, executing], or status: aborted with event: true",
+            )
+        try:
+            var.statuses = goal_statuses(spec["status"])
+        except UserError as e:
+            raise error_at(f"variable '{name}': {e.message}", spec, "status", e.hint) from None
+        if var.type == "double":
+            raise error_at(
+                f"variable '{name}': goal states feed a bool (some goal is in them) or an "
+                "int64 (how many are), not a double",
+                spec,
+                "type",
+            )
+        var.topic, var.msg = action_status_topic(var.action), ACTION_STATUS_MSG
+        if var.type == "int64" and spec.get("event"):
+            raise error_at(f"variable '{name}': an event is bool", spec, "event")
+        if "initial" not in spec and not spec.get("event"):
+            var.initial = False if var.type == "bool" else 0  # no goal before the first status
+    else:  # age_of, rate_of: resolved against their input in _derived_sources
+        of = spec[source]
+        if not isinstance(of, str):
+            raise error_at(f"variable '{name}': {source} names an input variable", spec, source)
+        if var.type != "double":
+            unit = "milliseconds" if source == "age_of" else "messages per second"
+            raise error_at(
+                f"variable '{name}': {source} is in {unit}, a double, not {var.type}",
+                spec,
+                "type",
+            )
+        if source == "age_of":
+            var.age_of = of
+            if spec.get("stamp") is not None:
+                var.stamp = str(spec["stamp"])
+                _path(var.stamp, spec, "stamp", name)
+        else:
+            var.rate_of = of
+            window = number(spec, "window_ms", f"variable '{name}'", maximum=MAX_WINDOW_MS)
+            if window is not None:
+                var.window_ms = window
+    if var.field != "data" or "field" in spec:
+        _path(var.field, spec, "field", name)
+
+
+def _absolute(value: str, spec: LineDict, key: str, name: str) -> None:
+    if not value.startswith("/"):
+        raise error_at(
+            f"variable '{name}': {key} '{value}' must be absolute (start with '/')", spec, key
+        )
+
+
+def _path(text: str, spec: LineDict, key: str, name: str) -> None:
+    try:
+        parse_path(text)
+    except UserError as e:
+        raise error_at(f"variable '{name}': {e.message}", spec, key, e.hint) from None
+
+
+def _reduce_and_event(var: Variable, spec: LineDict) -> None:
+    name, vtype = var.name, var.type
+    reduce = spec.get("reduce")
+    if reduce is not None:
+        if var.define is not None:
+            raise error_at(
+                f"variable '{name}': reduce reads a topic's array field, not a define",
+                spec,
+                "reduce",
+            )
+        if reduce not in REDUCTIONS:
+            raise error_at(
+                f"variable '{name}': unknown reduce '{reduce}'",
+                spec,
+                "reduce",
+                "one of: " + ", ".join(REDUCTIONS),
+            )
+        if "field" not in spec and var.field == "data":
+            raise error_at(f"variable '{name}': reduce needs the array's field:", spec, "reduce")
+        var.reduce = str(reduce)
+    event = spec.get("event", False)
+    if not isinstance(event, bool):
+        raise error_at(f"variable '{name}': event must be true or false", spec, "event")
+    if not event:
+        return
+    if var.define is not None:
+        raise error_at(
+            f"variable '{name}': an event comes from a topic, not a define", spec, "event"
+        )
+    if vtype != "bool":
+        raise error_at(
+            f"variable '{name}': an event is bool (true at the tick its message "
+            f"arrived), not {vtype}",
+            spec,
+            "type",
+        )
+    for key in ("field", "initial", "reduce"):
+        if key in spec:
+            raise error_at(
+                f"variable '{name}': an event reads no {key} (its message's arrival is the value)",
+                spec,
+                key,
+            )
+    var.event = True
+
+
+def _derived_sources(variables: dict[str, Variable], file: str) -> None:
+    """An age or rate reads its input's topic: the same subscription."""
+    for var in variables.values():
+        of = var.age_of or var.rate_of
+        if of is None:
+            continue
+        key = "age_of" if var.age_of else "rate_of"
+        src = variables.get(of)
+        if src is None or src.topic is None:
+            hint = suggest(of, {n: v for n, v in variables.items() if v.topic})
+            raise UserError(
+                f"variable '{var.name}': {key} '{of}' is not an input variable with a topic",
+                file=file,
+                line=var.line,
+                hint=hint,
+            )
+        if src.age_of or src.rate_of:
+            raise UserError(
+                f"variable '{var.name}': {key} '{of}', which is itself an age or a rate",
+                file=file,
+                line=var.line,
+                hint=f"name the input '{of}' reads",
+            )
+        var.topic, var.msg, var.qos, var.depth = src.topic, src.msg, src.qos, src.depth

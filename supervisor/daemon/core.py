@@ -27,6 +27,8 @@ from supervisor.daemon.session import Session
 
 REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
 REJECT_REPORT_EVERY = 1000
+# The input events that may come with every message: counted, reported sparsely.
+_COUNTED = {"input_rejected": "rejected", "input_nan": "nan", "input_future_stamp": "future"}
 _NEVER = 1 << 63  # later than any deadline
 
 
@@ -258,8 +260,8 @@ class Core:
     def input_events(self, events: list[InputEvent]) -> None:
         rt = self.session.runtime
         for ev in events:
-            if ev.what in ("input_rejected", "input_nan"):
-                key = "rejected" if ev.what == "input_rejected" else "nan"
+            key = _COUNTED.get(ev.what)
+            if key is not None:
                 n = rt.input_stats()[ev.name][key]
                 if n > REJECT_REPORT_FIRST and n % REJECT_REPORT_EVERY:
                     continue  # a flood is counted, and reported every 1000th

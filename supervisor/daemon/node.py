@@ -56,10 +56,11 @@ from mitigations.actions import PublisherKey, build_action
 from mitigations.actions.base import Outcome
 from mitigations.actions.publish import PublishAction
 from mitigations.engine import Engine, Request
-from mitigations.rosmsg import message_class, read_value
+from mitigations.rosmsg import message_class
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
+from supervisor.daemon.clock import WallClock
 from supervisor.daemon.control import ControlServer, Refusals, ResetGate
 from supervisor.daemon.core import Core
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
@@ -69,6 +70,8 @@ from supervisor.daemon.qos import graph_type_name, matching_qos, qos_for
 from supervisor.daemon.runtime import Runtime
 from supervisor.daemon.session import Session
 from supervisor.daemon.status import StatusBoard
+from supervisor.inputs.paths import ReadError
+from supervisor.inputs.readers import SKIP, arrival_only, make_reader, plain_field
 from supervisor.names import (
     DIAGNOSTICS_TOPIC,
     HEARTBEAT_TOPIC,
@@ -113,6 +116,10 @@ class _Sub:
     # deserialise), and how many first messages still check that against rclpy.
     plans: list[Any] | None = None
     checks: int = 0
+    # How each variable reads a message (supervisor/inputs/readers.py), and which
+    # of them read a stamp (moved onto the loop's clock on receipt).
+    readers: list[Callable[[Any], Any]] = field(default_factory=list)
+    ages: list[bool] = field(default_factory=list)
 
 
 class SupervisorNode:
@@ -149,6 +156,7 @@ class SupervisorNode:
         self._retired: list[Any] = []  # subscriptions replaced by a QoS change
         self._unpublished: list[dict[str, Any]] = []  # violation records for the topic
         self._own = OwnWrites()  # what our mitigation publishers wrote
+        self._clock = WallClock()  # message stamps onto the loop's clock (age_of)
         self._lost_reported: dict[str, int] = {}  # per input: lost total last logged
         self._lost_at_diag: dict[str, int] = {}  # per input: lost total last on /diagnostics
 
@@ -245,6 +253,9 @@ class SupervisorNode:
             subs.append(by_key.setdefault(key, new))
         for s in old.values():
             self.node.destroy_subscription(s.sub)
+        for s in subs:
+            s.readers = [make_reader(v) for v in s.vars]
+            s.ages = [v.age_of is not None for v in s.vars]
         self._subs = subs
         if self.recorder is not None:
             index = {(t, m): i for i, (t, m) in enumerate(self.recorder.inputs)}
@@ -446,20 +457,31 @@ class SupervisorNode:
             if values is None:
                 msg = deserialize_message(data, s.msg_type)
         if values is None:
-            values = []
-            for v in s.vars:
-                if v.event:  # its message's arrival is the value
-                    values.append((v.name, True))
-                    continue
-                try:
-                    values.append((v.name, read_value(msg, v.field, v.reduce)))
-                except AttributeError as e:  # cannot happen after check; report
-                    self.core.reject(v.name, t, str(e))
+            values = self._read(s, msg, t)
         if values:
             self.core.fields(values, t)
         if self._unpublished:
             self._publish_reports()
         return True
+
+    def _read(self, s: _Sub, msg: Any, t: int) -> list[tuple[str, Any]]:
+        """Each variable's value in ``msg`` (those its message carries)."""
+        values = []
+        for v, read, age in zip(s.vars, s.readers, s.ages, strict=True):
+            try:
+                x = read(msg)
+            except (ReadError, AttributeError, TypeError, ValueError) as e:
+                self.core.reject(v.name, t, str(e))  # e.g. an element past the end
+                continue
+            if x is SKIP:
+                continue
+            if age:
+                x, step = self._clock.to_monotonic(x, t)
+                if step:
+                    warn(f"the wall clock stepped by {step / 1e6:+.1f} ms")
+                    self.log.supervisor("clock_jump", by_ms=round(step / 1e6, 3))
+            values.append((v.name, x))
+        return values
 
     def _read_raw(self, s: _Sub, data: bytes) -> list[tuple[str, Any]] | None:
         """The subscription's fields read from the serialized message where the CDR
@@ -471,7 +493,7 @@ class SupervisorNode:
             return None
         out = []
         for v, plan in zip(s.vars, s.plans, strict=True):
-            x = True if v.event else plan.read(data) if plan is not None else None
+            x = True if arrival_only(v) else plan.read(data) if plan is not None else None
             if x is None:
                 return None
             out.append((v.name, x))
@@ -479,11 +501,8 @@ class SupervisorNode:
             s.checks -= 1
             msg = deserialize_message(data, s.msg_type)
             try:
-                want = [
-                    (v.name, True if v.event else read_value(msg, v.field, v.reduce))
-                    for v in s.vars
-                ]
-            except AttributeError:
+                want = [(v.name, read(msg)) for v, read in zip(s.vars, s.readers, strict=True)]
+            except (ReadError, AttributeError, TypeError, ValueError):
                 return None
             if any(a != b and a == a for (_, a), (_, b) in zip(want, out, strict=True)):
                 s.plans = None
@@ -887,7 +906,9 @@ def _field_plans(subs: list[_Sub]) -> dict[int, list[Any]]:
             load_msg_types(store, msgtype)
         except (LookupError, OSError, ValueError):
             continue  # deserialised, as without recording
-        out[id(s)] = [field_plan(store, msgtype, v.field) for v in s.vars]
+        out[id(s)] = [
+            field_plan(store, msgtype, f) if (f := plain_field(v)) else None for v in s.vars
+        ]
     return out
 
 

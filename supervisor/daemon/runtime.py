@@ -27,6 +27,9 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
+# A stamp later than its receipt by more than this is said (input_future_stamp):
+# clocks synchronised by NTP or PTP agree far better.
+FUTURE_TOLERANCE_NS = 1_000_000
 
 
 class Monitor(Protocol):
@@ -44,6 +47,11 @@ class InputSpec:
     initial: Any = None
     stale_after_ns: int | None = None
     event: bool = False  # true at the step after its message, false otherwise
+    # value | event | age | rate (supervisor/inputs/readers.py): an age is fed its
+    # message's stamp and a rate each arrival; both are worked out at each step.
+    kind: str = "value"
+    sporadic: bool = False  # silence is normal: only its own stale_after_ns applies
+    window_ns: int = 1_000_000_000  # a rate's window
 
 
 @dataclass
@@ -67,7 +75,7 @@ class StepResult:
 class InputEvent:
     """Something the operator should know about an input (logged as `supervisor`)."""
 
-    what: str  # input_stale | input_recovered | input_rejected | input_nan
+    what: str  # input_stale | input_recovered | input_rejected | input_nan | input_future_stamp
     name: str
     t_ns: int
     detail: str = ""
@@ -84,14 +92,18 @@ class _Input:
     messages: int = 0
     rejected: int = 0
     nan: int = 0  # NaN doubles accepted (the formula decides; reported all the same)
+    future: int = 0  # stamps later than their receipt (an age's input)
     lost: int = 0  # skipped in the publishers' sequence numbers (supervisor.daemon.loss)
     own: int = 0  # the supervisor's own messages on this topic, never taken as input
+    stamp: int | None = None  # an age's latest message stamp, on the runtime's clock
+    arrivals: deque = field(default_factory=deque)  # a rate's receive times in its window
 
 
 def _limit(spec: InputSpec, default_after_ns: int | None) -> int | None:
     """An input's silence limit: its own, else the step's; an event (an estop that
-    is rarely pressed) only its own, as silence is its normal state."""
-    if spec.event:
+    is rarely pressed) and the other sporadic inputs only their own, as silence is
+    their normal state."""
+    if spec.event or spec.sporadic:
         return spec.stale_after_ns
     return spec.stale_after_ns or default_after_ns
 
@@ -135,6 +147,8 @@ class Runtime:
     recent: deque = field(default_factory=deque)
     _pending_since: int | None = None  # synchronized: first new message after the last step
     _next_periodic: int | None = None
+    _derived: list[_Input] = field(default_factory=list)  # ages and rates
+    _t0: int | None = None  # the first time seen: a rate is known a window after it
 
     def __post_init__(self) -> None:
         self._in = [_Input(s) for s in self.inputs]
@@ -145,6 +159,7 @@ class Runtime:
                 inp.value, inp.has_value = inp.spec.initial, True
             if inp.spec.event:  # false until its first message: never blocks stepping
                 inp.value, inp.has_value = False, True
+        self._derived = [i for i in self._in if i.spec.kind in ("age", "rate")]
         if self.policy == "on_trigger" and self.trigger not in self._index:
             raise ValueError(f"trigger '{self.trigger}' is not an input")
         if self.policy == "periodic" and not self.period_ns:
@@ -175,6 +190,7 @@ class Runtime:
                 "messages": i.messages,
                 "rejected": i.rejected,
                 "nan": i.nan,
+                "future": i.future,
                 "lost": i.lost,
                 "own": i.own,
                 "stale": i.stale,
@@ -202,6 +218,9 @@ class Runtime:
                 o.rejected,
             )
             inp.nan, inp.lost, inp.own = o.nan, o.lost, o.own
+            if o.spec.kind == inp.spec.kind:
+                inp.stamp, inp.arrivals = o.stamp, o.arrivals
+        self._t0 = old._t0
         self.recent.extend(old.recent)
 
     # ------------------------------------------------------------ feeding
@@ -219,8 +238,14 @@ class Runtime:
         ``t_ns``: every value is set, then the policy steps at most once."""
         events: list[InputEvent] = []
         accepted = []
+        if self._t0 is None:
+            self._t0 = t_ns
         for name, raw in values:
             inp = self._in[self._index[name]]
+            if inp.spec.kind in ("age", "rate"):
+                accepted.append(name)
+                self._arrived(inp, raw, t_ns, events)
+                continue
             # an event's value is its message's arrival
             value, why = (True, None) if inp.spec.event else coerce(raw, inp.spec.type)
             if why is not None:
@@ -251,6 +276,45 @@ class Runtime:
                 return self.step(t_ns), events
         return None, events
 
+    def _arrived(self, inp: _Input, raw: Any, t_ns: int, events: list[InputEvent]) -> None:
+        """An age's stamp or a rate's arrival: the value itself is worked out at
+        each step (:meth:`_derive`)."""
+        inp.last_ns, inp.fresh = t_ns, True
+        inp.messages += 1
+        if inp.spec.kind == "rate":
+            inp.arrivals.append(t_ns)
+            return
+        stamp = int(raw)
+        ahead = stamp - t_ns
+        if ahead > FUTURE_TOLERANCE_NS:  # the sender's clock is ahead of ours
+            inp.future += 1
+            events.append(
+                InputEvent(
+                    "input_future_stamp",
+                    inp.spec.name,
+                    t_ns,
+                    f"stamp {ahead / 1e6:.1f} ms after its receipt: the age is negative",
+                )
+            )
+        inp.stamp, inp.has_value = stamp, True
+        if inp.stale:
+            inp.stale = False
+            events.append(InputEvent("input_recovered", inp.spec.name, t_ns))
+
+    def _derive(self, t_ns: int) -> None:
+        """Ages and rates at ``t_ns``, the step's time."""
+        for inp in self._derived:
+            if inp.spec.kind == "age":
+                if inp.stamp is not None:
+                    inp.value = (t_ns - inp.stamp) / 1e6
+                continue
+            window = inp.spec.window_ns
+            arrivals = inp.arrivals
+            while arrivals and arrivals[0] <= t_ns - window:
+                arrivals.popleft()
+            if self._t0 is not None and t_ns - self._t0 >= window:
+                inp.value, inp.has_value = len(arrivals) * 1e9 / window, True
+
     def count_lost(self, name: str, n: int) -> None:
         """``n`` messages of input ``name`` never arrived (a sequence gap)."""
         self._in[self._index[name]].lost += n
@@ -270,6 +334,8 @@ class Runtime:
 
     def on_timer(self, t_ns: int) -> StepResult | None:
         """Called by the node's timer (and by replay between messages)."""
+        if self._t0 is None:
+            self._t0 = t_ns
         if self.policy == "periodic":
             if self._next_periodic is None:
                 self._next_periodic = t_ns
@@ -326,6 +392,8 @@ class Runtime:
 
     def step(self, t_ns: int) -> StepResult | None:
         """Evaluate all requirements once with the latest values."""
+        if self._derived:
+            self._derive(t_ns)
         if not self.ready:
             return None
         values = self.values()

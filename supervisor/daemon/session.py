@@ -15,6 +15,7 @@ from monitors.ir.formula import to_fret
 from monitors.ir.spec import Define, expand_defines
 from supervisor.config import Config
 from supervisor.daemon.runtime import InputSpec, Runtime
+from supervisor.inputs.readers import kind_of, sporadic
 from supervisor.pipeline import CompiledRequirement, Project
 
 
@@ -47,6 +48,9 @@ def build_runtime(project: Project, monitor: Any) -> Runtime:
             initial=v.initial,
             stale_after_ns=int(v.stale_after_ms * 1e6) if v.stale_after_ms else None,
             event=v.event,
+            kind=kind_of(v),
+            sporadic=sporadic(v),
+            window_ns=int(v.window_ms * 1e6),
         )
         for v in cfg.inputs
     ]

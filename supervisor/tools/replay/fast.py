@@ -35,8 +35,9 @@ def quiet(core: Core) -> bool:
         and not core.supervision.active
         and rt.ready
         and not rt.stale_inputs()
-        # an event is true for one step only: forward filling cannot say that
-        and not any(inp.spec.event for inp in rt._in)  # noqa: SLF001
+        # an event is true for one step only, an age or a rate changes with time
+        # alone: forward filling cannot say that
+        and not any(inp.spec.event or inp.spec.kind != "value" for inp in rt._in)  # noqa: SLF001
     )
 
 

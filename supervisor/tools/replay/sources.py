@@ -39,7 +39,7 @@ numpy; any other field is deserialised message by message.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,10 +49,12 @@ import yaml
 from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
-from mitigations.rosmsg import COMPATIBLE, read_value
+from mitigations.rosmsg import COMPATIBLE
 from monitors.errors import UserError
 from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
+from supervisor.inputs.paths import ReadError
+from supervisor.inputs.readers import SKIP, arrival_only, make_reader, plain_field
 from supervisor.names import VIOLATIONS_TOPIC
 from supervisor.tools.replay.mcap import Mcap
 from supervisor.tools.replay.sqlite import Sqlite
@@ -112,6 +114,8 @@ class _TopicReader:
     # the variable's type cannot hold (a uint64 above 2^63-1) reaches the runtime as
     # it is and is rejected there, as the daemon rejects it.
     dtypes: list[Any] = field(default_factory=list)
+    # Per variable, how a deserialised message is read (supervisor/inputs/readers.py).
+    readers: list[Callable[[Any], Any]] = field(default_factory=list)
 
 
 # --- rosbag2 directories --------------------------------------------------------------
@@ -256,10 +260,11 @@ class Recording:
             plans: list[FieldPlan | None] = []
             dtypes: list[Any] = []
             for v in variables:
-                if isinstance(src, Trace) or v.event or v.reduce:
-                    # an event reads no field; a reduction reads each message whole
+                if isinstance(src, Trace) or plain_field(v) is None:
+                    # an event reads no field; a reduction, an element, a stamp or
+                    # a service call's field reads each message whole
                     plans.append(None)
-                    dtypes.append(DTYPES[v.type])
+                    dtypes.append(np.int64 if v.age_of else DTYPES[v.type])
                     continue
                 try:
                     leaf = _leaf_type(src.store, msgtype, v.field)
@@ -276,7 +281,10 @@ class Recording:
                     )
                 plans.append(field_plan(src.store, msgtype, v.field))
                 dtypes.append(_column_dtype(leaf, v.type))
-            out[tid] = _TopicReader(topic, msgtype, variables, plans, dtypes=dtypes)
+            readers = [] if isinstance(src, Trace) else [make_reader(v) for v in variables]
+            out[tid] = _TopicReader(
+                topic, msgtype, variables, plans, dtypes=dtypes, readers=readers
+            )
         return out
 
     def _decode(
@@ -325,9 +333,10 @@ class Recording:
                         fail(i, rd.topic, str(e))
                         break
                 continue
-            slow: list[Variable] = []
+            slow: list[tuple[Variable, Callable[[Any], Any]]] = []
             for j, (v, plan) in enumerate(zip(rd.variables, rd.plans, strict=True)):
-                if v.event:  # true on every message of its topic: its arrival
+                if arrival_only(v):
+                    # true on every message of its topic: its arrival is the value
                     col = np.zeros(n, dtype=np.bool_)
                     col[rows] = True
                     values[v.name] = col
@@ -341,7 +350,7 @@ class Recording:
                     rd.plans[j] = None  # the layout guess is wrong for this data
                     got = None
                 if got is None:
-                    slow.append(v)
+                    slow.append((v, rd.readers[j]))
                     continue
                 col = np.zeros(n, dtype=rd.dtypes[j])
                 col[rows] = got != 0 if col.dtype == np.bool_ else got
@@ -349,18 +358,29 @@ class Recording:
             if slow:
                 # One deserialisation per message for all of the topic's other fields.
                 dtype_of = dict(zip((v.name for v in rd.variables), rd.dtypes, strict=True))
-                cols = {v.name: np.zeros(n, dtype=dtype_of[v.name]) for v in slow}
+                cols = {v.name: np.zeros(n, dtype=dtype_of[v.name]) for v, _ in slow}
+                # A message may carry no value for a variable (a service event of the
+                # other direction, an element past the end): not given on its row.
+                has = {v.name: np.ones(n, dtype=np.bool_) for v, _ in slow}
                 for i in rows.tolist():
                     if i >= bad:
                         break
                     try:
                         msg = src.store.deserialize_cdr(raw.payload(i), rd.msgtype)
-                        for v in slow:
-                            cols[v.name][i] = read_value(msg, v.field, v.reduce)
                     except Exception as e:  # noqa: BLE001 - any failure here is the data's
                         fail(i, rd.topic, f"does not decode as {rd.msgtype} ({e})")
                         break
+                    for v, read in slow:
+                        try:
+                            x = read(msg)
+                        except (ReadError, AttributeError, TypeError, ValueError):
+                            x = SKIP
+                        if x is SKIP:
+                            has[v.name][i] = False
+                        else:
+                            cols[v.name][i] = x
                 values.update(cols)
+                given.update({k: m for k, m in has.items() if not m[rows].all()})
         batch = Batch(
             raw.t_ns[:bad],
             top[:bad],
