@@ -333,3 +333,23 @@ def test_inject_all_into_a_running_supervisor(tmp_path: Path, srobot: Any) -> No
         print(f"daemon ready in {ready:.1f} s; inject --all took {took:.1f} s")
     finally:
         daemon.close()
+
+
+def test_a_variable_made_of_a_whole_message_is_refused_with_its_line(tmp_path: Path) -> None:
+    # a reduction has no one field inject could set: refused, never half-driven
+    cfg = tmp_path / "scan.yaml"
+    cfg.write_text(
+        "component: base\n"
+        "step: {policy: periodic, period_ms: 20}\n"
+        "variables:\n"
+        "  speed: {type: double, topic: /odom, msg: nav_msgs/msg/Odometry, field: twist.twist.linear.x}\n"
+        "  obstacle: {type: double, topic: /scan, msg: sensor_msgs/msg/LaserScan, field: ranges, reduce: min}\n"
+        "requirements:\n"
+        "  - id: slow\n"
+        "    text: base shall always satisfy (obstacle < 0.5 => speed <= 0.3)\n"
+    )
+    p = run(str(cfg), "slow", "--dry-run")
+    assert p.returncode == 1
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1, p.stderr
+    assert f"{cfg}:5: variable 'obstacle'" in err[0] and "reduce: min" in err[0]

@@ -9,6 +9,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from supervisor.inputs.readers import kind_of, plain_field
 from supervisor.tools.inject.errors import InjectError
 
 
@@ -34,6 +35,14 @@ def topics_of(cfg: Any) -> list[Topic]:
     """The topics to publish, in config order with the trigger's topic last."""
     out: dict[str, Topic] = {}
     for v in cfg.inputs:
+        if plain_field(v) is None:
+            # a value made of a whole message (an array, a stamp, a call) has no one
+            # field to set: inject writes traces of plain fields (docs/reference/commands.md)
+            raise InjectError(
+                f"{cfg.path}:{v.line}: variable '{v.name}' is a {kind_of(v)} read "
+                f"{'through reduce: ' + str(v.reduce) if v.reduce else 'of a whole message'}"
+                "; inject publishes one field per variable, so it cannot drive this config"
+            )
         t = out.get(v.topic)
         if t is None:
             t = out[v.topic] = Topic(v.topic, v.msg, [])
