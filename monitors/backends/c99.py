@@ -252,6 +252,7 @@ class _Gen:
         self.n = 0
         self.env: dict[str, str] = {}  # formula variable -> type
         self.names: dict[str, str] = {}  # formula variable -> C expression
+        self.define_decls: list[str] = []  # file-scope values of the defines
         self._check_names()
 
     # ------------------------------------------------------------ names
@@ -630,7 +631,9 @@ def _requirements(spec: MonitorSpec) -> tuple[_Gen, list[str], list[Formula], li
     top: list[str] = []
     for d in defines:
         e, t = gen.formula(d.expr, None, top)
-        top.append(f"const {C_TYPES[t]} {c_name(d.name)} = {e};")
+        # file scope: each requirement's own function reads it (see generate)
+        gen.define_decls.append(f"static {C_TYPES[t]} {c_name(d.name)};")
+        top.append(f"{c_name(d.name)} = {e};")
         gen.env[d.name], gen.names[d.name] = t, c_name(d.name)
     reqs: list[_Req] = []
     for i, (r, f) in enumerate(zip(spec.requirements, formulas, strict=True)):
@@ -682,13 +685,20 @@ def generate(spec: MonitorSpec) -> tuple[str, str]:
         inits = ", ".join(f".{m} = {v}" for m, v in req.inits)
         c.append(f"}} {req.struct} = {{ {inits} }};" if inits else f"}} {req.struct};")
         c.append("")
+    if gen.define_decls:
+        c += ["/* the defines' values at this tick */", *gen.define_decls, ""]
+    # One function per requirement, called in order by the step: the compiler's
+    # optimiser then works on many small functions instead of one of the whole set's
+    # size, which keeps compile time linear in the number of requirements
+    # (docs/BENCHMARKS.md, "Scaling").
+    for (r, req), f in zip(reqs, formulas, strict=True):
+        c.append(f"/* {_comment(r.id)}: {_comment(to_fret(f))} */")
+        c += [f"static void {_step_of(req)}(void)", "{"]
+        c += [f"    {s}" for s in req.body]
+        c += ["}", ""]
     c += [f"void {spec.step_name}(void)", "{"]
     c += [f"    {s}" for s in top]
-    for (r, req), f in zip(reqs, formulas, strict=True):
-        c.append(f"    /* {_comment(r.id)}: {_comment(to_fret(f))} */")
-        c.append("    {")
-        c += [f"        {s}" for s in req.body]
-        c.append("    }")
+    c += [f"    {_step_of(req)}();" for _, req in reqs]
     c += ["}", ""]
     for r, req in reqs:
         c += [f"void {reset_each_name(spec, r)}(void)", "{"]
@@ -698,6 +708,10 @@ def generate(spec: MonitorSpec) -> tuple[str, str]:
     c += [f"    {reset_each_name(spec, r)}();" for r in spec.requirements]
     c += ["}", ""]
     return "\n".join(c), h
+
+
+def _step_of(req: _Req) -> str:
+    return f"ss__step_r{req.index}"
 
 
 def _header(spec: MonitorSpec) -> str:
