@@ -183,3 +183,44 @@ def test_bench_text_and_errors(tmp_path: Path) -> None:
 
     p = _bench("--rates", "fast", timeout=60)
     assert p.returncode == 2
+
+
+@pytest.mark.slow  # two daemon runs (two monitor builds)
+def test_bench_quick_scan(tmp_path: Path) -> None:
+    """``bench --quick --scan``: the LaserScan beside the stream, in bench.json and
+    bench.md: the daemon without and with the scan, and the reduction per scan."""
+    out = tmp_path / "out"
+    p = _bench("--quick", "--scan", "--skip-throughput", "--skip-latency", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    assert "LaserScan beside the stream" in p.stdout
+    r = json.loads((out / "bench.json").read_text())
+    assert "throughput" not in r and "latency" not in r
+    sc = r["scan"]
+    assert (sc["offered"], sc["seconds"], sc["hz"], sc["readings"]) == (10000, 2.0, 40, 1440)
+    for label in ("off", "on"):
+        side = sc[label]
+        assert 0 < side["received"] <= side["sent"], (label, side)
+        assert side["lost"] == side["sent"] - side["received"], label
+        assert 0.0 <= side["loss_pct"] <= 100.0, label
+        assert isinstance(side["loss_agree"], bool), label
+        for k in ("cpu_s", "cpu_us_per_msg", "cpu_us_per_msg_to_exit"):
+            assert _number(side[k]) and side[k] > 0, (label, k, side)
+        assert side["waitset"]["received"] <= side["sent"], label
+    off, on = sc["off"], sc["on"]
+    assert off["scans_sent"] == off["scans_received"] == 0
+    assert off["violations"] == 0  # the published state is nominal
+    # 40 Hz for about 2 s, every scan counted in sent; the baseline takes them too
+    assert 0 < on["scans_received"] <= on["scans_sent"] and 40 <= on["scans_sent"] <= 200
+    assert on["stream_received"] + on["scans_received"] == on["received"]
+    for k in ("cpu_diff_pct", "loss_pct_diff", "cpu_us_per_scan_added"):
+        assert _number(sc[k]), (k, sc[k])
+
+    red = sc["reduction"]
+    assert (red["scans"], red["readings"], red["obstacle"]) == (5000, 1440, 1.25)
+    assert red["cdr_bytes"] > 4 * 1440
+    for k in ("reduce_built_us", "reduce_deserialised_us", "deserialise_us", "age_reader_us"):
+        assert red[k]["n"] == 5000, k
+        _percentiles_sane(red[k])
+    md = (out / "bench.md").read_text()
+    assert "## LaserScan beside the stream" in md and "reduce: min, deserialised message" in md

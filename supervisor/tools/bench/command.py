@@ -32,6 +32,10 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    ``ui`` and open event streams, and with the UI killed and restarted halfway.
 4. Replay throughput (:mod:`~supervisor.tools.bench.replay`): generated bags
    replayed in this process, messages/s per case, and the monitor's ticks/s.
+5. With ``--scan`` (:mod:`~supervisor.tools.bench.scan`): a 1,440-reading LaserScan
+   at 40 Hz beside the stream, reduced (``reduce: min``) and aged (``age_of``) by the
+   daemon: its CPU per message and loss without and with it at ``--scan-rate``, and
+   the reduction's own cost per scan, timed in this process.
 
 ``--quick`` runs every part short; ``--out DIR`` also writes ``bench.json`` and
 ``bench.md`` (docs/reference/commands.md#bench).
@@ -70,6 +74,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "ui_rates": "20000",
         "ui_seconds": 10.0,
         "replay_messages": 1_000_000,
+        "scan_reductions": 20_000,
     },
     "quick": {
         "rates": "5000,20000",
@@ -79,6 +84,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "ui_rates": "20000",
         "ui_seconds": 8.0,
         "replay_messages": 200_000,
+        "scan_reductions": 5_000,
     },
 }
 
@@ -187,6 +193,25 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="messages per replayed bag (default 1000000; --quick 200000)",
+    )
+    p.add_argument(
+        "--scan",
+        action="store_true",
+        help="also a 1,440-reading LaserScan at 40 Hz beside the stream, reduced and aged",
+    )
+    p.add_argument(
+        "--scan-rate",
+        type=_positive(float),
+        default=10_000.0,
+        metavar="R",
+        help="offered msg/s of the stream beside the scan (default 10000)",
+    )
+    p.add_argument(
+        "--scan-reductions",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="scans reduced in this process to time it (default 20000; --quick 5000)",
     )
     p.add_argument(
         "--quick", action="store_true", help="every experiment, short (a couple of minutes)"

@@ -15,6 +15,7 @@ from supervisor.tools.bench.latency import latency
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.recording import recording_overhead
 from supervisor.tools.bench.replay import replay_bench
+from supervisor.tools.bench.scan import scan_bench
 from supervisor.tools.bench.session import session
 from supervisor.tools.bench.throughput import throughput
 from supervisor.tools.bench.ui import ui_load
@@ -68,6 +69,16 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                 )
                 for rate in args.ui_rates
             ]
+        if args.scan:
+            results["scan"] = scan_bench(
+                s,
+                plan,
+                args.scan_rate,
+                args.seconds,
+                args.scan_reductions,
+                say,
+                wd_usec=args.watchdog_usec,
+            )
         if not args.skip_latency:
             results["latency"] = latency(s, plan, args.latency_trials, say)
         if not args.skip_replay:

@@ -54,6 +54,7 @@ class Plan:
         ]
         self.nominal = {v.name: _nominal(v) for v in inputs}
         self.daemon_node = cfg.ros.node_name
+        self.scan: dict[str, Any] | None = None  # a LaserScan stream beside (ScanPlan)
 
     def latency_problem(self) -> str | None:
         """Why this config cannot run the latency experiment, or None."""
@@ -110,8 +111,91 @@ class Plan:
                 reqs.append(entry)
             entry["on_violation"] = [HALT_MITIGATION]
             entry["policy"] = {"debounce_steps": 1, "reset": "after_mitigation"}
+        self._extend(doc)
         out.write_text(yaml.safe_dump(doc, sort_keys=False))
         return out
+
+    def _extend(self, doc: dict[str, Any]) -> None:
+        """What a derived plan adds to the daemon's config (ScanPlan: the scan)."""
+
+
+# The LaserScan beside the sRobot stream (``bench --scan``): a 1,440-reading scan
+# (a 0.25 degree lidar) at 40 Hz, some readings NaN or infinite, header.stamp set
+# at each publication; the daemon reduces its ranges (REP 117) and ages its stamp.
+SCAN_TOPIC = "/bench/scan"
+SCAN_MSG = "sensor_msgs/msg/LaserScan"
+SCAN_HZ = 40.0
+SCAN_READINGS = 1440
+SCAN_RANGE = (0.05, 30.0)  # range_min, range_max
+SCAN_CLOSEST = 1.25  # the smallest reading within range: the obstacle the daemon sees
+SCAN_REQUIREMENT = "bench_scan_clear"
+
+
+def scan_ranges(n: int = SCAN_READINGS) -> list[float]:
+    """``n`` readings: every 17th NaN, every 29th +inf, every 53rd below range_min,
+    every 61st above range_max (none of these a reading), the rest between
+    SCAN_CLOSEST and 10 m (the smallest exactly SCAN_CLOSEST)."""
+    out = []
+    for i in range(n):
+        if i % 17 == 5:
+            out.append(float("nan"))
+        elif i % 29 == 7:
+            out.append(float("inf"))
+        elif i % 53 == 11:
+            out.append(SCAN_RANGE[0] / 2)
+        elif i % 61 == 13:
+            out.append(SCAN_RANGE[1] * 2)
+        else:
+            out.append(SCAN_CLOSEST + (i * 37 % 1000) / 1000 * (10.0 - SCAN_CLOSEST))
+    return out
+
+
+class ScanPlan(Plan):
+    """The plan, with a LaserScan topic published beside its stream and two more
+    variables and one requirement in the daemon's config: ``obstacle`` (``reduce:
+    min`` over ``ranges``), ``scan_age_ms`` (``age_of: obstacle``), and
+    ``SCAN_REQUIREMENT``: always obstacle > 0.5 & scan_age_ms < 1000, an assumption
+    (inputs only) that the nominal scan satisfies, logged when violated."""
+
+    def __init__(self, config: Path, hz: float = SCAN_HZ, readings: int = SCAN_READINGS) -> None:
+        super().__init__(config)
+        for name in ("obstacle", "scan_age_ms"):
+            if name in self.cfg.variables:
+                raise BenchError(f"{config}: has a variable '{name}' already (the scan's)")
+        self.scan = {
+            "name": "obstacle",
+            "topic": SCAN_TOPIC,
+            "msg": SCAN_MSG,
+            "field": "ranges",
+            "hz": hz,
+            "readings": readings,
+            "range_min": SCAN_RANGE[0],
+            "range_max": SCAN_RANGE[1],
+        }
+
+    def _extend(self, doc: dict[str, Any]) -> None:
+        variables = doc.setdefault("variables", {})
+        variables["obstacle"] = {
+            "type": "double",
+            "topic": SCAN_TOPIC,
+            "msg": SCAN_MSG,
+            "field": "ranges",
+            "reduce": "min",
+            "qos": "reliable",
+            "depth": DEPTH,
+        }
+        variables["scan_age_ms"] = {"type": "double", "age_of": "obstacle"}
+        doc.setdefault("requirements", []).append(
+            {
+                "id": SCAN_REQUIREMENT,
+                "text": f"{self.cfg.component} shall always satisfy "
+                "obstacle > 0.5 & scan_age_ms < 1000",
+                "assumption": True,  # on inputs alone: no output can make it true
+                "on_violation": [SCAN_REQUIREMENT],
+            }
+        )
+        mitigations = doc.setdefault("mitigations", {})
+        mitigations[SCAN_REQUIREMENT] = {"log": {"message": "obstacle near or scan old"}}
 
 
 def _nominal(v: Any) -> Any:

@@ -47,6 +47,7 @@ def parser() -> argparse.ArgumentParser:
     pub.add_argument("--diagnostics", action="store_true")
     pub.add_argument("--daemon-node", default=NODE_NAME)
     pub.add_argument("--burst", type=int, default=0, help="rounds per burst (0: even pacing)")
+    pub.add_argument("--scan", default=None, help="JSON: a LaserScan beside (plan.ScanPlan.scan)")
     for role in ("echo", "driver"):
         r = sub.choices[role]
         r.add_argument("--sync-service", default=RESET_SERVICE)

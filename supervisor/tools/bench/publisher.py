@@ -4,11 +4,16 @@ receiver matched; then it relays the daemon's per-input counts from /diagnostics
 
 With ``--burst N`` it sends N rounds back to back, as fast as it can, then waits
 so that the average is the offered rate: the thesis's controller publishes its 7
-topics as one burst per cycle (N = 1), a robot catching up sends many cycles at once."""
+topics as one burst per cycle (N = 1), a robot catching up sends many cycles at once.
+
+With ``--scan JSON`` (``bench --scan``) it also publishes a LaserScan at its own rate
+between those slots, header.stamp set to the wall clock at each publication, counted
+in ``sent`` under the scan's variable name."""
 
 from __future__ import annotations
 
 import argparse
+import json
 import select
 import sys
 import time
@@ -49,10 +54,49 @@ def _read_go(timeout: float) -> bool:
     return False
 
 
+def scan_message(spec: dict[str, Any]) -> Any:
+    """The LaserScan of ``bench --scan`` (plan.ScanPlan.scan), built by rclpy; its
+    stamp is zero (set at publication)."""
+    from array import array
+
+    from mitigations.rosmsg import message_class
+    from supervisor.tools.bench.plan import scan_ranges
+
+    msg = message_class(spec["msg"])()
+    msg.header.frame_id = "laser"
+    n = int(spec["readings"])
+    msg.angle_min, msg.angle_max = -3.14159265, 3.14159265
+    msg.angle_increment = (msg.angle_max - msg.angle_min) / n
+    msg.range_min, msg.range_max = float(spec["range_min"]), float(spec["range_max"])
+    msg.ranges = array("f", scan_ranges(n))
+    return msg
+
+
+class ScanStream:
+    """The LaserScan of ``bench --scan``: one message built once, its stamp renewed
+    at each publication."""
+
+    def __init__(self, node: Any, spec: dict[str, Any]) -> None:
+        self.msg = scan_message(spec)
+        self.name = spec["name"]
+        self.topic = spec["topic"]
+        self.period_ns = 1e9 / float(spec["hz"])
+        self.pub = node.create_publisher(type(self.msg), spec["topic"], reliable())
+        self.sent = 0
+
+    def publish(self) -> None:
+        ns = time.time_ns()
+        stamp = self.msg.header.stamp
+        stamp.sec, stamp.nanosec = ns // 1_000_000_000, ns % 1_000_000_000
+        self.pub.publish(self.msg)
+        self.sent += 1
+
+
 def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[str, Any]) -> None:
     with ros_node(args.node_name) as node:
         pubs = [node.create_publisher(t.klass, t.topic, reliable()) for t in topics]
         msgs = [t.message(values[t.name]) for t in topics]
+        scan = ScanStream(node, json.loads(args.scan)) if args.scan else None
         diag: list[Any] = []
         if args.diagnostics:
             from diagnostic_msgs.msg import DiagnosticArray
@@ -63,10 +107,13 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
             )
             diag = [(diag_sub, DiagnosticArray)]
         emit(event="started")
-        if not _wait_matched(pubs, args.receivers, args.match_timeout):
+        every = pubs + ([scan.pub] if scan is not None else [])
+        if not _wait_matched(every, args.receivers, args.match_timeout):
             counts = {
                 t.topic: p.get_subscription_count() for t, p in zip(topics, pubs, strict=True)
             }
+            if scan is not None:
+                counts[scan.topic] = scan.pub.get_subscription_count()
             emit(event="error", error=f"receivers not discovered: subscriptions {counts}")
             return
         emit(event="matched")
@@ -82,12 +129,19 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
         perf = time.perf_counter_ns
         sleep = time.sleep
         t0 = perf()
+        # The scan's next slot (never without one): between the stream's slots.
+        scan_due = t0 if scan is not None else float("inf")
         i = 0
         while i < total:
             now = perf()
+            if now >= scan_due:
+                assert scan is not None
+                scan.publish()
+                scan_due = t0 + int(scan.sent * scan.period_ns)
+                continue
             due = t0 + int((i // chunk) * chunk * period)
             if due > now:
-                left = due - now
+                left = min(due, scan_due) - now
                 if left > SPIN_BELOW_NS:
                     sleep((left - SPIN_BELOW_NS) / 1e9)
                 continue
@@ -99,16 +153,19 @@ def run_publisher(args: argparse.Namespace, topics: list[Topic], values: dict[st
                 break
         elapsed = (perf() - t0) / 1e9
         sent = {t.name: i // k + (1 if j < i % k else 0) for j, t in enumerate(topics)}
+        if scan is not None:
+            sent[scan.name] = scan.sent
         emit(event="done", sent=sent, seconds=elapsed, achieved=i / elapsed, wall=time.time())
         if diag:
-            _relay_diagnostics(node, diag, args.daemon_node, topics)
+            names = [t.name for t in topics] + ([scan.name] if scan is not None else [])
+            _relay_diagnostics(node, diag, args.daemon_node, names)
 
 
-def _relay_diagnostics(node: Any, diag: list[Any], daemon: str, topics: list[Topic]) -> None:
+def _relay_diagnostics(node: Any, diag: list[Any], daemon: str, inputs: list[str]) -> None:
     """Emit the daemon's per-input counts from each /diagnostics report: messages
     taken (accepted or rejected) and counted lost."""
     loop = WaitLoop(node, diag)
-    names = {f"{daemon}: input {t.name}": t.name for t in topics}
+    names = {f"{daemon}: input {name}": name for name in inputs}
     try:
         while not stop_requested.is_set():
             if not loop.wait(100_000_000):

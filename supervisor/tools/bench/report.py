@@ -25,6 +25,8 @@ def format_results(r: dict[str, Any]) -> str:
         lines += ["", *_format_recording(r["recording"])]
     if "ui" in r:
         lines += ["", *_format_ui(r["ui"])]
+    if "scan" in r:
+        lines += ["", *_format_scan(r["scan"])]
     if "latency" in r:
         lines += ["", *_format_latency(r["latency"])]
     if "replay" in r:
@@ -54,6 +56,53 @@ def _format_recording(rows: list[dict[str, Any]]) -> list[str]:
             f"  CPU per message with recording: {_f(diff, '+.1f')} % during the run, "
             f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')} % up to exit; goal within "
             f"{row['goal_pct']:g} %{verdict}"
+        )
+    return lines
+
+
+def _scan_rows(sc: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    return [("without the scan", sc["off"]), ("with the scan", sc["on"])]
+
+
+def _reduction_rows(sc: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    red = sc["reduction"]
+    return [
+        ("reduce: min, message built by rclpy", red["reduce_built_us"]),
+        ("reduce: min, deserialised message", red["reduce_deserialised_us"]),
+        (f"deserialise_message ({red['cdr_bytes']} bytes)", red["deserialise_us"]),
+        ("age_of reader (header.stamp)", red["age_reader_us"]),
+    ]
+
+
+def _format_scan(sc: dict[str, Any]) -> list[str]:
+    red = sc["reduction"]
+    lines = [
+        f"LaserScan beside the stream: {sc['readings']} readings at {sc['hz']:g} Hz on "
+        f"{sc['topic']}, obstacle = reduce: min over ranges, scan_age_ms = age_of obstacle, "
+        f"one requirement on both; the stream at {sc['offered']:g} msg/s for {sc['seconds']:g} s",
+        f"  {'daemon':<18} {'sent':>8} {'received':>8} {'lost':>6} {'loss %':>7} "
+        f"{'scans sent/taken':>16} {'CPU us/msg':>10} {'to exit':>8} {'violations':>10}",
+    ]
+    for label, side in _scan_rows(sc):
+        scans = f"{side['scans_sent']}/{side['scans_received']}"
+        lines.append(
+            f"  {label:<18} {side['sent']:>8} {side['received']:>8} {side['lost']:>6} "
+            f"{side['loss_pct']:>7.2f} {scans:>16} {_f(side['cpu_us_per_msg'], '.1f'):>10} "
+            f"{_f(side['cpu_us_per_msg_to_exit'], '.1f'):>8} {_f(side['violations'], 'g'):>10}"
+        )
+    lines.append(
+        f"  CPU per message with the scan: {_f(sc['cpu_diff_pct'], '+.1f')} %, loss "
+        f"{sc['loss_pct_diff']:+.2f} points; CPU added per scan taken "
+        f"{_f(sc['cpu_us_per_scan_added'], '.0f')} us (one run each)"
+    )
+    lines.append(
+        f"  in this process, {red['scans']} scans ({red['readings']} readings, "
+        f"min {red['obstacle']:g}):"
+    )
+    for label, st in _reduction_rows(sc):
+        lines.append(
+            f"    {label:<40} p50 {st['p50']:>7.2f} us  p99 {st['p99']:>7.2f} us  "
+            f"mean {st['mean']:>7.2f} us"
         )
     return lines
 
@@ -254,6 +303,39 @@ def format_markdown(r: dict[str, Any]) -> str:
                 )
             out += ["", _restart_text(row["cases"][2]["ui"]).strip()]
             out += [f"\n{line.strip()}" for line in _chromium_text(row)]
+    if "scan" in r:
+        sc = r["scan"]
+        out += [
+            "",
+            f"## LaserScan beside the stream ({sc['readings']} readings at {sc['hz']:g} Hz, "
+            f"reduce: min and age_of; {sc['offered']:g} msg/s, {sc['seconds']:g} s)",
+            "",
+            "| daemon | sent | received | lost | loss % | scans sent | scans taken "
+            "| CPU us/msg | CPU us/msg to exit | violations |",
+            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for label, side in _scan_rows(sc):
+            out.append(
+                f"| {label} | {side['sent']} | {side['received']} | {side['lost']} "
+                f"| {side['loss_pct']:.2f} | {side['scans_sent']} | {side['scans_received']} "
+                f"| {_f(side['cpu_us_per_msg'], '.1f')} "
+                f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {side['violations']} |"
+            )
+        out += [
+            "",
+            f"CPU per message with the scan {_f(sc['cpu_diff_pct'], '+.1f')} %, loss "
+            f"{sc['loss_pct_diff']:+.2f} points, CPU added per scan taken "
+            f"{_f(sc['cpu_us_per_scan_added'], '.0f')} us (one run each).",
+            "",
+            f"| in this process, {sc['reduction']['scans']} scans | p50 us | p90 us | p99 us "
+            "| max us | mean us |",
+            "| --- | ---: | ---: | ---: | ---: | ---: |",
+        ]
+        for label, st in _reduction_rows(sc):
+            out.append(
+                f"| {label} | {st['p50']:.2f} | {st['p90']:.2f} | {st['p99']:.2f} "
+                f"| {st['max']:.2f} | {st['mean']:.2f} |"
+            )
     if "latency" in r:
         lat = r["latency"]
         out += [

@@ -37,15 +37,19 @@ def throughput(
     work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
+    # The baselines take the scan too (bench --scan), as the daemon does.
+    scan = plan.scan
+    keys = ("name", "topic", "msg", "field")
+    everything = json.dumps([*plan.topics, {k: scan[k] for k in keys}]) if scan else spec
     record_dir = work / "record"
     extra = ("--record", str(record_dir)) if record else ()
     daemon = s.daemon(config, work, wd_usec, extra)
     baselines = {
-        "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", spec, workdir=work)
+        "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", everything, workdir=work)
     }
     if naive:
         baselines["rclpy executor"] = s.child(
-            "rclpy executor", "executor", "--spec", spec, workdir=work
+            "rclpy executor", "executor", "--spec", everything, workdir=work
         )
     pub = s.child(
         "publisher",
@@ -65,6 +69,7 @@ def throughput(
         plan.daemon_node,
         "--burst",
         str(burst),
+        *(("--scan", json.dumps(scan)) if scan else ()),
         workdir=work,
     )
     everyone = (daemon, pub, *baselines.values())
