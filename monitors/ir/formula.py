@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from lark import Lark, Token, Transformer, Tree
 
@@ -66,6 +66,23 @@ class Formula:
         return to_fret(self)
 
 
+def _cached_hash(cls: type) -> type:
+    """Keep a node's hash once computed: hashing a frozen node hashes its whole
+    subtree, and every stage puts nodes in dicts (``subterms``), which made large
+    requirement sets quadratic (docs/BENCHMARKS.md, "Scaling")."""
+    compute = cls.__hash__
+
+    def __hash__(self: Any) -> int:
+        h = self._h
+        if h is None:
+            h = compute(self)
+            object.__setattr__(self, "_h", h)
+        return h
+
+    cls.__hash__ = __hash__  # type: ignore[method-assign,assignment]
+    return cls
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Const(Formula):
     value: bool | int | float
@@ -86,29 +103,36 @@ class Const(Formula):
         return hash((Const, type(self.value), self.value))
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Var(Formula):
     name: str
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Not(Formula):
     arg: Formula
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.arg,)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Neg(Formula):
     """Arithmetic negation."""
 
     arg: Formula
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.arg,)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class BinOp(Formula):
     """Boolean connective, relation or arithmetic operator (see *_OPS)."""
@@ -116,11 +140,13 @@ class BinOp(Formula):
     op: str
     left: Formula
     right: Formula
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Call(Formula):
     """A function applied to its arguments: an arithmetic function (a key of
@@ -129,11 +155,13 @@ class Call(Formula):
 
     name: str
     args: tuple[Formula, ...]
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return self.args
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Past(Formula):
     """Unary temporal operator.
@@ -146,11 +174,13 @@ class Past(Formula):
     arg: Formula
     lo: int | None = None
     hi: int | None = None
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.arg,)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Since(Formula):
     """``left S[lo,hi] right`` (op 'S') or its dual trigger ``left T right`` (op 'T')."""
@@ -160,11 +190,13 @@ class Since(Formula):
     right: Formula
     lo: int | None = None
     hi: int | None = None
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.left, self.right)
 
 
+@_cached_hash
 @dataclass(frozen=True, slots=True)
 class Pre(Formula):
     """FRET's ``preInt(init, x)`` / ``preReal(init, x)`` (name): x's value at the
@@ -173,6 +205,7 @@ class Pre(Formula):
     name: str  # a key of PRE_FUNCTIONS
     init: Formula
     arg: Formula
+    _h: int | None = field(default=None, init=False, repr=False, compare=False)
 
     def children(self) -> tuple[Formula, ...]:
         return (self.init, self.arg)
