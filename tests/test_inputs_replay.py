@@ -161,23 +161,24 @@ END = 3005  # the last message: ticks at +0, +100, ... +3000
 
 # Worked out by hand.  The grid is +0, +100, ...; a tick sees the messages received
 # before it.  Every input has a value from +10 (the first scan), but the rate is known
-# only a whole window (500 ms) after the start: tick 0 is at +500, tick n at +500+100n.
+# only a whole window (500 ms) after its first scan (+10): tick 0 is at +600, tick n at
+# +600+100n.
 # - fresh_scan (age >= 250 ms): the frozen stamp (+1405) is 295 ms old at +1700 and
 #   stays so until the fresh stamp of +2010: +1700..+2000; after the gap's last scan
-#   (+2110, stamped +2105): +2400..+2600 -> ticks 12..15, 19..21
-# - scan_rate (< 8/s: at most 3 scans in (t - 500, t]): +2400..+2900 -> ticks 19..24
-# - clear_front: the scan of +810 -> +900 -> tick 4 (the empty scan of +1410 keeps 1.0)
-# - diag_ok (worst level 2 from +1205 to +1605): +1300..+1600 -> ticks 8..11
+#   (+2110, stamped +2105): +2400..+2600 -> ticks 11..14, 18..20
+# - scan_rate (< 8/s: at most 3 scans in (t - 500, t]): +2400..+2900 -> ticks 18..23
+# - clear_front: the scan of +810 -> +900 -> tick 3 (the empty scan of +1410 keeps 1.0)
+# - diag_ok (worst level 2 from +1205 to +1605): +1300..+1600 -> ticks 7..10
 # - undocked_to_navigate: a goal accepted or executing from +705 to +2105, docked
-#   from +1005 to +1905: +1100..+1900 -> ticks 6..14
+#   from +1005 to +1905: +1100..+1900 -> ticks 5..13
 EXPECTED = {
-    "fresh_scan": [12, 13, 14, 15, 19, 20, 21],
-    "scan_rate": [19, 20, 21, 22, 23, 24],
-    "clear_front": [4],
-    "diag_ok": [8, 9, 10, 11],
-    "undocked_to_navigate": [6, 7, 8, 9, 10, 11, 12, 13, 14],
+    "fresh_scan": [11, 12, 13, 14, 18, 19, 20],
+    "scan_rate": [18, 19, 20, 21, 22, 23],
+    "clear_front": [3],
+    "diag_ok": [7, 8, 9, 10],
+    "undocked_to_navigate": [5, 6, 7, 8, 9, 10, 11, 12, 13],
 }
-TICKS = 26  # +500 .. +3000
+TICKS = 25  # +600 .. +3000
 
 
 def oracle() -> tuple[dict[str, list[int]], dict[int, dict[str, Any]]]:
@@ -190,7 +191,7 @@ def oracle() -> tuple[dict[str, list[int]], dict[int, dict[str, Any]]]:
         scans = [s for s in SCANS if s[0] < g]
         readable = [s for s in scans if s[2]]
         diags = [d for d in DIAGNOSTICS if d[0] < g]
-        if not readable or not diags or g < 500:
+        if not readable or not diags or g - SCANS[0][0] < 500:
             continue
         goals = [m for m in GOALS if m[0] < g]
         calls = [c for c in CALLS if c[0] < g and c[1] in (RESPONSE_SENT, RESPONSE_RECEIVED)]
@@ -220,7 +221,7 @@ def oracle() -> tuple[dict[str, list[int]], dict[int, dict[str, Any]]]:
 def test_the_hand_worked_timeline_is_the_oracle():
     got, inputs = oracle()
     assert got == EXPECTED and len(inputs) == TICKS
-    assert inputs[12]["scan_age"] == 295.0 and inputs[19]["scan_hz"] == 6.0
+    assert inputs[11]["scan_age"] == 295.0 and inputs[18]["scan_hz"] == 6.0
 
 
 # ------------------------------------------------------------ the bag
@@ -376,13 +377,6 @@ def test_replay_reports_exactly_the_hand_worked_violations(tmp_path, plugin):
     assert f" {TICKS} ticks" in run.stdout
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="product bug: replay (supervisor/tools/replay/storage.py typestore_of) reads a "
-    "ros2msg definition of a service event type with rosbags' get_types_from_msg, which "
-    "registers it as std_srvs/srv/msg/Trigger_Event; every message of the topic then "
-    "'does not decode as std_srvs/srv/Trigger_Event' and the replay ends at the first one",
-)
 def test_replay_reads_a_service_event_defined_in_msg_form(tmp_path):
     bag = write_bag(tmp_path / "bag", StoragePlugin.MCAP, encoding="msg")
     run, records = run_replay(tmp_path, bag)
@@ -392,13 +386,6 @@ def test_replay_reads_a_service_event_defined_in_msg_form(tmp_path):
     assert got == EXPECTED
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="product bug: replay crashes ('internal error: OverflowError: cannot convert "
-    "float infinity to integer', exit 3) on a DiagnosticArray with no status: reduce max "
-    "gives -inf (as documented), which sources.py _decode stores into the int64 column "
-    "unchecked; the daemon rejects it (runtime.coerce: input_rejected) and goes on",
-)
 def test_replay_rejects_the_max_of_no_status_for_an_int64_as_the_daemon_does(tmp_path):
     empty = sorted([*DIAGNOSTICS, (1705, [])])  # the worst level of nothing: -inf
     bag = write_bag(tmp_path / "bag", StoragePlugin.MCAP, diagnostic=empty)
@@ -408,4 +395,15 @@ def test_replay_rejects_the_max_of_no_status_for_an_int64_as_the_daemon_does(tmp
     got = {rid: [r["tick"] for r in violations if r["requirement"] == rid] for rid in IDS}
     assert got == EXPECTED  # the rejected value leaves level 1 of +1605 in place
     rejected = [r for r in records if r.get("what") == "input_rejected"]
-    assert [r.get("input") for r in rejected] == ["diag_level"]
+    # as the daemon logs them: the scan without ranges (k = 14) has no ranges[0],
+    # and -inf is no int64
+    assert [r.get("input") for r in rejected] == ["front", "diag_level"]
+    assert "0 elements" in rejected[0]["detail"] and "inf" in rejected[1]["detail"]
+
+
+def test_replay_logs_an_element_past_the_end_as_the_daemon_does(tmp_path):
+    bag = write_bag(tmp_path / "bag", StoragePlugin.SQLITE3)
+    run, records = run_replay(tmp_path, bag)
+    assert run.returncode == 0, run.stderr
+    rejected = [r for r in records if r.get("what") == "input_rejected"]
+    assert [r.get("input") for r in rejected] == ["front"]

@@ -23,7 +23,7 @@ from supervisor.config import Config
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import Session
 from supervisor.tools.replay.fast import forward, quiet
-from supervisor.tools.replay.sources import Batch, Progress, Recording
+from supervisor.tools.replay.sources import Batch, Progress, Recording, Unread
 
 
 class DryRun:
@@ -136,6 +136,7 @@ def replay(
             n = len(ts)
             marks = sorted(batch.records)
             m = 0  # the next record row
+            odd, o = sorted(batch.odd), 0
             i = 0
             while i < n:
                 if m < len(marks) and marks[m] == i:
@@ -149,7 +150,12 @@ def replay(
                 if not started:  # a bag recorded on the robot: monitoring starts with it
                     core.start(int(ts[i]))
                     outcome.start_ns, started = int(ts[i]), True
-                if fast and quiet(core):
+                if odd:  # a row with a value no column holds is stepped alone
+                    while o < len(odd) and odd[o] < i:
+                        o += 1
+                    if o < len(odd):
+                        end = min(end, odd[o])
+                if fast and end > i and quiet(core):
                     j = forward(core, batch, i, end, names)
                     if j > i:
                         outcome.messages += j - i
@@ -157,7 +163,13 @@ def replay(
                         i = j
                         continue
                 t = int(ts[i])
-                core.fields(_row(batch, i, names), t)
+                row = _row(batch, i, names)
+                for name, x in batch.odd.get(i, ()):
+                    if isinstance(x, Unread):
+                        core.reject(name, t, x.why)  # as the daemon logs it
+                    else:
+                        row.append((name, x))  # the runtime rejects it, as online
+                core.fields(row, t)
                 outcome.messages += 1
                 last = t
                 i += 1

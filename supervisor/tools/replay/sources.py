@@ -75,6 +75,13 @@ from supervisor.tools.replay.storage import (
 from supervisor.tools.replay.trace import Trace
 
 
+@dataclass(frozen=True)
+class Unread:
+    """A message that has no value for a variable (an element past the end)."""
+
+    why: str
+
+
 @dataclass
 class Batch:
     """Up to ``chunk`` messages in receive order, as columns.
@@ -92,6 +99,9 @@ class Batch:
     # A JSON-lines line sets one variable of its topic: given[v] marks the rows that
     # set v. A variable not in given has a value on every row of its topic.
     given: dict[str, np.ndarray] = field(default_factory=dict)
+    # Rows whose value for a variable no column holds: the raw value (the runtime
+    # rejects it, as it does online) or Unread (the field was not in the message).
+    odd: dict[int, list[tuple[str, Any]]] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -298,6 +308,7 @@ class Recording:
         values: dict[str, np.ndarray] = {}
         records: dict[int, dict[str, Any]] = {}
         given: dict[str, np.ndarray] = {}
+        odd: dict[int, list[tuple[str, Any]]] = {}
         bad = n
         error: str | None = None
 
@@ -373,12 +384,19 @@ class Recording:
                     for v, read in slow:
                         try:
                             x = read(msg)
-                        except (ReadError, AttributeError, TypeError, ValueError):
-                            x = SKIP
+                        except (ReadError, AttributeError, TypeError, ValueError) as e:
+                            x = Unread(str(e))
                         if x is SKIP:
                             has[v.name][i] = False
-                        else:
-                            cols[v.name][i] = x
+                            continue
+                        if not isinstance(x, Unread):
+                            try:
+                                cols[v.name][i] = x
+                                continue
+                            except (OverflowError, ValueError, TypeError):
+                                pass  # -inf for an int64: the runtime rejects it
+                        has[v.name][i] = False
+                        odd.setdefault(i, []).append((v.name, x))
                 values.update(cols)
                 given.update({k: m for k, m in has.items() if not m[rows].all()})
         batch = Batch(
@@ -388,6 +406,7 @@ class Recording:
             {k: c[:bad] for k, c in values.items()},
             {i: r for i, r in records.items() if i < bad},
             {k: m[:bad] for k, m in given.items()},
+            {i: x for i, x in odd.items() if i < bad},
         )
         return batch, error
 
@@ -528,15 +547,15 @@ class Recording:
             for i, (t, tid) in enumerate(zip(ts, tops, strict=True)):
                 if i in records:
                     yield (t, "record", records[i])
-                elif given:
+                    continue
+                if given:
                     vals = [(n, cols[n][i]) for n in names[tid] if n in cols]
-                    yield (
-                        t,
-                        self.topics[tid],
-                        [(n, x) for n, x in vals if n not in given or given[n][i]],
-                    )
+                    vals = [(n, x) for n, x in vals if n not in given or given[n][i]]
                 else:
-                    yield (t, self.topics[tid], [(n, cols[n][i]) for n in names[tid]])
+                    vals = [(n, cols[n][i]) for n in names[tid]]
+                # a raw value no column holds goes on for the runtime to reject
+                vals += [(n, x) for n, x in batch.odd.get(i, ()) if not isinstance(x, Unread)]
+                yield (t, self.topics[tid], vals)
 
 
 def _slice(b: Batch, i: int, j: int) -> Batch:
@@ -547,6 +566,7 @@ def _slice(b: Batch, i: int, j: int) -> Batch:
         {k: c[i:j] for k, c in b.values.items()},
         {r - i: rec for r, rec in b.records.items() if i <= r < j},
         {k: m[i:j] for k, m in b.given.items()},
+        {r - i: x for r, x in b.odd.items() if i <= r < j},
     )
 
 
@@ -568,9 +588,11 @@ def _merge(parts: list[Batch]) -> Batch | None:
         for k in {k for p in parts for k in p.given}
     }
     records: dict[int, dict[str, Any]] = {}
+    odd: dict[int, list[tuple[str, Any]]] = {}
     base = 0
     for p in parts:
         records.update({base + r: rec for r, rec in p.records.items()})
+        odd.update({base + r: x for r, x in p.odd.items()})
         base += len(p)
     order = np.argsort(t, kind="stable")
     inverse = np.empty_like(order)
@@ -582,6 +604,7 @@ def _merge(parts: list[Batch]) -> Batch | None:
         {k: c[order] for k, c in values.items()},
         {int(inverse[r]): rec for r, rec in records.items()},
         {k: m[order] for k, m in given.items()},
+        {int(inverse[r]): x for r, x in odd.items()},
     )
 
 

@@ -120,7 +120,10 @@ def typestore_of(defs: list[tuple[str, str, str]]) -> Typestore:
                         )
                     )
             else:
-                types.update(get_types_from_msg(text, normalise_type(name)))
+                found = get_types_from_msg(text, normalise_type(name))
+                # rosbags names a service's event type 'pkg/srv/msg/X_Event'; the
+                # recording and the config call it 'pkg/srv/X_Event'
+                types.update({k.replace("/srv/msg/", "/srv/"): v for k, v in found.items()})
         except Exception:  # noqa: BLE001 - a definition rosbags cannot parse: use Jazzy's
             continue
     store = get_typestore(Stores.EMPTY)
