@@ -155,6 +155,7 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
     if raw is None:
         return out
     vs = as_mapping(raw, doc, "variables", "variables")
+    derived_lines: dict[str, int] = {}  # the age_of/rate_of key's line, for errors
     for name, spec in vs.items():
         line = vs.key_line(name)
         check_name(name, vs, name)
@@ -219,8 +220,11 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
             if lo > hi:
                 raise error_at(f"variable '{name}': range [{lo:g}, {hi:g}] is empty", spec, "range")
             var.range = (lo, hi)
+        for key in ("age_of", "rate_of"):
+            if key in spec:
+                derived_lines[name] = spec.key_line(key)
         out[name] = var
-    _derived_sources(out, vs.file)
+    _derived_sources(out, vs.file, derived_lines)
     return out
 
 
@@ -411,7 +415,7 @@ def _reduce_and_event(var: Variable, spec: LineDict) -> None:
     var.event = True
 
 
-def _derived_sources(variables: dict[str, Variable], file: str) -> None:
+def _derived_sources(variables: dict[str, Variable], file: str, lines: dict[str, int]) -> None:
     """An age or rate reads its input's topic: the same subscription."""
     for var in variables.values():
         of = var.age_of or var.rate_of
@@ -419,19 +423,19 @@ def _derived_sources(variables: dict[str, Variable], file: str) -> None:
             continue
         key = "age_of" if var.age_of else "rate_of"
         src = variables.get(of)
+        if src is not None and (src.age_of or src.rate_of):
+            raise UserError(
+                f"variable '{var.name}': {key} '{of}', which is itself an age or a rate",
+                file=file,
+                line=lines.get(var.name, var.line),
+                hint=f"name the input '{of}' reads",
+            )
         if src is None or src.topic is None:
             hint = suggest(of, {n: v for n, v in variables.items() if v.topic})
             raise UserError(
                 f"variable '{var.name}': {key} '{of}' is not an input variable with a topic",
                 file=file,
-                line=var.line,
+                line=lines.get(var.name, var.line),
                 hint=hint,
-            )
-        if src.age_of or src.rate_of:
-            raise UserError(
-                f"variable '{var.name}': {key} '{of}', which is itself an age or a rate",
-                file=file,
-                line=var.line,
-                hint=f"name the input '{of}' reads",
             )
         var.topic, var.msg, var.qos, var.depth = src.topic, src.msg, src.qos, src.depth

@@ -207,7 +207,8 @@ def _value_reader(path: FieldPath, reduce: str | None) -> Callable[[Any], Any]:
 
         def flat(msg: Any) -> Any:
             items = inner(msg)
-            if items and hasattr(items[0], "__len__"):
+            first = items[0] if items else None
+            if hasattr(first, "__len__") and not isinstance(first, str | bytes):
                 return list(chain.from_iterable(items))
             return items
 
