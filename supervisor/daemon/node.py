@@ -186,6 +186,12 @@ class SupervisorNode:
         self.diagnostics = self.node.create_publisher(
             _msg("diagnostic_msgs/msg/DiagnosticArray"), DIAGNOSTICS_TOPIC, 10
         )
+        # A config may read /diagnostics (or any of our topics) as an input: our own
+        # writes are remembered and never taken for the robot's (loss.py).
+        self.publisher, self.heartbeat, self.status_publisher, self.diagnostics = (
+            RecordingPublisher(p, p.topic_name, self._own)
+            for p in (self.publisher, self.heartbeat, self.status_publisher, self.diagnostics)
+        )
         from std_srvs.srv import Trigger
 
         self._trigger = Trigger

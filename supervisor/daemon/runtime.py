@@ -97,6 +97,7 @@ class _Input:
     own: int = 0  # the supervisor's own messages on this topic, never taken as input
     stamp: int | None = None  # an age's latest message stamp, on the runtime's clock
     arrivals: deque = field(default_factory=deque)  # a rate's receive times in its window
+    first_ns: int | None = None  # a rate's first message: known a full window after it
 
 
 def _limit(spec: InputSpec, default_after_ns: int | None) -> int | None:
@@ -148,7 +149,6 @@ class Runtime:
     _pending_since: int | None = None  # synchronized: first new message after the last step
     _next_periodic: int | None = None
     _derived: list[_Input] = field(default_factory=list)  # ages and rates
-    _t0: int | None = None  # the first time seen: a rate is known a window after it
 
     def __post_init__(self) -> None:
         self._in = [_Input(s) for s in self.inputs]
@@ -219,8 +219,7 @@ class Runtime:
             )
             inp.nan, inp.lost, inp.own = o.nan, o.lost, o.own
             if o.spec.kind == inp.spec.kind:
-                inp.stamp, inp.arrivals = o.stamp, o.arrivals
-        self._t0 = old._t0
+                inp.stamp, inp.arrivals, inp.first_ns = o.stamp, o.arrivals, o.first_ns
         self.recent.extend(old.recent)
 
     # ------------------------------------------------------------ feeding
@@ -238,8 +237,6 @@ class Runtime:
         ``t_ns``: every value is set, then the policy steps at most once."""
         events: list[InputEvent] = []
         accepted = []
-        if self._t0 is None:
-            self._t0 = t_ns
         for name, raw in values:
             inp = self._in[self._index[name]]
             if inp.spec.kind in ("age", "rate"):
@@ -282,6 +279,8 @@ class Runtime:
         inp.last_ns, inp.fresh = t_ns, True
         inp.messages += 1
         if inp.spec.kind == "rate":
+            if inp.first_ns is None:
+                inp.first_ns = t_ns
             inp.arrivals.append(t_ns)
             return
         stamp = int(raw)
@@ -312,7 +311,7 @@ class Runtime:
             arrivals = inp.arrivals
             while arrivals and arrivals[0] <= t_ns - window:
                 arrivals.popleft()
-            if self._t0 is not None and t_ns - self._t0 >= window:
+            if inp.first_ns is not None and t_ns - inp.first_ns >= window:
                 inp.value, inp.has_value = len(arrivals) * 1e9 / window, True
 
     def count_lost(self, name: str, n: int) -> None:
@@ -334,8 +333,6 @@ class Runtime:
 
     def on_timer(self, t_ns: int) -> StepResult | None:
         """Called by the node's timer (and by replay between messages)."""
-        if self._t0 is None:
-            self._t0 = t_ns
         if self.policy == "periodic":
             if self._next_periodic is None:
                 self._next_periodic = t_ns
