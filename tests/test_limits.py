@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -171,3 +172,26 @@ def test_check_prints_the_skipped_analyses(tmp_path: Path) -> None:
     assert "  skipped:       " in text and "(limits.analysis_budget_s)" in text
     for name in a.skipped:
         assert name in text
+
+
+def test_a_set_too_large_to_unroll_in_the_budget_is_given_up_at_once() -> None:
+    # Unrolling is measured on the first requirements and projected: a set that
+    # would spend most of the budget building terms is skipped with the estimate,
+    # long before the budget runs out.
+    vars_ = [VarInfo(f"v{i}", "int64", "input") for i in range(20)]
+    reqs = [
+        Req(
+            f"r{i}",
+            parse_formula(f"H (O[0,90] (v{i % 20} > {i}) -> H[0,90] (v{(i + 7) % 20} < 3))"),
+        )
+        for i in range(400)
+    ]
+    budget = 20.0
+    t0 = time.monotonic()
+    a = analyse(reqs, vars_, k=95, timeout_s=5.0, budget_s=budget)
+    spent = time.monotonic() - t0
+    assert set(a.skipped) >= {"consistency", "realizability", "vacuity", "redundancy"}
+    why = a.skipped["consistency"]
+    assert "unrolling all 400 requirements would take about" in why, why
+    assert "measured on the first" in why and "k = 95" in why
+    assert spent < budget / 2, f"gave up after {spent:.1f} s of a {budget:g} s budget"

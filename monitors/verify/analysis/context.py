@@ -18,10 +18,51 @@ from monitors.verify.bmc import (
     Row,
     Unsupported,
     check_deadline,
+    encoding_cells,
     fresh_rows,
     model_trace,
 )
 from monitors.verify.interpret import verdicts
+
+
+class TooLarge(Exception):
+    """Unrolling the set would take most of the time budget (measured on its start)."""
+
+
+# Unrolling may take at most this share of what is left of the budget: the solver
+# calls of the analyses need the rest.
+ENCODE_SHARE = 0.5
+PROJECT_AFTER_S = 0.5  # measure this long before projecting the whole unrolling
+
+
+class _Projection:
+    """The unrolling's time, projected from the rate of its first requirements on
+    this machine, so that a set too large for the budget is given up at once
+    instead of when the budget has run out (docs/reference/faults.md)."""
+
+    def __init__(self, reqs: Sequence[Req], k: int, deadline: float | None) -> None:
+        self.deadline = deadline
+        self.cells = [encoding_cells([r.formula, r.activation], k) for r in reqs]
+        self.total = sum(self.cells)
+        self.done = 0
+        self.i = 0
+        self.t0 = time.monotonic()
+
+    def next(self, r: Req) -> None:
+        if self.deadline is not None and self.i:
+            elapsed = time.monotonic() - self.t0
+            if elapsed >= PROJECT_AFTER_S and self.done:
+                rest = (self.total - self.done) * elapsed / self.done
+                left = self.deadline - time.monotonic()
+                if rest > ENCODE_SHARE * left:
+                    raise TooLarge(
+                        f"unrolling all {len(self.cells)} requirements would take about "
+                        f"{elapsed + rest:.0f} s here (measured on the first {self.i}), "
+                        f"more than half of the {left + elapsed:.0f} s left of the budget"
+                    )
+        if self.i < len(self.cells):
+            self.done += self.cells[self.i]
+        self.i += 1
 
 
 class Context:
@@ -50,7 +91,9 @@ class Context:
         self.reqs: dict[str, Req] = {}
         self.holds: dict[str, list[z3.BoolRef]] = {}
         self.unsupported: dict[str, str] = {}
+        projection = _Projection(reqs, k, deadline)
         for r in reqs:
+            projection.next(r)
             try:
                 self.holds[r.id] = self.enc.holds(r.formula)
                 self.enc.holds(r.activation)  # fails here, not mid-analysis, if unsupported

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from functools import partial
 
 from monitors.verify.analysis.consistency import consistency
-from monitors.verify.analysis.context import Context
+from monitors.verify.analysis.context import Context, TooLarge
 from monitors.verify.analysis.examples import examples
 from monitors.verify.analysis.realizability import realizability
 from monitors.verify.analysis.redundancy import redundancy
@@ -69,6 +69,11 @@ def analyse(
     except OutOfTime:
         return give_up(
             f"the time budget of {budget_s:g} s ran out while unrolling traces of k = {k} ticks"
+        )
+    except TooLarge as e:
+        return give_up(
+            f"{e} (traces of k = {k} ticks); a shorter k (analysis.k, --k) or a larger "
+            "limits.analysis_budget_s analyses it"
         )
     findings: list[Finding] = []
     for rid, why in ctx.unsupported.items():
