@@ -1,9 +1,12 @@
-"""``safety-supervisor demo``: the thesis's field test (sec. 5.3.2) on this machine.
+"""``safety-supervisor demo``: the thesis's field test (sec. 5.3.2) on this machine,
+or (``--example mobile-base``) a mobile base breaking each of its requirements.
 
-A simulated perception feed and safety controller (:mod:`supervisor.tools.demo.robot`)
-and the supervisor on a copy of the shipped ``srobot.yaml``
-(:mod:`supervisor.tools.demo.config`), each in its own process on a private ROS
-domain (:mod:`supervisor.tools.demo.session`); what happens is shown live
+The example's simulated robot (:mod:`supervisor.tools.demo.robot`: a perception
+feed and safety controller; :mod:`supervisor.tools.demo.base`: a mobile base) and
+the supervisor on a copy of the example's shipped config
+(:mod:`supervisor.tools.demo.config`, whose table says what each example runs),
+each in its own process on a private ROS domain
+(:mod:`supervisor.tools.demo.session`); what happens is shown live
 (:mod:`supervisor.tools.demo.view`).  On the end of ``--duration``, Ctrl-C,
 SIGTERM or an error the processes are stopped in order; then the summary.
 """
@@ -20,13 +23,19 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.tools.children import ros_env
-from supervisor.tools.demo.config import SHIPPED_CONFIG, demo_config
+from supervisor.tools.demo.config import (
+    DEFAULT_EXAMPLE,
+    EXAMPLES,
+    demo_config,
+    requirement_ids,
+)
 from supervisor.tools.demo.errors import DemoError
 from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
 from supervisor.tools.demo.state import DemoState
-from supervisor.tools.demo.view import screen, summary
 
 DEFAULT_FAULT_RATE = 0.01  # the thesis's 1 % (sec. 5.3.2)
+DEFAULT_RATE_HZ = 10.0
+ROBOT_OPTIONS = ("fault_rate", "rate_hz")  # options of one example's simulated robot
 
 
 def _err(text: str) -> None:
@@ -64,25 +73,37 @@ def _fraction(text: str) -> float:
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "demo",
-        help="a simulated sRobot and the supervisor on this machine: violations caught and mitigated",
+        help="a simulated robot and the supervisor on this machine: violations caught and mitigated",
         description=(
-            "Starts a simulated perception feed (a person walking through the red/yellow/"
-            "green zones), the sRobot safety controller with the thesis's UV-light fault, "
-            "and the supervisor on config/srobot.yaml, each in its own process on a private "
-            "ROS domain; shows what happens live and ends with a summary."
+            "Starts a simulated robot and the supervisor on the example's shipped config, "
+            "each in its own process on a private ROS domain; shows what happens live and "
+            "ends with a summary. srobot (the default): a perception feed (a person walking "
+            "through the red/yellow/green zones) and the sRobot safety controller with the "
+            "thesis's UV-light fault, on config/srobot.yaml. mobile-base: a mobile base "
+            "(lidar, odometry, battery, estop, navigation) whose script breaks each "
+            "requirement of config/mobile-base.yaml at least once."
         ),
+    )
+    p.add_argument(
+        "--example",
+        choices=sorted(EXAMPLES),
+        default=DEFAULT_EXAMPLE,
+        help=f"the robot and its config (default {DEFAULT_EXAMPLE})",
     )
     p.add_argument("--duration", type=_positive, default=30.0, help="seconds (default 30)")
     p.add_argument(
         "--fault-rate",
         type=_fraction,
-        default=DEFAULT_FAULT_RATE,
-        help="chance per update in state 3 that the UV light sticks on, as in the thesis (default 0.01)",
+        default=None,
+        help="srobot: chance per update in state 3 that the UV light sticks on, as in the "
+        "thesis (default 0.01)",
     )
     p.add_argument(
         "--seed", type=int, default=None, help="the walk and the faults (default: random)"
     )
-    p.add_argument("--rate-hz", type=_rate, default=10.0, help="perception rate (default 10)")
+    p.add_argument(
+        "--rate-hz", type=_rate, default=None, help="srobot: perception rate (default 10)"
+    )
     p.add_argument(
         "--log", default=None, metavar="PATH", help="violation log (default: a temp dir)"
     )
@@ -99,10 +120,19 @@ def add_parser(sub: Any) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    if not SHIPPED_CONFIG.exists():
-        _err(
-            f"{SHIPPED_CONFIG} not found (an incomplete installation: reinstall safety-supervisor)"
-        )
+    example = EXAMPLES[args.example]
+    for option in ROBOT_OPTIONS:  # the other example's robot has no such knob
+        if getattr(args, option) is not None and option not in example.options:
+            flag = "--" + option.replace("_", "-")
+            _err(f"{flag} is not an option of --example {args.example}")
+            return 2
+    if args.fault_rate is None:
+        args.fault_rate = DEFAULT_FAULT_RATE
+    if args.rate_hz is None:
+        args.rate_hz = DEFAULT_RATE_HZ
+    shipped = example.config
+    if not shipped.exists():
+        _err(f"{shipped} not found (an incomplete installation: reinstall safety-supervisor)")
         return 1
     workdir = Path(tempfile.mkdtemp(prefix="safety-supervisor-demo-"))
     log = Path(args.log).resolve() if args.log else workdir / "violations.jsonl"
@@ -123,12 +153,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
             log.parent.mkdir(parents=True, exist_ok=True)
             domain = pick_domain()
             env = ros_env(domain, log_dir=workdir / "ros-log")  # ROS's own logs: not ~/.ros
-            st = DemoState(args.duration, args.fault_rate, seed, domain, log)
-            config = demo_config(SHIPPED_CONFIG, workdir, log)
+            st = DemoState(args.duration, args.fault_rate, seed, domain, log, args.example)
+            config = demo_config(shipped, workdir, log)
+            st.requirements = requirement_ids(config)
             if args.record:  # replay needs the config the run used
                 Path(args.record).mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(config, Path(args.record) / config.name)
-            run = Run(args, workdir, st, Notify(workdir / "notify.sock"), LogTail(log), out, live)
+            run = Run(
+                args, workdir, st, Notify(workdir / "notify.sock"), LogTail(log), out, live, example
+            )
             run.start(config, env)
             run.loop()
         except KeyboardInterrupt:
@@ -151,13 +184,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, old_term)
     if run is not None and live:
-        out.write("\x1b[H\x1b[2J" + screen(run.st, final=True) + "\n\n")
+        out.write("\x1b[H\x1b[2J" + example.screen(run.st, True) + "\n\n")
     elif run is not None:
         run.print_events(settle=0)
     if failed is not None or run is None:
         _err(f"{failed} (process output in {workdir})")
         return 1
-    out.write(summary(run.st, walked, interrupted) + "\n")
+    out.write(example.summary(run.st, walked, interrupted) + "\n")
     if args.record:
         rec = Path(args.record)
         out.write(

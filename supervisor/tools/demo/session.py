@@ -1,12 +1,13 @@
 """The demo's processes and main loop.
 
-Three children (:mod:`supervisor.tools.children`: own process groups, one private
-ROS domain, localhost-only discovery): the perception feed and the safety
-controller of :mod:`supervisor.tools.demo.robot`, and the supervisor
-(``safety-supervisor run``) on the demo's copy of the shipped config.
+Children (:mod:`supervisor.tools.children`: own process groups, one private ROS
+domain, localhost-only discovery): the simulated robot's processes that the
+example names (:data:`supervisor.tools.demo.config.EXAMPLES`: the sRobot's
+perception feed and safety controller, or the mobile base), and the supervisor
+(``safety-supervisor run``) on the demo's copy of the example's shipped config.
 
-The walk starts once the supervisor has sent ``READY=1`` (on a notify socket
-bound here) and both robot processes report their DDS endpoints matched.
+The scenario starts once the supervisor has sent ``READY=1`` (on a notify socket
+bound here) and every robot process reports its DDS endpoints matched.
 Counts and events are read from the supervisor's violation log and from the
 robot processes' JSON lines; supervisor ticks from its ``STATUS=``
 notifications.  Stopping: the supervisor first (so the robot going quiet is
@@ -19,7 +20,6 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -28,10 +28,9 @@ from typing import IO, Any
 
 from mitigations.violationlog.reader import records_since
 from supervisor.tools.children import Child, NotifySocket, daemon_argv
-from supervisor.tools.demo.config import SHIPPED_CONFIG
+from supervisor.tools.demo.config import EXAMPLES, Example
 from supervisor.tools.demo.errors import DemoError
 from supervisor.tools.demo.state import DemoState
-from supervisor.tools.demo.view import screen, status_line
 
 READY_TIMEOUT_S = 60.0  # compiling the monitor and importing rclpy; slow CI machines
 MATCH_TIMEOUT_S = 30.0  # DDS discovery takes ~3 s on localhost
@@ -94,6 +93,7 @@ class Run:
     tail: LogTail
     out: IO[str]
     live: bool
+    example: Example = EXAMPLES["srobot"]
     children: list[Child] = field(default_factory=list)
     matched: set[str] = field(default_factory=set)  # robot processes whose DDS endpoints matched
 
@@ -143,26 +143,21 @@ class Run:
                 stderr=w / "supervisor.stderr",
             )
         )
-        robot = [sys.executable, "-m", "supervisor.tools.demo.robot"]
-        roles = {
-            "perception": ["--rate-hz", f"{self.args.rate_hz:g}"],
-            "controller": ["--fault-rate", repr(self.st.fault_rate)],
-        }
-        for role, options in roles.items():
+        for name, argv in self.example.processes(self.args, self.st).items():
             self.children.append(
                 Child(
-                    role,
-                    [*robot, role, *options, "--seed", str(self.st.seed)],
+                    name,
+                    argv,
                     env=env,
                     cwd=w,
-                    stderr=w / f"{role}.stderr",
+                    stderr=w / f"{name}.stderr",
                     stdin=True,
                     json_stdout=True,
                 )
             )
         self.say(
-            f"starting the supervisor on {SHIPPED_CONFIG.name} and the simulated robot "
-            f"(ROS domain {self.st.domain}); power_off is simulated: a local marker program, no SSH"
+            f"starting the supervisor on {self.example.config.name} and {self.example.robot} "
+            f"(ROS domain {self.st.domain}){self.example.note}"
         )
         self.wait(
             "the supervisor's READY=1", lambda: "READY=1" in self.notify.seen, READY_TIMEOUT_S
@@ -173,8 +168,8 @@ class Run:
             MATCH_TIMEOUT_S,
         )
         self.st.walk_wall, self.st.walk_mono = time.time(), time.monotonic()
-        self.child("perception").send("go")
-        self.say("supervisor ready, robot matched: the walk starts")
+        self.child(self.example.go).send("go")
+        self.say(f"supervisor ready, robot matched: {self.example.started}")
 
     def say(self, text: str) -> None:
         print(text, file=self.out, flush=True)  # the live view clears it at its first redraw
@@ -194,12 +189,13 @@ class Run:
 
     def view(self) -> None:
         if self.live:
-            self.out.write("\x1b[H\x1b[2J" + screen(self.st) + "\n")
+            self.out.write("\x1b[H\x1b[2J" + self.example.screen(self.st, False) + "\n")
             self.out.flush()
             return
         self.print_events()
-        if self.st.cycle:  # nothing to say before the first perception cycle
-            print(status_line(self.st), file=self.out, flush=True)
+        line = self.example.status_line(self.st)
+        if line:  # nothing to say before the robot's first cycle
+            print(line, file=self.out, flush=True)
 
     def print_events(self, settle: float = 0.5) -> None:
         """Line mode: each event once; a violation once its mitigations are

@@ -11,6 +11,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from supervisor.tools.demo.base import EXPLAIN as BASE_EXPLAIN
 from supervisor.tools.demo.robot import OUTPUTS, op_state, zone_of
 
 CLASS_WORDS = {0: "nobody", 1: "trained worker", 2: "untrained person"}
@@ -48,6 +49,8 @@ class DemoState:
     seed: int
     domain: int
     log: Path
+    example: str = "srobot"
+    requirements: tuple[str, ...] = ()  # the config's, for the summary
     walk_wall: float | None = None  # time.time() when the walk started
     walk_mono: float | None = None
     # the person and the robot (last controller cycle)
@@ -58,6 +61,13 @@ class DemoState:
     state_changes: int = 0
     faults: int = 0
     faults_fixed: int = 0  # the supervisor's uv_off cut a stuck UV light
+    # the mobile base (its JSON lines, supervisor/tools/demo/base.py)
+    phase: dict[str, Any] = field(default_factory=dict)  # the scripted phase now
+    phases: int = 0
+    base: dict[str, Any] = field(default_factory=dict)  # the base's last state line
+    estops: int = 0
+    base_halts: Counter = field(default_factory=Counter)  # who halted it: estop, supervisor
+    last_violation: dict[str, Event] = field(default_factory=dict)
     # the supervisor
     ready: bool = False
     ticks: int = 0
@@ -114,6 +124,26 @@ class DemoState:
         elif kind == "uv_off" and ev.get("fixed"):
             self.faults_fixed += 1
             self.add("robot: UV light cut by the supervisor's uv_off", t)
+        elif kind == "phase":
+            self.phase = ev
+            self.phases += 1
+            breaks = ev.get("breaks")
+            self.add(
+                f"phase {ev.get('name')}: {ev.get('says')}"
+                + (f" (breaks {breaks})" if breaks else ""),
+                t,
+            )
+        elif kind == "base":
+            self.base = ev
+        elif kind == "estop":
+            self.estops += 1
+            self.add("base: estop pressed", t)
+        elif kind == "halted":
+            by = str(ev.get("by") or "?")
+            self.base_halts[by] += 1
+            self.add(f"base: halted ({'its own estop path' if by == 'estop' else by})", t)
+        elif kind == "nav" and ev.get("state") in ("accepted", "succeeded", "aborted"):
+            self.add(f"base: navigation goal {ev.get('state')}", t)
 
     # ---------------------------------------------------------- log records
 
@@ -128,6 +158,7 @@ class DemoState:
             if (rec.get("policy_state") or {}).get("cooldown") == "suppressed":
                 ev.text += " (actions suppressed: cooldown)"
             self.open_violation[req] = ev
+            self.last_violation[req] = ev
         elif event == "mitigation" and isinstance(req, str):
             action = str(rec.get("action"))
             st = self.actions.setdefault(action, ActionStats())
@@ -181,6 +212,8 @@ class DemoState:
 
 def explain(req: str, inputs: dict[str, Any]) -> str:
     """What was wrong, in words: 'UV on in state 3'."""
+    if req in BASE_EXPLAIN:
+        return BASE_EXPLAIN[req](inputs)
     state = inputs.get("OpState")
     if req.startswith("operationalstate_") and state in OUTPUTS:
         words = {

@@ -95,6 +95,8 @@ def screen(st: DemoState, final: bool = False) -> str:
 
 def status_line(st: DemoState) -> str:
     c = st.cycle
+    if not c:
+        return ""  # nothing to say before the first perception cycle
     robot = f"OpState {c.get('state')}" if c else "-"
     if c:
         on = [n for n in ("alert", "slowdown", "halt") if c.get(n)]
@@ -133,6 +135,123 @@ def summary(st: DemoState, elapsed: float, interrupted: bool) -> str:
     width = max([len(k) for k in st.violations] + [len(k) for k in st.actions] + [16])
     for req, n in sorted(st.violations.items()):
         lines.append(f"    {req:<{width}}  {n}")
+    lines.append(f"  mitigations       {n_m}")
+    for action, s in sorted(st.actions.items()):
+        lat = (
+            f"latency p50 {_percentile(s.latencies, 0.5):.1f} ms, max {max(s.latencies):.1f} ms"
+            if s.latencies
+            else "no latency"
+        )
+        lines.append(f"    {action:<{width}}  {s.ok} ok, {s.failed} failed, {lat}")
+    lines += [
+        f"  violation log     {st.log}",
+        f"                    (safety-supervisor logs {st.log} --summary)",
+    ]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------ the mobile base
+
+
+def base_line(b: dict[str, Any]) -> str:
+    """The base's last state line in words."""
+    if not b:
+        return "waiting for the scenario"
+    scan = f"scan {b.get('scan_hz', 0):g} Hz" + (" (stamp FROZEN)" if b.get("frozen") else "")
+    nav = b.get("nav") or "none"
+    battery = b.get("battery")
+    text = (
+        f"obstacle {b.get('obstacle', 0):.2f} m   speed {b.get('speed', 0):.2f} m/s   "
+        f"cmd {b.get('cmd', 0):.2f} m/s   {scan}   "
+        f"battery {battery * 100 if isinstance(battery, int | float) else 0:.0f} %   nav {nav}"
+    )
+    return text + ("   HALTED" if b.get("halted") else "")
+
+
+def phase_line(st: DemoState) -> str:
+    p = st.phase
+    if not p:
+        return "-"
+    breaks = p.get("breaks")
+    return f"{p.get('name')}: {p.get('says')}" + (f"   (breaks {breaks})" if breaks else "")
+
+
+def _requirement_rows(st: DemoState, with_last: bool) -> list[str]:
+    names = list(st.requirements) + sorted(set(st.violations) - set(st.requirements))
+    width = max([len(n) for n in names] + [16])
+    rows = []
+    for name in names:
+        n = st.violations.get(name, 0)
+        row = f"{name:<{width}}  " + (
+            f"broken: {n} violation{'s' if n != 1 else ''}" if n else "not broken"
+        )
+        last = st.last_violation.get(name)
+        if with_last and last is not None:
+            row += f"   (last at {last.t:.1f} s: {last.text.split(': ', 1)[-1]})"
+        rows.append(row)
+    return rows
+
+
+def base_screen(st: DemoState, final: bool = False) -> str:
+    _, m = _counts(st)
+    lines = [
+        f"safety-supervisor demo --example mobile-base   "
+        f"{min(st.elapsed(), st.duration):5.1f} s / {st.duration:g} s   "
+        f"ROS domain {st.domain}   seed {st.seed}",
+        "",
+        f"phase        {phase_line(st)}",
+        f"base         {base_line(st.base)}",
+        f"supervisor   {supervisor_line(st)}",
+        "",
+        f"requirements {sum(1 for r in st.requirements if st.violations.get(r))} of "
+        f"{len(st.requirements)} broken, {sum(st.violations.values())} violations",
+    ]
+    lines += [f"  {row}" for row in _requirement_rows(st, with_last=True)]
+    lines += [
+        f"mitigations  {sum(s.ok + s.failed for s in st.actions.values())}: {m}",
+        "",
+        "last events",
+    ]
+    recent = st.timeline()[-EVENTS_SHOWN:]
+    lines += [f"  {e.render()}" for e in recent] or ["  (none yet)"]
+    lines += ["", f"violation log: {st.log}"]
+    if not final:
+        lines.append("Ctrl-C stops the demo")
+    return "\n".join(lines)
+
+
+def base_status_line(st: DemoState) -> str:
+    if not st.base:
+        return ""  # nothing to say before the scenario starts
+    n_mit = sum(s.ok + s.failed for s in st.actions.values())
+    return (
+        f"{st.elapsed():6.1f} s  {st.phase.get('name', '-')} | {base_line(st.base)} | "
+        f"ticks {st.ticks}, violations {sum(st.violations.values())}, mitigations {n_mit}"
+    )
+
+
+def base_summary(st: DemoState, elapsed: float, interrupted: bool) -> str:
+    ticks = st.stop_record.get("ticks") if st.stop_record else st.ticks
+    n_v = sum(st.violations.values())
+    n_m = sum(s.ok + s.failed for s in st.actions.values())
+    head = "demo interrupted" if interrupted else "demo finished"
+    halts = ", ".join(f"{n} by {by}" for by, n in sorted(st.base_halts.items())) or "none"
+    broken = sum(1 for r in st.requirements if st.violations.get(r))
+    lines = [
+        f"{head} after {elapsed:.1f} s (example mobile-base, ROS domain {st.domain}, "
+        f"seed {st.seed})",
+        f"  phases            {st.phases}",
+        f"  estops pressed    {st.estops}",
+        f"  base halted       {halts}",
+        f"  supervisor ticks  {ticks}",
+        f"  violations        {n_v}",
+    ]
+    width = max([len(k) for k in st.violations] + [len(k) for k in st.actions] + [16])
+    for req, n in sorted(st.violations.items()):
+        lines.append(f"    {req:<{width}}  {n}")
+    lines.append(f"  requirements      {len(st.requirements)}")
+    lines += [f"    {row}" for row in _requirement_rows(st, with_last=False)]
+    lines.append(f"  broken            {broken} of {len(st.requirements)} requirements")
     lines.append(f"  mitigations       {n_m}")
     for action, s in sorted(st.actions.items()):
         lat = (
