@@ -74,10 +74,9 @@ BUMPER_M = 0.25  # the base's own bumper stops it here (the supervisor should fi
 READINGS = 1440
 RANGE_MIN, RANGE_MAX = 0.05, 30.0
 FRONT = 40  # readings either side of straight ahead that see the wall
-# The lidar runs alone this long before the base says it is ready: the supervisor
-# has been monitoring since before the scan began, so scan_rate's first full window
-# must hold scans (docs/reference/config.md, "Ages and rates"); the other topics start
-# with the scenario, and the monitor steps once they have spoken.
+# The lidar runs alone this long before the base says it is ready: scan_rate is known
+# only a full window after the first scan, and the monitor waits for it
+# (docs/reference/config.md, "Ages and rates"), so it steps from the scenario's start.
 WARMUP_S, WARMUP_HZ = 1.2, 20.0
 
 
