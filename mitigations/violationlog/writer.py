@@ -174,6 +174,11 @@ class ViolationLog:
         # Each record as rendered (its chain hash not yet filled in), for a copy
         # elsewhere: the daemon's recording (docs/reference/log.md).
         self.tee: Callable[[str], None] | None = None
+        # Records emitted on this thread are teed and echoed only at flush(): the
+        # daemon's loop sets it, so that a violation's halt follows its fsync without
+        # waiting for the journal and the copies (docs/reference/log.md).
+        self.defer_thread: int | None = None
+        self._deferred: list[tuple[str, _Entry | None, str, dict[str, Any]]] = []
         self._fd = self._open()
         self._load_tail()
 
@@ -324,6 +329,7 @@ class ViolationLog:
         return left
 
     def close(self) -> None:
+        self.flush()
         with self._lock:
             if self._fd is None:
                 return
@@ -486,6 +492,23 @@ class ViolationLog:
                 self._failed += 1
                 self._not_written(event, entry, error)
             ok = ok and not (durable and self._unsynced)
+        if self.defer_thread is not None and threading.get_ident() == self.defer_thread:
+            self._deferred.append((event, entry, ts, fields))
+        else:
+            self._after_write(event, entry, ts, fields)
+        return ok
+
+    def flush(self) -> None:
+        """Tee and echo the records held back on ``defer_thread`` (call it there)."""
+        if not self._deferred:
+            return
+        deferred, self._deferred = self._deferred, []
+        for item in deferred:
+            self._after_write(*item)
+
+    def _after_write(
+        self, event: str, entry: _Entry | None, ts: str, fields: dict[str, Any]
+    ) -> None:
         if self.tee is not None and entry is not None:
             self.tee(entry.body.decode("ascii"))
         if self._echo is not False:
@@ -493,7 +516,6 @@ class ViolationLog:
             record = json.loads(line) if line is not None else None
             self._echo_line(record or {"event": event, "ts": ts, **json_safe(fields)}, line)
         self._flush_messages()
-        return ok
 
     def _not_written(self, event: str, entry: _Entry | None, error: str | None) -> None:
         n = self._failed

@@ -380,6 +380,9 @@ class SupervisorNode:
 
     def _serve(self) -> None:
         ctx = self.node.context
+        # This loop's records are echoed and teed at flush(), after each message's
+        # actions: the halt follows the fsync directly (docs/reference/log.md).
+        self.log.defer_thread = threading.get_ident()
         by_ptr: dict[int, _Sub] = {}
         with contextlib.ExitStack() as stack:
             for s in self._subs:
@@ -416,6 +419,7 @@ class SupervisorNode:
                 if srv is not None and wait_set.get_ready_entities("service"):
                     self._serve_reset(srv)
                 self._timed_work(time.monotonic_ns())
+                self.log.flush()  # what this turn logged: to the journal and the copies
 
     def _deadline(self, now: int) -> int:
         times = [now + MAX_WAIT_NS, *self._next.values()]
@@ -468,6 +472,7 @@ class SupervisorNode:
             self.core.fields(values, t)
         if self._unpublished:
             self._publish_reports()
+        self.log.flush()  # a violation's echo and copies, after its actions are out
         return True
 
     def _read(self, s: _Sub, msg: Any, t: int) -> list[tuple[str, Any]]:
