@@ -135,7 +135,13 @@ def summary(st: DemoState, elapsed: float, interrupted: bool) -> str:
     width = max([len(k) for k in st.violations] + [len(k) for k in st.actions] + [16])
     for req, n in sorted(st.violations.items()):
         lines.append(f"    {req:<{width}}  {n}")
-    lines.append(f"  mitigations       {n_m}")
+    lines += _mitigation_lines(st, n_m, width)
+    return "\n".join(lines)
+
+
+def _mitigation_lines(st: Any, n_m: int, width: int) -> list[str]:
+    """The summary's mitigations and where the log is (both examples)."""
+    lines = [f"  mitigations       {n_m}"]
     for action, s in sorted(st.actions.items()):
         lat = (
             f"latency p50 {_percentile(s.latencies, 0.5):.1f} ms, max {max(s.latencies):.1f} ms"
@@ -143,11 +149,11 @@ def summary(st: DemoState, elapsed: float, interrupted: bool) -> str:
             else "no latency"
         )
         lines.append(f"    {action:<{width}}  {s.ok} ok, {s.failed} failed, {lat}")
-    lines += [
+    return [
+        *lines,
         f"  violation log     {st.log}",
         f"                    (safety-supervisor logs {st.log} --summary)",
     ]
-    return "\n".join(lines)
 
 
 # ------------------------------------------------------------ the mobile base
@@ -252,16 +258,5 @@ def base_summary(st: DemoState, elapsed: float, interrupted: bool) -> str:
     lines.append(f"  requirements      {len(st.requirements)}")
     lines += [f"    {row}" for row in _requirement_rows(st, with_last=False)]
     lines.append(f"  broken            {broken} of {len(st.requirements)} requirements")
-    lines.append(f"  mitigations       {n_m}")
-    for action, s in sorted(st.actions.items()):
-        lat = (
-            f"latency p50 {_percentile(s.latencies, 0.5):.1f} ms, max {max(s.latencies):.1f} ms"
-            if s.latencies
-            else "no latency"
-        )
-        lines.append(f"    {action:<{width}}  {s.ok} ok, {s.failed} failed, {lat}")
-    lines += [
-        f"  violation log     {st.log}",
-        f"                    (safety-supervisor logs {st.log} --summary)",
-    ]
+    lines += _mitigation_lines(st, n_m, width)
     return "\n".join(lines)
