@@ -14,6 +14,7 @@ node exists, or during a reload, is served when it can be
 from __future__ import annotations
 
 import contextlib
+import faulthandler
 import os
 import shutil
 import signal
@@ -124,6 +125,9 @@ def run_daemon(
     record: str | None = None,
 ) -> int:
     """Raises UserError for a bad config at start (exit 1 with FILE:LINE)."""
+    # A crash in native code (rclpy, the DDS) leaves every Python thread's stack
+    # on stderr, so in the journal: the one clue a SIGSEGV at shutdown gives.
+    faulthandler.enable(all_threads=True)
     notifier = Notifier(unset_environment=True)
     stop_requested = threading.Event()
     node: SupervisorNode | None = None
