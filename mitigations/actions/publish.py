@@ -3,7 +3,8 @@
 Default QoS is reliable + transient_local (depth 1): a controller that starts,
 or restarts, after the violation still receives the latched halt.  The message
 is built once, at start (``check`` has already validated type and fields), so
-publishing costs one rclpy call on the mitigation worker.
+publishing costs one rclpy call, made inline on the monitoring loop right after the
+violation record is on disk (``inline``: no thread handoff before the halt).
 """
 
 from __future__ import annotations
