@@ -120,6 +120,10 @@ class _Sub:
     # of them read a stamp (moved onto the loop's clock on receipt).
     readers: list[Callable[[Any], Any]] = field(default_factory=list)
     ages: list[bool] = field(default_factory=list)
+    # Looked up once (each rclpy property access is a call into C): the resolved
+    # topic name, and the handle's take, set again whenever the loop is rebuilt.
+    topic: str = ""
+    take: Callable[..., Any] | None = None
 
 
 class SupervisorNode:
@@ -262,6 +266,7 @@ class SupervisorNode:
         for s in subs:
             s.readers = [make_reader(v) for v in s.vars]
             s.ages = [v.age_of is not None for v in s.vars]
+            s.topic = s.sub.topic_name
         self._subs = subs
         if self.recorder is not None:
             index = {(t, m): i for i, (t, m) in enumerate(self.recorder.inputs)}
@@ -388,6 +393,7 @@ class SupervisorNode:
             for s in self._subs:
                 stack.enter_context(s.sub.handle)
                 by_ptr[s.sub.handle.pointer] = s
+                s.take = s.sub.handle.take_message
             self._sync_reset_service(self.session.config)
             srv = self.reset_service.handle if self.reset_service is not None else None
             if srv is not None:
@@ -442,7 +448,8 @@ class SupervisorNode:
     def _take(self, s: _Sub, rt: Runtime) -> bool:
         """One message of ``s`` into the runtime; False when its queue is empty."""
         raw = self.recorder is not None and s.recorded is not None
-        taken = s.sub.handle.take_message(s.msg_type, raw)
+        assert s.take is not None
+        taken = s.take(s.msg_type, raw)
         if taken is None:
             return False
         msg, info = taken
@@ -450,7 +457,7 @@ class SupervisorNode:
         data = msg
         seq = info.get("publication_sequence_number") if isinstance(info, dict) else None
         if seq:
-            if self._own.is_own(s.sub.topic_name, seq, info.get("source_timestamp")):
+            if self._own.is_own(s.topic, seq, info.get("source_timestamp")):
                 for v in s.vars:
                     rt.count_own(v.name)  # our own mitigation: not the robot's value
                 return True

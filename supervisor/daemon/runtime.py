@@ -149,6 +149,7 @@ class Runtime:
     _pending_since: int | None = None  # synchronized: first new message after the last step
     _next_periodic: int | None = None
     _derived: list[_Input] = field(default_factory=list)  # ages and rates
+    _ready: bool = False
 
     def __post_init__(self) -> None:
         self._in = [_Input(s) for s in self.inputs]
@@ -169,8 +170,11 @@ class Runtime:
 
     @property
     def ready(self) -> bool:
-        """Every input has a value: the monitor may be stepped."""
-        return all(i.has_value for i in self._in)
+        """Every input has a value: the monitor may be stepped (once true, it stays
+        true: a value is never taken away, so it is looked at once)."""
+        if not self._ready:
+            self._ready = all(i.has_value for i in self._in)
+        return self._ready
 
     def values(self) -> list[Any]:
         return [i.value for i in self._in]
