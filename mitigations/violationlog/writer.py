@@ -65,20 +65,33 @@ RETRY_INTERVAL_S = 1.0
 
 
 def _header_first(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDict:
-    """Fixed key order (readers and ``line_sha256`` rely on it) and JSON-safe values."""
+    """Fixed key order (readers and ``line_sha256`` rely on it)."""
     out = {k: event_dict.pop(k) for k in HEADER if k in event_dict}
-    out.update((k, json_safe(v)) for k, v in event_dict.items())
+    out.update(event_dict)
     return out
 
 
-def _processors() -> list[Any]:
+def _json_safe(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> EventDict:
+    """NaN and infinities as strings, other containers as JSON's (format.json_safe)."""
+    return {k: json_safe(v) for k, v in event_dict.items()}
+
+
+def _processors(*, safe: bool) -> list[Any]:
     # A local chain rather than structlog.configure(): the daemon may configure
     # structlog for its own diagnostics, and must not change this file's format.
     # ``ts`` is set by the writer: a record written late keeps the time it was made.
+    if safe:
+        render = structlog.processors.JSONRenderer(separators=(",", ":"), allow_nan=False)
+        return [_header_first, _json_safe, render]
+    # anything JSON has no form for raises here, and the record goes the safe way
     return [
         _header_first,
-        structlog.processors.JSONRenderer(separators=(",", ":"), allow_nan=False),
+        structlog.processors.JSONRenderer(separators=(",", ":"), allow_nan=False, default=_no),
     ]
+
+
+def _no(value: Any) -> Any:
+    raise TypeError(type(value).__name__)
 
 
 def _stderr_is_journal() -> bool:
@@ -138,8 +151,13 @@ class ViolationLog:
         self._config_sha256 = config_sha256
         self._echo = echo
         self._lock = threading.RLock()  # reopen() queues its link record while holding it
+        # Rendered as they are; a record JSON cannot hold as it is (a NaN, a set)
+        # again through json_safe: the walk costs most of a record's rendering.
         self._log = structlog.BoundLogger(
-            structlog.ReturnLogger(), _processors(), {"component": component}
+            structlog.ReturnLogger(), _processors(safe=False), {"component": component}
+        )
+        self._log_safe = structlog.BoundLogger(
+            structlog.ReturnLogger(), _processors(safe=True), {"component": component}
         )
         self._failed = 0
         self._journal = _stderr_is_journal()
@@ -446,14 +464,13 @@ class ViolationLog:
     def _render(self, event: str, ts: str, fields: dict[str, Any], durable: bool) -> _Entry:
         """Render with the next ``seq`` (taken only when rendering succeeds)."""
         seq = self._seq + 1
-        rendered = self._log.msg(
-            event,
-            ts=ts,
-            config_sha256=self._config_sha256,
-            prev_sha256=ZERO_SHA256,
-            seq=seq,
-            **fields,
-        ).encode("ascii")
+        header = {"ts": ts, "config_sha256": self._config_sha256}
+        header |= {"prev_sha256": ZERO_SHA256, "seq": seq}
+        try:
+            text = self._log.msg(event, **header, **fields)
+        except (ValueError, TypeError):  # NaN, infinities, sets, other mappings
+            text = self._log_safe.msg(event, **header, **fields)
+        rendered = text.encode("ascii")
         # The header precedes every event field, and inside a JSON string a quote
         # is escaped, so the first match is the header's own prev_sha256.
         at = rendered.index(_PREV_KEY) + len(_PREV_KEY)
