@@ -13,6 +13,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from supervisor.tools.bench.breakdown import breakdown
 from supervisor.tools.bench.plan import (
     LATENCY_REQUIREMENT,
     SROBOT_NOMINAL_CHECK,
@@ -85,6 +86,8 @@ def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> 
     out["daemon"] = _latency_stats(result)
     out["daemon"].update(_daemon_internals(records, warmup, result))
     out["fsync"] = _fsync_times(s.tmp, out["daemon"].get("violation_record_bytes") or 2048)
+    say(f"latency: the daemon's stages in one process, {trials} violations")
+    out["breakdown"] = breakdown(plan, work / "breakdown", trials)
     out["thesis_mean_ms"] = THESIS_MEAN_MS
     out["tessla_mean_ms"] = TESSLA_MEAN_MS
     return out

@@ -1,0 +1,142 @@
+"""Where a violation's time goes inside the daemon, stage by stage.
+
+The latency experiment times a violation from the robot's publish to the halt
+received by another process; this part opens that box.  It runs the daemon's own
+pieces in one process, as ``run`` wires them (the monitoring core, the violation
+log with its fsync, the engine with the inline publish of the halt on a real rclpy
+publisher), feeds the latency experiment's violating and nominal states
+alternately, and stamps each stage with ``time.perf_counter_ns`` by wrapping the
+functions that mark its ends.  DDS delivery (into the daemon, out to the robot)
+is what the echo baseline measures; it is not in here.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from supervisor.tools.bench.plan import SROBOT_VIOLATING, Plan
+
+# The stages in order, each from the previous mark to its own.
+STAGES = (
+    ("step", "the values set, the C monitor stepped, the policies decided"),
+    ("render", "the violation record built, rendered as JSON and hash-chained, written"),
+    ("fsync", "the record on disk (os.fsync)"),
+    ("to_publish", "from the fsync's end to the halt publish (log bookkeeping, engine)"),
+    ("publish", "rclpy publish of the halt"),
+)
+
+
+def breakdown(plan: Plan, work: Path, trials: int) -> dict[str, Any]:
+    """Per stage, the median and p99 in µs over ``trials`` violations."""
+    import rclpy
+    from rclpy.context import Context
+
+    import mitigations.violationlog.writer as writer
+    from mitigations.actions import build_action
+    from mitigations.actions.publish import PublishAction
+    from mitigations.engine import Engine
+    from mitigations.violationlog.writer import ViolationLog
+    from supervisor.daemon.core import Core
+    from supervisor.daemon.loss import OwnWrites, RecordingPublisher
+    from supervisor.daemon.process import prepare_session
+
+    work.mkdir(parents=True, exist_ok=True)
+    config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=True)
+    session = prepare_session(config, work / "build")
+    cfg = session.config
+    log = ViolationLog(work / "violations.jsonl", cfg.component, cfg.sha256, echo=False)
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=_private_domain())
+    node = rclpy.create_node("bench_breakdown", context=ctx)
+    marks: dict[str, int] = {}
+    samples: dict[str, list[float]] = {name: [] for name, _ in STAGES}
+
+    def mark(name: str) -> None:
+        # the first time only: the mitigation record's own fsync comes after the halt
+        if name not in marks:
+            marks[name] = time.perf_counter_ns()
+
+    def around(f: Callable[..., Any], before: str | None, after: str | None) -> Callable[..., Any]:
+        def timed(*a: Any, **k: Any) -> Any:
+            if before:
+                mark(before)
+            try:
+                return f(*a, **k)
+            finally:
+                if after:
+                    mark(after)
+
+        return timed
+
+    publishers: dict[Any, Any] = {}
+    actions = {n: build_action(m, node, publishers) for n, m in cfg.mitigations.items()}
+    own = OwnWrites()
+    for action in actions.values():
+        if isinstance(action, PublishAction):  # as the daemon wraps it (loss.py)
+            action.publisher = RecordingPublisher(action.publisher, action.topic, own)
+            action.publisher.publish = around(  # type: ignore[method-assign]
+                action.publisher.publish, "publish_start", "publish_end"
+            )
+    engine = Engine(actions, log)
+    real_fsync = writer.os.fsync
+    core = Core(session, log, engine.submit)
+    real_violation = log.violation
+    log.violation = around(real_violation, "recorded_start", None)  # type: ignore[method-assign]
+    try:
+        writer.os.fsync = around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]
+        values = [(name, plan.nominal[name]) for name in plan.nominal]
+        bad = [(n, SROBOT_VIOLATING.get(n, x)) for n, x in values]
+        t = time.monotonic_ns()
+        core.start(t)
+        warmup = 20
+        for i in range(trials + warmup):
+            t += 1_000_000
+            core.fields(values, t)  # nominal: the policy re-arms
+            t += 1_000_000
+            marks.clear()
+            mark("start")
+            core.fields(bad, t)
+            if "publish_end" not in marks or i < warmup:
+                continue
+            order = ["start", "recorded_start", "fsync_start", "fsync_end"]
+            order += ["publish_start", "publish_end"]
+            stamps = [marks[k] for k in order]
+            for (name, _), a, b in zip(STAGES, stamps, stamps[1:], strict=False):
+                samples[name].append((b - a) / 1e3)
+    finally:
+        writer.os.fsync = real_fsync  # type: ignore[attr-defined]
+        engine.close()
+        log.close()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+        if session.cleanup is not None:
+            session.cleanup()
+    out: dict[str, Any] = {"trials": len(samples["step"]), "stages_us": {}}
+    total = []
+    for name, what in STAGES:
+        v = sorted(samples[name])
+        out["stages_us"][name] = {"what": what, **_stats(v)}
+    for parts in zip(*(samples[n] for n, _ in STAGES), strict=True):
+        total.append(sum(parts))
+    out["total_us"] = _stats(sorted(total))
+    return out
+
+
+def _stats(v: list[float]) -> dict[str, float | None]:
+    if not v:
+        return {"p50": None, "p99": None, "max": None}
+    return {
+        "p50": round(statistics.median(v), 1),
+        "p99": round(v[min(len(v) - 1, -(-len(v) * 99 // 100) - 1)], 1),
+        "max": round(v[-1], 1),
+    }
+
+
+def _private_domain() -> int:
+    # the publisher needs no peer: a domain of its own keeps it off others' graphs
+    return 150 + os.getpid() % 60
