@@ -77,6 +77,7 @@ class Core:
         self.session = session
         self.supervision = Supervision(session.runtime, session.policies, self)
         self._stale_after_ns = _stale_after_ns(session)
+        self._limits = _limits(session, self._stale_after_ns)
 
     # ------------------------------------------------------------ driving
 
@@ -97,10 +98,11 @@ class Core:
         self.now = t
         rt = self.session.runtime
         result, events = rt.on_values(values, t)
+        limits = self._limits
         for name, _ in values:
-            after = rt.stale_after(name, self._stale_after_ns)
-            if after is not None:  # this input's silence limit starts again at t
-                self._due = min(self._due, t + after + 1)
+            after = limits[name]
+            if after is not None and t + after < self._due:
+                self._due = t + after + 1  # this input's silence limit starts again at t
         due = rt.due(t)
         if due is not None:  # the synchronized policy's skew may have started
             self._due = min(self._due, due)
@@ -190,6 +192,7 @@ class Core:
         self.supervision = Supervision(new.runtime, new.policies, self)
         self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
         self._stale_after_ns = _stale_after_ns(new)
+        self._limits = _limits(new, self._stale_after_ns)
         self._due = 0
         if self.now is not None:
             self._mark("reload", self.now, config=new.config.path)
@@ -280,3 +283,10 @@ class Core:
 def _stale_after_ns(session: Session) -> int | None:
     ms = session.config.step.stale_after_ms
     return int(ms * 1e6) if ms else None
+
+
+def _limits(session: Session, default_after_ns: int | None) -> dict[str, int | None]:
+    """Each input's silence limit, looked up once per session (Core.fields runs per
+    message)."""
+    rt = session.runtime
+    return {s.name: rt.stale_after(s.name, default_after_ns) for s in rt.inputs}
