@@ -36,6 +36,14 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    at 40 Hz beside the stream, reduced (``reduce: min``) and aged (``age_of``) by the
    daemon: its CPU per message and loss without and with it at ``--scan-rate``, and
    the reduction's own cost per scan, timed in this process.
+6. With ``--scale`` (:mod:`~supervisor.tools.bench.scale`): generated configs of N
+   requirements over 50 inputs (``--scale-sizes``): parse + formalize, ``check``'s wall
+   time and what its analyses did, C generation + build, the library's size, the step's
+   ns per tick, and the daemon's CPU per message and memory at ``--scale-rate``; the
+   daemon's memory on the bench's config beside.
+7. With ``--soak`` (:mod:`~supervisor.tools.bench.soak`): the daemon at ``--soak-rate``
+   for ``--soak-seconds``, its RSS and open descriptors sampled: first, last, largest,
+   the RSS slope over the second half, and the messages lost.
 
 ``--quick`` runs every part short; ``--out DIR`` also writes ``bench.json`` and
 ``bench.md`` (docs/reference/commands.md#bench).
@@ -75,6 +83,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "ui_seconds": 10.0,
         "replay_messages": 1_000_000,
         "scan_reductions": 20_000,
+        "scale_sizes": "10,100,1000",
+        "soak_seconds": 600.0,
     },
     "quick": {
         "rates": "5000,20000",
@@ -85,6 +95,8 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "ui_seconds": 8.0,
         "replay_messages": 200_000,
         "scan_reductions": 5_000,
+        "scale_sizes": "10,100",
+        "soak_seconds": 20.0,
     },
 }
 
@@ -107,6 +119,16 @@ def _bursts(text: str) -> list[int]:
     if not bursts or any(b <= 0 for b in bursts):
         raise argparse.ArgumentTypeError("bursts must be positive numbers of rounds")
     return bursts
+
+
+def _sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(n) for n in text.split(",") if n.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of sizes: {text}") from None
+    if not sizes or any(n <= 0 for n in sizes):
+        raise argparse.ArgumentTypeError("sizes must be positive numbers of requirements")
+    return sizes
 
 
 def _positive(kind: type) -> Callable[[str], Any]:
@@ -214,6 +236,45 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="scans reduced in this process to time it (default 20000; --quick 5000)",
     )
     p.add_argument(
+        "--scale",
+        action="store_true",
+        help="also generated configs of N requirements over 50 inputs: check, compile, step, "
+        "the daemon's CPU and memory",
+    )
+    p.add_argument(
+        "--scale-sizes",
+        type=_sizes,
+        default=None,
+        metavar="N,N,...",
+        help="requirements per generated config (default 10,100,1000; --quick 10,100)",
+    )
+    p.add_argument(
+        "--scale-rate",
+        type=_positive(float),
+        default=10_000.0,
+        metavar="R",
+        help="offered msg/s over the generated config's 50 topics (default 10000)",
+    )
+    p.add_argument(
+        "--soak",
+        action="store_true",
+        help="also a long run of the daemon: its RSS and open descriptors sampled",
+    )
+    p.add_argument(
+        "--soak-seconds",
+        type=_positive(float),
+        default=None,
+        metavar="S",
+        help="default 600 (--quick 20)",
+    )
+    p.add_argument(
+        "--soak-rate",
+        type=_positive(float),
+        default=20_000.0,
+        metavar="R",
+        help="offered msg/s of the soak (default 20000)",
+    )
+    p.add_argument(
         "--quick", action="store_true", help="every experiment, short (a couple of minutes)"
     )
     p.add_argument(
@@ -244,7 +305,13 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
     """The options left unset get the defaults of a full or a --quick run."""
     for key, value in DEFAULTS["quick" if args.quick else "full"].items():
         if getattr(args, key) is None:
-            parse = _rates if key.endswith("rates") else (lambda v: v)
+            parse = (
+                _rates
+                if key.endswith("rates")
+                else _sizes
+                if key == "scale_sizes"
+                else (lambda v: v)
+            )
             setattr(args, key, parse(value))
     return args
 

@@ -15,8 +15,10 @@ from supervisor.tools.bench.latency import latency
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.recording import recording_overhead
 from supervisor.tools.bench.replay import replay_bench
+from supervisor.tools.bench.scale import scale_bench
 from supervisor.tools.bench.scan import scan_bench
 from supervisor.tools.bench.session import session
+from supervisor.tools.bench.soak import soak_bench
 from supervisor.tools.bench.throughput import throughput
 from supervisor.tools.bench.ui import ui_load
 
@@ -78,6 +80,20 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                 args.scan_reductions,
                 say,
                 wd_usec=args.watchdog_usec,
+            )
+        if getattr(args, "scale", False):
+            results["scale"] = scale_bench(
+                s,
+                plan,
+                args.scale_sizes,
+                args.scale_rate,
+                args.seconds,
+                say,
+                wd_usec=args.watchdog_usec,
+            )
+        if getattr(args, "soak", False):
+            results["soak"] = soak_bench(
+                s, plan, args.soak_rate, args.soak_seconds, say, wd_usec=args.watchdog_usec
             )
         if not args.skip_latency:
             results["latency"] = latency(s, plan, args.latency_trials, say)

@@ -27,11 +27,110 @@ def format_results(r: dict[str, Any]) -> str:
         lines += ["", *_format_ui(r["ui"])]
     if "scan" in r:
         lines += ["", *_format_scan(r["scan"])]
+    if "scale" in r:
+        lines += ["", *_format_scale(r["scale"])]
+    if "soak" in r:
+        lines += ["", *_format_soak(r["soak"])]
     if "latency" in r:
         lines += ["", *_format_latency(r["latency"])]
     if "replay" in r:
         lines += ["", *_format_replay(r["replay"])]
     return "\n".join(lines)
+
+
+def _mb(kb: int | None) -> str:
+    return "-" if kb is None else f"{kb / 1024:.1f}"
+
+
+def _check_text(c: dict[str, Any]) -> str:
+    if c["timeout"]:
+        return "check killed at its time limit"
+    return f"{_f(c['wall_s'], '.1f')} s, exit {c['exit']}, peak RSS {_mb(c.get('maxrss_kb'))} MB"
+
+
+def _scale_rows(sc: dict[str, Any]) -> list[list[str]]:
+    """One row per size: the columns of both tables."""
+    out = []
+    for row in sc["rows"]:
+        d, c = row["daemon"], row["check"]
+        out.append(
+            [
+                str(row["requirements"]),
+                f"{row['parse_formalize_s']:.2f}",
+                "-" if c["wall_s"] is None else f"{c['wall_s']:.1f}",
+                str(c["exit"]),
+                f"{row['compile_s']:.2f}",
+                str(row["library_bytes"]),
+                f"{row['tick_ns']:.0f}",
+                f"{row['tick_ns_per_requirement']:.1f}",
+                _f(d["ready_s"], ".1f"),
+                _f(d["cpu_us_per_msg"], ".1f"),
+                str(d["lost"]),
+                str(d["violations"]),
+                _mb(d["rss_start_kb"]),
+                _mb(d["rss_end_kb"]),
+                _mb(d["hwm_end_kb"]),
+            ]
+        )
+    return out
+
+
+SCALE_HEAD = [
+    "reqs",
+    "parse+formalize s",
+    "check s",
+    "check exit",
+    "compile s",
+    "library bytes",
+    "ns/tick",
+    "ns/tick/req",
+    "daemon ready s",
+    "CPU us/msg",
+    "lost",
+    "violations",
+    "RSS start MB",
+    "RSS end MB",
+    "HWM end MB",
+]
+
+
+def _format_scale(sc: dict[str, Any]) -> list[str]:
+    ref = sc["reference"]
+    lines = [
+        f"Scaling: generated configs over 50 inputs (seed {sc['seed']}); the daemon at "
+        f"{sc['offered']:g} msg/s over their 50 topics for {sc['seconds']:g} s (one tick per "
+        "round of 50, every value zero)",
+        "  " + " | ".join(SCALE_HEAD),
+    ]
+    lines += ["  " + " | ".join(cells) for cells in _scale_rows(sc)]
+    for row in sc["rows"]:
+        c = row["check"]
+        lines.append(f"  check of {row['requirements']}: {_check_text(c)}; {c['last']}")
+        lines += [f"    {ln.strip()}" for ln in c["analysis"]]
+    lines.append(
+        f"  the daemon on {ref['config']} ({ref['topics']} topics) at {ref['offered']:g} msg/s: "
+        f"RSS {_mb(ref['rss_start_kb'])} MB once ready, {_mb(ref['rss_end_kb'])} MB at the end "
+        f"(HWM {_mb(ref['hwm_end_kb'])} MB), CPU {_f(ref['cpu_us_per_msg'], '.1f')} us/msg, "
+        f"lost {ref['lost']}"
+    )
+    return lines
+
+
+def _format_soak(so: dict[str, Any]) -> list[str]:
+    return [
+        f"Soak: the daemon on {so['config']} at {so['offered']:g} msg/s for {so['seconds']:.0f} s, "
+        f"{so['n_samples']} samples every {so['interval_s']:g} s",
+        f"  RSS first {_mb(so['rss_first_kb'])} MB, last {_mb(so['rss_last_kb'])} MB, max "
+        f"{_mb(so['rss_max_kb'])} MB (HWM {_mb(so['hwm_last_kb'])} MB); slope over the second "
+        f"half {_f(so['rss_slope_kb_per_min_second_half'], '+.1f')} kB/min "
+        f"({so['second_half_samples']} samples)",
+        f"  open fds first {so['fds_first']}, last {so['fds_last']}, max {so['fds_max']} "
+        f"(growth {so['fds_growth']})",
+        f"  sent {so['sent']} ({so['achieved']:.0f} msg/s achieved), received {so['received']}, "
+        f"lost {so['lost']} ({so['loss_pct']:.3f} %; counted lost {so['counted_lost']}), "
+        f"violations {so['violations']}, CPU {_f(so['cpu_us_per_msg'], '.1f')} us/msg, longest "
+        f"ping gap {_f(so['longest_ping_gap_ms'], '.0f')} ms",
+    ]
 
 
 def _format_recording(rows: list[dict[str, Any]]) -> list[str]:
@@ -336,6 +435,31 @@ def format_markdown(r: dict[str, Any]) -> str:
                 f"| {label} | {st['p50']:.2f} | {st['p90']:.2f} | {st['p99']:.2f} "
                 f"| {st['max']:.2f} | {st['mean']:.2f} |"
             )
+    if "scale" in r:
+        sc = r["scale"]
+        ref = sc["reference"]
+        out += [
+            "",
+            f"## Scaling (generated configs over 50 inputs, seed {sc['seed']}; daemon at "
+            f"{sc['offered']:g} msg/s for {sc['seconds']:g} s)",
+            "",
+            "| " + " | ".join(SCALE_HEAD) + " |",
+            "| " + " | ".join("---:" for _ in SCALE_HEAD) + " |",
+        ]
+        out += ["| " + " | ".join(cells) + " |" for cells in _scale_rows(sc)]
+        for row in sc["rows"]:
+            c = row["check"]
+            out += ["", f"`check` of {row['requirements']}: {_check_text(c)}; `{c['last']}`", ""]
+            out += ["```", *c["analysis"], "```"] if c["analysis"] else []
+        out += [
+            "",
+            f"The daemon on `{ref['config']}` ({ref['topics']} topics) at {ref['offered']:g} "
+            f"msg/s: RSS {_mb(ref['rss_start_kb'])} MB once ready, {_mb(ref['rss_end_kb'])} MB "
+            f"at the end (HWM {_mb(ref['hwm_end_kb'])} MB), CPU "
+            f"{_f(ref['cpu_us_per_msg'], '.1f')} us/msg, lost {ref['lost']}.",
+        ]
+    if "soak" in r:
+        out += ["", "## Soak", "", *_format_soak(r["soak"])]
     if "latency" in r:
         lat = r["latency"]
         out += [

@@ -27,13 +27,18 @@ def throughput(
     record: bool = False,
     on_go: Callable[[float], None] | None = None,
     before_stop: Callable[[], None] | None = None,
+    on_ready: Callable[[int], None] | None = None,
+    ready_timeout: float = 60.0,
 ) -> dict[str, Any]:
     """One run; ``record``: the daemon runs with ``--record DIR`` (in the run's dir);
     ``on_go``: called with the monotonic time the publisher was told to go, so another
     experiment can act during the publishing (the UI experiment kills its UI halfway);
     it must not block, the publisher's ``done`` is waited for after it; ``before_stop``:
     called once the receivers drained and the CPU figures were read, before the daemon
-    is stopped (the UI experiment waits there for what the daemon still publishes)."""
+    is stopped (the UI experiment waits there for what the daemon still publishes);
+    ``on_ready``: called with the daemon's pid once it is ready, before the receivers
+    match (``bench --scale`` and ``--soak`` read its memory from there); ``ready_timeout``:
+    how long its start may take (it builds its monitor: minutes for a large set)."""
     work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
     spec = json.dumps(plan.topics)
@@ -74,7 +79,9 @@ def throughput(
     )
     everyone = (daemon, pub, *baselines.values())
     try:
-        daemon.wait_ready(60)
+        daemon.wait_ready(ready_timeout)
+        if on_ready is not None:
+            on_ready(daemon.pid)
         daemon.watch_pings()
         pub.wait_event("matched", 60, everyone)
         for b in baselines.values():
