@@ -8,6 +8,7 @@ reference interpreter's verdict per requirement), and what to change.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,16 +154,25 @@ class Validation:
     project: Project
     analysis: Analysis | None
     skipped: str | None
+    # The analyses' errors when they ran in a child process (run, reload): only
+    # the findings come back, not the solver.
+    child_errors: list[Finding] | None = None
+
+    @property
+    def errors(self) -> list[Finding]:
+        if self.analysis is not None:
+            return self.analysis.errors
+        return self.child_errors or []
 
     @property
     def ok(self) -> bool:
-        return self.project.ok and not (self.analysis is not None and self.analysis.errors)
+        return self.project.ok and not self.errors
 
     def first_error(self) -> UserError | None:
         err = self.project.first_error()
-        if err is not None or self.analysis is None or not self.analysis.errors:
+        if err is not None or not self.errors:
             return err
-        f = self.analysis.errors[0]
+        f = self.errors[0]
         cfg = self.project.config
         lines = [r.id_line or r.line for r in cfg.requirements if r.id in f.requirements]
         ids = ", ".join(f.requirements) or "the whole set"
@@ -175,15 +185,120 @@ class Validation:
 
 
 def validate(path: str | Path, k: int | None = None) -> Validation:
-    """The one validation of a config, for ``check``, ``run`` and reload alike."""
+    """The one validation of a config, for ``check``, ``run`` and reload alike (the
+    daemon through :func:`validate_aside`)."""
     project = project_for(path)
     if not project.ok:
         return Validation(project, None, "the config has errors")
     analysis = analyse_project(project, k)
     if analysis is None:
         return Validation(project, None, "analysis.enabled is false")
-    partial = [f.message for f in analysis.findings if f.kind == "not-analysed"]
-    return Validation(project, analysis, "; ".join(partial) or None)
+    return Validation(project, analysis, _partial(analysis.findings))
+
+
+def _partial(findings: list[Finding]) -> str | None:
+    return "; ".join(f.message for f in findings if f.kind == "not-analysed") or None
+
+
+CHILD_GRACE_S = 60.0  # beyond the analyses' budget: start-up, the project, exit
+# Unrollings up to this many solver terms are analysed in the daemon itself: a
+# fraction of a second and a few MB (sRobot: 222, mobile-base: 672), where a child
+# would add its start (about 1.5 s) to every start and reload.
+IN_PROCESS_CELLS = 20_000
+
+
+def _unrolling_cells(project: Project, k: int | None) -> int:
+    from monitors.verify.analysis.requirements import default_k
+    from monitors.verify.bmc import encoding_cells
+
+    reqs, _ = project_requirements(project)
+    k = k or analysis_settings(project.config)[0] or default_k(reqs)
+    return encoding_cells([f for r in reqs for f in (r.formula, r.activation)], k)
+
+
+class Aside:
+    """:func:`validate` for the daemon (``run``, reload): the project is judged here,
+    the analyses in a child process, of which only the findings come back.  z3
+    keeps memory after it is done with it (1.2 GB after the analyses of 10
+    generated requirements, malloc_trim included; docs/BENCHMARKS.md, "Scaling"),
+    which the daemon must not carry for the rest of its run; and the monitor can be
+    compiled while the child works (:meth:`result` waits for it)."""
+
+    def __init__(self, path: str | Path, k: int | None = None) -> None:
+        import subprocess
+        import sys
+
+        from supervisor.children import child_env, start
+
+        self.project = project_for(path)
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._done: Validation | None = None
+        if not self.project.ok:
+            self._done = Validation(self.project, None, "the config has errors")
+        elif not analysis_settings(self.project.config)[2]:
+            self._done = Validation(self.project, None, "analysis.enabled is false")
+        elif _unrolling_cells(self.project, k) <= IN_PROCESS_CELLS:
+            self._done = validate(path, k)  # small: not worth a process start
+            if self._done.analysis is not None:
+                self._done.analysis.find_examples = None  # nothing asks the solver again
+        else:
+            argv = [sys.executable, "-m", "supervisor.analysis_report", str(path)]
+            argv += [] if k is None else ["--k", str(k)]
+            self._proc = start(
+                argv, env=child_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE
+            )
+
+    def result(self) -> Validation:
+        import subprocess
+
+        if self._done is not None:
+            return self._done
+        assert self._proc is not None
+        project, proc = self.project, self._proc
+        wait_s = project.config.limits.analysis_budget_s + CHILD_GRACE_S
+        try:
+            out, err = proc.communicate(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            self._done = Validation(project, None, f"the analyses did not end within {wait_s:g} s")
+            return self._done
+        try:
+            found = json.loads(out.decode().strip().splitlines()[-1])
+            findings = [Finding(**{**f, "requirements": tuple(f["requirements"])}) for f in found]
+        except (ValueError, IndexError, KeyError, TypeError):
+            last = (err.decode(errors="replace").strip().splitlines() or ["no output"])[-1]
+            why = f"the analyses' process failed (exit {proc.returncode}): {last}"
+            self._done = Validation(project, None, why)
+            return self._done
+        errors = [f for f in findings if f.severity == "error"]
+        self._done = Validation(project, None, _partial(findings), child_errors=errors)
+        return self._done
+
+    def cancel(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.communicate()
+
+
+def validate_aside(path: str | Path, k: int | None = None) -> Aside:
+    return Aside(path, k)
+
+
+def _child_main(argv: list[str]) -> int:
+    """``python -m supervisor.analysis_report CONFIG [--k K]``: the analyses of
+    CONFIG, their findings (no traces) as one JSON line on stdout."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m supervisor.analysis_report")
+    p.add_argument("config")
+    p.add_argument("--k", type=int, default=None)
+    args = p.parse_args(argv)
+    checked = validate(args.config, args.k)
+    findings = checked.analysis.findings if checked.analysis is not None else []
+    keys = ("kind", "severity", "requirements", "message", "fix")
+    print(json.dumps([{key: getattr(f, key) for key in keys} for f in findings]), flush=True)
+    return 0
 
 
 # ------------------------------------------------------------------ text
@@ -297,3 +412,9 @@ def explain_lines(a: Analysis, rid: str) -> list[str]:
     out.extend(format_example(sat, "satisfied by", a.variables))
     out.extend(format_example(viol, "violated by", a.variables))
     return out
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(_child_main(sys.argv[1:]))

@@ -31,7 +31,7 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
-from supervisor.analysis_report import validate
+from supervisor.analysis_report import validate_aside
 from supervisor.config import Config
 from supervisor.config.record import RecordConfig
 from supervisor.daemon.control import open_control
@@ -60,23 +60,29 @@ def _shutdown_ros(ctx: Context) -> None:
 def prepare_session(
     config: str | Path, build_root: Path, skipped: Callable[[str], None] | None = None
 ) -> Session:
-    """Validate ``config`` as ``check`` does (the same function) and compile it into
-    a loaded Session; raises UserError.  ``skipped`` hears why the analyses did not
+    """Validate ``config`` as ``check`` does (the same analyses, in a child process)
+    and compile it into a loaded Session; raises UserError.  ``skipped`` hears why the analyses did not
     run in full, for the log (docs/reference/log.md)."""
-    checked = validate(config)
-    err = checked.first_error()
+    # The analyses run in a child (z3's memory stays there) while the monitor compiles.
+    aside = validate_aside(config)
+    err = aside.project.first_error()
     if err is not None:
         raise err
-    if checked.skipped and skipped is not None:
-        skipped(checked.skipped)
-    project = checked.project
+    project = aside.project
     build_root.mkdir(parents=True, exist_ok=True)
     build = Path(tempfile.mkdtemp(prefix="monitor-", dir=build_root))
     try:
         monitor = compile_spec(project.spec(), build)
-    except Exception:
+        checked = aside.result()
+        err = checked.first_error()
+        if err is not None:
+            raise err
+    except BaseException:
+        aside.cancel()
         shutil.rmtree(build, ignore_errors=True)
         raise
+    if checked.skipped and skipped is not None:
+        skipped(checked.skipped)
     return build_session(project, monitor, cleanup=lambda: shutil.rmtree(build, ignore_errors=True))
 
 

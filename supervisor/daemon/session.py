@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mitigations.policy import RequirementPolicy
-from monitors.ir.formula import to_fret
+from monitors.ir.formula import to_fret, variables
 from monitors.ir.spec import Define, expand_defines
 from supervisor.config import Config
 from supervisor.daemon.runtime import InputSpec, Runtime
@@ -32,6 +32,9 @@ class Session:
     # Each formula over inputs only (internal variables expanded), where it differs:
     # what a violation record's recent inputs can be judged by (monitors/verify/why.py).
     formulas_inputs: list[str | None] = field(default_factory=list)
+    # The inputs each requirement reads (defines expanded), worked out once here:
+    # the status document names the stale ones every half second.
+    reads: list[list[str]] = field(default_factory=list)
 
     @property
     def config(self) -> Config:
@@ -81,7 +84,8 @@ def build_session(
     ]
     defines = tuple(Define(v.name, v.type, v.define) for v in cfg.defines if v.define is not None)
     formulas = [to_fret(r.formula) for r in reqs]
-    over_inputs = [to_fret(expand_defines(r.formula, defines)) for r in reqs]
+    expanded = [expand_defines(r.formula, defines) for r in reqs]
+    over_inputs = [to_fret(f) for f in expanded]
     return Session(
         project,
         build_runtime(project, monitor),
@@ -90,4 +94,5 @@ def build_session(
         policies,
         cleanup,
         [x if x != f else None for f, x in zip(formulas, over_inputs, strict=True)],
+        [variables(f) for f in expanded],
     )

@@ -15,7 +15,6 @@ import socket
 import threading
 from collections import deque
 from datetime import UTC, datetime
-from functools import cache
 from typing import Any
 
 from mitigations.policy import RequirementPolicy
@@ -123,8 +122,7 @@ class StatusBoard:
         requirements = []
         for i, r in enumerate(session.requirements):
             pol = policies[i]
-            over_inputs = session.formulas_inputs[i] if i < len(session.formulas_inputs) else None
-            reads = [n for n in _names(over_inputs or session.formulas[i]) if n in stale]
+            reads = [n for n in session.reads[i] if n in stale] if stale else []
             requirements.append(
                 {
                     "id": r.id,
@@ -182,14 +180,3 @@ class StatusBoard:
             "events_dropped": dropped,
         }
         return json_safe(doc)
-
-
-@cache
-def _names(formula: str) -> list[str]:
-    """The inputs a formula reads (parsed once per formula text)."""
-    from monitors.ir.formula import parse_formula, variables
-
-    try:
-        return variables(parse_formula(formula))
-    except Exception:  # noqa: BLE001 - a formula the parser reads back; none is expected
-        return []
