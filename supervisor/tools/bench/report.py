@@ -574,6 +574,32 @@ def _format_loss(row: dict[str, Any]) -> str:
     )
 
 
+def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
+    """The daemon's stages, and the goal: p50 within 1.3x of echo + fsync."""
+    b = lat.get("breakdown")
+    if not b:
+        return []
+    lines = [f"  the daemon's stages, in one process ({b['trials']} violations), µs:"]
+    for name, st in b["stages_us"].items():
+        lines.append(
+            f"    {name:<11} p50 {_f(st['p50'], '.1f'):>7}  p99 {_f(st['p99'], '.1f'):>7}  "
+            f"max {_f(st['max'], '.1f'):>8}  {st['what']}"
+        )
+    t = b["total_us"]
+    lines.append(
+        f"    {'total':<11} p50 {_f(t['p50'], '.1f'):>7}  p99 {_f(t['p99'], '.1f'):>7}  "
+        f"max {_f(t['max'], '.1f'):>8}"
+    )
+    echo, daemon = lat["echo"]["p50"], lat["daemon"]["p50"]
+    if echo is not None and daemon is not None and fs["p50"] is not None:
+        floor = echo + fs["p50"]
+        lines.append(
+            f"  floor (echo p50 + fsync p50) {floor:.3f} ms; daemon p50 {daemon:.3f} ms = "
+            f"{daemon / floor:.2f}x the floor (goal: at most 1.3x)"
+        )
+    return lines
+
+
 def _format_latency(lat: dict[str, Any]) -> list[str]:
     lines = [
         "Latency: violating trigger published -> halt received, in one process "
@@ -604,6 +630,7 @@ def _format_latency(lat: dict[str, Any]) -> list[str]:
         f"p50 {_f(fs['p50'], '.3f')} ms, p99 {_f(fs['p99'], '.3f')} ms, "
         f"max {_f(fs['max'], '.3f')} ms"
     )
+    lines += _format_breakdown(lat, fs)
     if (
         d["other_violations"]
         or d["stray_halts"]
