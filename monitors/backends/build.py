@@ -80,8 +80,11 @@ CDEF_RESET_EACH = "void ss_reset_req(int i);\n"
 # Every object: symbols bound inside the library (see module docstring).
 # -ffp-contract=off: no fused multiply-add, so double results equal the interpreter's
 # on every target (FMA skips a rounding step).
+# -O1: on 1,000 generated requirements gcc takes 4.7 s instead of 12.4 s at -O2, and
+# the step is as fast or faster (18-19 ns against 20-21 ns per requirement per tick;
+# docs/BENCHMARKS.md, "Scaling"): straight-line code gains nothing from -O2's passes.
 _CFLAGS = [
-    "-O2",
+    "-O1",
     "-fPIC",
     "-fvisibility=hidden",
     "-fno-semantic-interposition",
