@@ -31,8 +31,10 @@ STAGES = (
 )
 
 
-def breakdown(plan: Plan, work: Path, trials: int) -> dict[str, Any]:
-    """Per stage, the median and p99 in µs over ``trials`` violations."""
+def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict[str, Any]:
+    """Per stage, the median and p99 in µs over ``trials`` violations; ``idle_ms``:
+    the process sleeps that long before each violation, as the daemon waits for
+    messages between two violations (its caches and the CPU go cold meanwhile)."""
     import rclpy
     from rclpy.context import Context
 
@@ -98,6 +100,8 @@ def breakdown(plan: Plan, work: Path, trials: int) -> dict[str, Any]:
             t += 1_000_000
             core.fields(values, t)  # nominal: the policy re-arms
             t += 1_000_000
+            if idle_ms:
+                time.sleep(idle_ms / 1e3)
             marks.clear()
             mark("start")
             core.fields(bad, t)
@@ -116,7 +120,7 @@ def breakdown(plan: Plan, work: Path, trials: int) -> dict[str, Any]:
         rclpy.shutdown(context=ctx)
         if session.cleanup is not None:
             session.cleanup()
-    out: dict[str, Any] = {"trials": len(samples["step"]), "stages_us": {}}
+    out: dict[str, Any] = {"trials": len(samples["step"]), "idle_ms": idle_ms, "stages_us": {}}
     total = []
     for name, what in STAGES:
         v = sorted(samples[name])

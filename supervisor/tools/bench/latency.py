@@ -88,6 +88,8 @@ def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> 
     out["fsync"] = _fsync_times(s.tmp, out["daemon"].get("violation_record_bytes") or 2048)
     say(f"latency: the daemon's stages in one process, {trials} violations")
     out["breakdown"] = breakdown(plan, work / "breakdown", trials)
+    # the same after 20 ms of idling before each violation, as in the daemon between trials
+    out["breakdown_idle"] = breakdown(plan, work / "breakdown-idle", min(trials, 300), 20.0)
     out["thesis_mean_ms"] = THESIS_MEAN_MS
     out["tessla_mean_ms"] = TESSLA_MEAN_MS
     return out

@@ -579,16 +579,24 @@ def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
     b = lat.get("breakdown")
     if not b:
         return []
-    lines = [f"  the daemon's stages, in one process ({b['trials']} violations), µs:"]
+    idle = lat.get("breakdown_idle")
+    lines = [
+        f"  the daemon's stages, in one process ({b['trials']} violations back to back"
+        + (f"; after {idle['idle_ms']:g} ms idle: {idle['trials']} more" if idle else "")
+        + "), µs:"
+    ]
     for name, st in b["stages_us"].items():
+        cold = (idle or {}).get("stages_us", {}).get(name)
+        after = f"  idle p50 {_f(cold['p50'], '.1f'):>7}" if cold else ""
         lines.append(
             f"    {name:<11} p50 {_f(st['p50'], '.1f'):>7}  p99 {_f(st['p99'], '.1f'):>7}  "
-            f"max {_f(st['max'], '.1f'):>8}  {st['what']}"
+            f"max {_f(st['max'], '.1f'):>8}{after}  {st['what']}"
         )
     t = b["total_us"]
+    after = f"  idle p50 {_f(idle['total_us']['p50'], '.1f'):>7}" if idle else ""
     lines.append(
         f"    {'total':<11} p50 {_f(t['p50'], '.1f'):>7}  p99 {_f(t['p99'], '.1f'):>7}  "
-        f"max {_f(t['max'], '.1f'):>8}"
+        f"max {_f(t['max'], '.1f'):>8}{after}"
     )
     echo, daemon = lat["echo"]["p50"], lat["daemon"]["p50"]
     if echo is not None and daemon is not None and fs["p50"] is not None:
