@@ -1035,3 +1035,17 @@ def test_the_max_of_no_status_is_rejected_by_an_int64_input():
     res, events = rt.on_message("diag", worst, MS)
     assert res is None and [(e.what, e.name) for e in events] == [("input_rejected", "diag")]
     assert rt.snapshot()["diag"] == 2
+
+
+def test_a_byte_field_feeds_an_int64_as_its_number():
+    # rclpy gives byte/octet/char fields as one-byte bytes (DiagnosticStatus.level)
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    from supervisor.daemon.runtime import coerce
+
+    msg = DiagnosticArray(status=[DiagnosticStatus(level=b"\x02")])
+    v = diag_var("status[0].level")
+    check_input(v)
+    raw = make_reader(v)(msg)
+    assert raw == b"\x02" and coerce(raw, "int64") == (2, None)
+    assert coerce(b"\x02\x03", "int64")[1] is not None  # not one byte: not a number

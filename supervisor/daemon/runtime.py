@@ -117,6 +117,8 @@ def coerce(value: Any, vtype: str) -> tuple[Any, str | None]:
         if isinstance(value, int) and value in (0, 1):
             return bool(value), None
         return None, f"{value!r} is not a bool"
+    if isinstance(value, bytes) and len(value) == 1:  # rclpy's byte/octet/char: b'\x02'
+        value = value[0]
     if vtype == "int64":
         if isinstance(value, bool) or not isinstance(value, int):
             if isinstance(value, float) and math.isfinite(value) and value.is_integer():
