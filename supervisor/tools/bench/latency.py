@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.tools.bench.breakdown import breakdown
+from supervisor.tools.bench.numbers import percentiles
 from supervisor.tools.bench.plan import (
     LATENCY_REQUIREMENT,
     SROBOT_NOMINAL_CHECK,
@@ -95,24 +96,6 @@ def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> 
     return out
 
 
-def _percentiles(values_ms: list[float]) -> dict[str, float | None]:
-    if not values_ms:
-        return {k: None for k in ("p50", "p90", "p99", "max", "mean")}
-    v = sorted(values_ms)
-
-    def pct(p: int) -> float:
-        # nearest rank: the smallest value with at least p % of the samples at or below it
-        return v[max(0, min(len(v) - 1, -(-len(v) * p // 100) - 1))]
-
-    return {
-        "p50": pct(50),
-        "p90": pct(90),
-        "p99": pct(99),
-        "max": v[-1],
-        "mean": statistics.fmean(v),
-    }
-
-
 def _latency_stats(result: dict[str, Any]) -> dict[str, Any]:
     ms = [ns / 1e6 for ns in result["latencies_ns"]]
     return {
@@ -120,7 +103,7 @@ def _latency_stats(result: dict[str, Any]) -> dict[str, Any]:
         "missed": result["missed"],
         "stray_halts": result["strays"],
         "sync_timeouts": result.get("sync_timeouts", 0),
-        **_percentiles(ms),
+        **percentiles(ms),
     }
 
 
@@ -161,10 +144,10 @@ def _daemon_internals(
             j += 1
     return {
         "violation_records": len(violations),
-        "trigger_to_record_ms": _percentiles(to_record),
+        "trigger_to_record_ms": percentiles(to_record),
         "other_violations": len(violations) - len(mine),
         "not_from_holding_state": not_holding,
-        "detect_to_publish_ms": _percentiles(internal),
+        "detect_to_publish_ms": percentiles(internal),
         "violation_record_bytes": int(statistics.median(sizes)) if sizes else None,
     }
 
@@ -190,4 +173,4 @@ def _fsync_times(where: Path, size: int, n: int = 200) -> dict[str, Any]:
     finally:
         os.close(fd)
         path.unlink()
-    return {"bytes": size, "n": n, **_percentiles(times)}
+    return {"bytes": size, "n": n, **percentiles(times)}

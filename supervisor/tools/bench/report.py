@@ -5,11 +5,12 @@ from __future__ import annotations
 from typing import Any
 
 from supervisor.tools.bench.latency import TESSLA_MEAN_MS, THESIS_MEAN_MS
+from supervisor.tools.bench.numbers import shown
 from supervisor.tools.bench.plan import DEPTH
 
 
 def _f(x: float | None, fmt: str = ".2f") -> str:
-    return "-" if x is None else format(x, fmt)
+    return shown(x, fmt)
 
 
 def format_results(r: dict[str, Any]) -> str:

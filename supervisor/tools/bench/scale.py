@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.scalegen import N_VARIABLES, generate
 from supervisor.tools.bench.session import Session
@@ -247,7 +248,3 @@ def scale_bench(
         "rows": rows,
         "reference": {"config": str(plan.path), **reference},
     }
-
-
-def _f(x: float | None, fmt: str = ".1f") -> str:
-    return "-" if x is None else format(x, fmt)

@@ -26,7 +26,8 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.tools.bench.errors import BenchError
-from supervisor.tools.bench.latency import _percentiles
+from supervisor.tools.bench.numbers import percentiles
+from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import SCAN_CLOSEST, Plan, ScanPlan
 from supervisor.tools.bench.publisher import scan_message
 from supervisor.tools.bench.session import Session
@@ -85,7 +86,7 @@ def _timed(fn: Callable[[Any], Any], args: list[Any], n: int) -> tuple[dict[str,
         t0 = perf()
         out = fn(a)
         times[i] = perf() - t0
-    st = _percentiles([t / 1000 for t in times])
+    st = percentiles([t / 1000 for t in times])
     return {"n": n, **st}, out
 
 
@@ -183,7 +184,3 @@ def scan_bench(
         f"(rclpy-built), {r['reduce_deserialised_us']['p50']:.1f} us (deserialised)"
     )
     return out
-
-
-def _f(x: float | None, fmt: str = ".1f") -> str:
-    return "-" if x is None else format(x, fmt)

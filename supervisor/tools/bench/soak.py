@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.scale import fd_count, proc_memory
 from supervisor.tools.bench.session import Session
@@ -154,7 +155,3 @@ def soak_bench(
         f"{out['fds_first']} -> {out['fds_last']}; lost {out['lost']} of {out['sent']}"
     )
     return out
-
-
-def _f(x: float | None, fmt: str = ".1f") -> str:
-    return "-" if x is None else format(x, fmt)

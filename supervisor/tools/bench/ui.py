@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.session import Session, cpu_seconds
 from supervisor.tools.bench.throughput import throughput
@@ -454,10 +455,6 @@ def _page_result(
 
 def _pct(new: float | None, old: float | None) -> float | None:
     return None if new is None or not old else 100.0 * (new - old) / old
-
-
-def _f(x: float | None, fmt: str = ".1f") -> str:
-    return "-" if x is None else format(x, fmt)
 
 
 def ui_load(
