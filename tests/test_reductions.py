@@ -1,4 +1,4 @@
-"""Array fields reduced to one value (``reduce:``, mitigations/rosmsg.py): against
+"""Array fields reduced to one value (``reduce:``, supervisor/inputs/reductions.py): against
 a plain reference on random arrays, the config's checks, replay of a LaserScan
 bag, and the daemon over real DDS (REP 117: NaN, infinite and out-of-range
 readings are not obstacles)."""
@@ -14,9 +14,9 @@ from typing import Any
 
 import pytest
 
-from supervisor.inputs.reductions import reduce_values
 from monitors.errors import UserError
 from supervisor.config import load_config
+from supervisor.inputs.reductions import reduce_values
 from supervisor.pipeline import project_for
 
 BASE = """\
