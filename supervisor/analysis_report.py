@@ -186,7 +186,7 @@ class Validation:
 
 def validate(path: str | Path, k: int | None = None) -> Validation:
     """The one validation of a config, for ``check``, ``run`` and reload alike (the
-    daemon through :func:`validate_aside`)."""
+    daemon through :class:`Aside`)."""
     project = project_for(path)
     if not project.ok:
         return Validation(project, None, "the config has errors")
@@ -279,10 +279,6 @@ class Aside:
         if self._proc is not None and self._proc.poll() is None:
             self._proc.kill()
             self._proc.communicate()
-
-
-def validate_aside(path: str | Path, k: int | None = None) -> Aside:
-    return Aside(path, k)
 
 
 def _child_main(argv: list[str]) -> int:

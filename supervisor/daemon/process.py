@@ -31,7 +31,7 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from monitors.errors import UserError
-from supervisor.analysis_report import validate_aside
+from supervisor.analysis_report import Aside
 from supervisor.config import Config
 from supervisor.config.record import RecordConfig
 from supervisor.daemon.control import open_control
@@ -64,7 +64,7 @@ def prepare_session(
     and compile it into a loaded Session; raises UserError.  ``skipped`` hears why the analyses did not
     run in full, for the log (docs/reference/log.md)."""
     # The analyses run in a child (z3's memory stays there) while the monitor compiles.
-    aside = validate_aside(config)
+    aside = Aside(config)
     err = aside.project.first_error()
     if err is not None:
         raise err

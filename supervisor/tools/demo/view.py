@@ -85,12 +85,17 @@ def screen(st: DemoState, final: bool = False) -> str:
         "",
         "last events",
     ]
+    return "\n".join(lines + _screen_tail(st, final))
+
+
+def _screen_tail(st: DemoState, final: bool) -> list[str]:
+    """Both live screens end alike: the last events, the log, how to stop."""
     recent = st.timeline()[-EVENTS_SHOWN:]
-    lines += [f"  {e.render()}" for e in recent] or ["  (none yet)"]
+    lines = [f"  {e.render()}" for e in recent] or ["  (none yet)"]
     lines += ["", f"violation log: {st.log}"]
     if not final:
         lines.append("Ctrl-C stops the demo")
-    return "\n".join(lines)
+    return lines
 
 
 def status_line(st: DemoState) -> str:
@@ -218,12 +223,7 @@ def base_screen(st: DemoState, final: bool = False) -> str:
         "",
         "last events",
     ]
-    recent = st.timeline()[-EVENTS_SHOWN:]
-    lines += [f"  {e.render()}" for e in recent] or ["  (none yet)"]
-    lines += ["", f"violation log: {st.log}"]
-    if not final:
-        lines.append("Ctrl-C stops the demo")
-    return "\n".join(lines)
+    return "\n".join(lines + _screen_tail(st, final))
 
 
 def base_status_line(st: DemoState) -> str:
