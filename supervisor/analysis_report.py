@@ -139,8 +139,15 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
     if not enabled:
         return None
     reqs, roles = project_requirements(project)
-    budget = project.config.limits.analysis_budget_s
-    return analyse(reqs, roles, k=k or cfg_k, timeout_s=timeout, budget_s=budget)
+    limits = project.config.limits
+    return analyse(
+        reqs,
+        roles,
+        k=k or cfg_k,
+        timeout_s=timeout,
+        budget_s=limits.analysis_budget_s,
+        memory_mb=max(1, round(limits.analysis_memory_mb)),
+    )
 
 
 # ------------------------------------------------------------------ validation
@@ -382,7 +389,11 @@ def skipped_lines(a: Analysis) -> list[str]:
     by_why: dict[str, list[str]] = {}
     for name, why in a.skipped.items():
         by_why.setdefault(why, []).append(name)
-    return [f"  skipped:       {', '.join(ns)}: {why} ({BUDGET_KEY})" for why, ns in by_why.items()]
+    return [
+        f"  skipped:       {', '.join(ns)}: {why}"
+        + ("" if "(limits." in why else f" ({BUDGET_KEY})")
+        for why, ns in by_why.items()
+    ]
 
 
 def format_example(ex: Example | None, what: str, variables: dict[str, VarInfo]) -> list[str]:
@@ -403,7 +414,10 @@ def explain_lines(a: Analysis, rid: str) -> list[str]:
         out.append(f"  analysis:  no findings (traces of {a.k} ticks)")
     sat, viol = a.examples(rid)
     if "examples" in a.skipped:
-        out.append(f"  analysis:  skipped: {a.skipped['examples']} ({BUDGET_KEY})")
+        why = a.skipped["examples"]
+        out.append(
+            f"  analysis:  skipped: {why}" + ("" if "(limits." in why else f" ({BUDGET_KEY})")
+        )
         return out
     out.extend(format_example(sat, "satisfied by", a.variables))
     out.extend(format_example(viol, "violated by", a.variables))

@@ -195,3 +195,36 @@ def test_a_set_too_large_to_unroll_in_the_budget_is_given_up_at_once() -> None:
     assert "unrolling all 400 requirements would take about" in why, why
     assert "measured on the first" in why and "k = 95" in why
     assert spent < budget / 2, f"gave up after {spent:.1f} s of a {budget:g} s budget"
+
+
+def test_z3_memory_limit_stops_the_analyses_with_the_reason() -> None:
+    # limits.analysis_memory_mb is z3's max_memory: reached, the analysis running
+    # stops, the later ones are skipped, and explain's examples are not asked for.
+    vars_ = [VarInfo(n, "int64", "input" if n < "m" else "output") for n in "abxy"]
+    reqs = [Req(f"r{i}", parse_formula(f"H (a + {i} = b -> O[0,4] (x = y))")) for i in range(3)]
+    a = analyse(reqs, vars_, k=6, timeout_s=5.0, budget_s=30.0, memory_mb=1)
+    assert a.skipped["consistency"] == (
+        "stopped: z3 reached its memory limit of 1 MB (limits.analysis_memory_mb)"
+    )
+    for name in ("vacuity", "examples"):
+        assert "memory limit of 1 MB" in a.skipped[name], a.skipped
+    assert a.find_examples is None and a.examples("r0") == (None, None)
+    text = format_analysis(a)
+    assert "memory limit of 1 MB (limits.analysis_memory_mb)" in text
+    assert "(limits.analysis_memory_mb) (limits.analysis_budget_s)" not in text
+    # the same set without the limit is analysed in full
+    full = analyse(reqs, vars_, k=6, timeout_s=5.0, budget_s=30.0)
+    assert not full.skipped, full.skipped
+
+
+def test_check_says_when_z3_reached_the_memory_limit(tmp_path: Path) -> None:
+    cfg = _config(tmp_path, "3 ticks", limits="limits: {analysis_memory_mb: 1}\n")
+    p = subprocess.run(
+        [sys.executable, "-m", "supervisor", "check", str(cfg)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr
+    assert "z3 reached its memory limit of 1 MB (limits.analysis_memory_mb)" in p.stdout

@@ -23,7 +23,8 @@ class Limits:
     # Wall-clock time of all the analyses of one check/explain together; the unit's
     # TimeoutStartSec (60 s) has to cover check and the start of run.
     analysis_budget_s: float = 30.0
-    # Estimated memory of the analyses' unrolled solver terms.
+    # What z3 may hold during the analyses (its max_memory); reached, the analysis
+    # running stops and the later ones are skipped, said as such.
     analysis_memory_mb: float = 512.0
     line: int | None = None  # of 'limits:' (for errors about the whole monitor)
 

@@ -181,7 +181,7 @@ def _components_of(uses: dict[str, set[str]]) -> list[list[str]]:
 def _atom_solver(ctx: Context, fs: list[Formula]) -> tuple[z3.Solver, list[z3.BoolRef], Row]:
     names = list(dict.fromkeys(v for f in fs for v in variables(f)))
     row = fresh_row(ctx.types, names, "atom")
-    s = z3.Solver()
+    s = ctx.new_solver()
     s.set(timeout=ctx.timeout_ms)
     for n in names:
         if n in ctx.ranges:

@@ -12,6 +12,7 @@ import z3
 from monitors.ir.formula import Formula, variables
 from monitors.verify.analysis.requirements import Req, VarInfo, range_formula
 from monitors.verify.analysis.results import Trace
+from monitors.verify.analysis.solvers import solver
 from monitors.verify.bmc import (
     Encoder,
     OutOfTime,
@@ -77,8 +78,10 @@ class Context:
         k: int,
         timeout_s: float,
         deadline: float | None = None,
+        memory_mb: int | None = None,
     ) -> None:
         self.k = k
+        self.memory_mb = memory_mb
         self.per_call_ms = int(timeout_s * 1000)  # analysis.timeout_s, one solver call
         self.deadline = deadline  # time.monotonic() when the analyses' budget runs out
         self.vars = vars_
@@ -105,8 +108,12 @@ class Context:
             rf = range_formula(v)
             if rf is not None and v.name in names:
                 self.ranges[v.name] = rf
-        self.solver = z3.Solver()
+        self.solver = self.new_solver()
         self._lits: dict[tuple, z3.BoolRef] = {}
+
+    def new_solver(self) -> z3.Solver:
+        """A solver within the analyses' memory limit (every solver starts here)."""
+        return solver(self.memory_mb)
 
     @property
     def timeout_ms(self) -> int:

@@ -7,9 +7,15 @@ import time
 
 import z3
 
+from monitors.verify.analysis.solvers import solver
+
 
 def exists_forall(
-    body: z3.BoolRef, evars: list[z3.ExprRef], uvars: list[z3.ExprRef], timeout_ms: int
+    body: z3.BoolRef,
+    evars: list[z3.ExprRef],
+    uvars: list[z3.ExprRef],
+    timeout_ms: int,
+    memory_mb: int | None = None,
 ) -> tuple[str, z3.ModelRef | None]:
     """Exists evars . forall uvars . body.  Two methods that fail on different
     problems: z3's quantifier engine, briefly (fast on bit-vectors where an output
@@ -17,7 +23,7 @@ def exists_forall(
     inputs refuted by outputs that answer them; fast on Boolean games, where the
     quantifier engine can take minutes) for the rest of the time."""
     first = min(2000, max(1, timeout_ms // 4))
-    s = z3.Solver()
+    s = solver(memory_mb)
     s.set(timeout=first)
     s.add(z3.ForAll(uvars, body) if uvars else body)
     r = s.check()
@@ -25,14 +31,18 @@ def exists_forall(
         return "sat", s.model()
     if r == z3.unsat:
         return "unsat", None
-    return _cegis(body, evars, uvars, max(1, timeout_ms - first))
+    return _cegis(body, evars, uvars, max(1, timeout_ms - first), memory_mb)
 
 
 def _cegis(
-    body: z3.BoolRef, evars: list[z3.ExprRef], uvars: list[z3.ExprRef], timeout_ms: int
+    body: z3.BoolRef,
+    evars: list[z3.ExprRef],
+    uvars: list[z3.ExprRef],
+    timeout_ms: int,
+    memory_mb: int | None,
 ) -> tuple[str, z3.ModelRef | None]:
     deadline = time.monotonic() + timeout_ms / 1000
-    cand, refute = z3.Solver(), z3.Solver()
+    cand, refute = solver(memory_mb), solver(memory_mb)
     refute.add(z3.Not(body))
     while time.monotonic() < deadline:
         left = max(1, int((deadline - time.monotonic()) * 1000))

@@ -71,7 +71,9 @@ class Game:
         win = z3.And([self._tick(i, row) for i in self.out_items] or [z3.BoolVal(True)])
         ivars = [row[n] for n in self.ins]
         ovars = [row[n] for n in self.outs]
-        status, model = exists_forall(z3.And(env, z3.Not(win)), ivars, ovars, ctx.timeout_ms)
+        status, model = exists_forall(
+            z3.And(env, z3.Not(win)), ivars, ovars, ctx.timeout_ms, ctx.memory_mb
+        )
         if status == "unsat":
             return (
                 "realizable, proved for all time: every requirement is a per-tick invariant, "
@@ -122,7 +124,13 @@ class Game:
         win = z3.And([self.win_at(t, n) for t in range(n)])
         ivars = [v for t in range(n) for v in self.vars_at(self.arena.ins, t)]
         ovars = [v for t in range(n) for v in self.vars_at(self.arena.outs, t)]
-        return exists_forall(z3.And(self.env_ok(n), z3.Not(win)), ivars, ovars, self.ctx.timeout_ms)
+        return exists_forall(
+            z3.And(self.env_ok(n), z3.Not(win)),
+            ivars,
+            ovars,
+            self.ctx.timeout_ms,
+            self.ctx.memory_mb,
+        )
 
     def causal(self, n: int) -> str:
         """The bounded game: forall i0 exists o0 forall i1 exists o1 ... (outputs at
@@ -134,7 +142,7 @@ class Game:
                 body = z3.Exists(o, body)
             if i:
                 body = z3.ForAll(i, body)
-        s = z3.Solver()
+        s = self.ctx.new_solver()
         s.set(timeout=self.ctx.timeout_ms)
         s.add(body)
         r = s.check()

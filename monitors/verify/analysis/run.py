@@ -7,6 +7,8 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 
+import z3
+
 from monitors.verify.analysis.consistency import consistency
 from monitors.verify.analysis.context import Context, TooLarge
 from monitors.verify.analysis.examples import examples
@@ -14,6 +16,7 @@ from monitors.verify.analysis.realizability import realizability
 from monitors.verify.analysis.redundancy import redundancy
 from monitors.verify.analysis.requirements import Req, VarInfo, default_k, range_formula
 from monitors.verify.analysis.results import SEVERITIES, Analysis, Finding
+from monitors.verify.analysis.solvers import is_memout
 from monitors.verify.analysis.vacuity import vacuity
 from monitors.verify.bmc import OutOfTime, encoding_cells
 
@@ -24,6 +27,9 @@ ANALYSES = ("consistency", "realizability", "vacuity", "redundancy")
 # tools/bench/analysis.py); an unrolling estimated to need more than the whole
 # budget at this rate is not started.
 CELLS_PER_S = 200_000
+# Said after a reason that is the memory limit's (the budget's reasons get theirs from
+# the report): the setting that raises it.
+MEMORY_KEY = " (limits.analysis_memory_mb)"
 
 
 def analyse(
@@ -33,10 +39,12 @@ def analyse(
     k: int | None = None,
     timeout_s: float = DEFAULT_TIMEOUT_S,
     budget_s: float | None = None,
+    memory_mb: int | None = None,
 ) -> Analysis:
     """Run every analysis on traces of ``k`` ticks (default: ``default_k``), each solver
-    call within ``timeout_s`` and all of them within ``budget_s`` (None: no budget).
-    What the budget cut short is in ``Analysis.skipped``, with the reason."""
+    call within ``timeout_s`` and all of them within ``budget_s`` (None: no budget),
+    z3 within ``memory_mb`` MB (None: no limit).  What the budget or the memory limit
+    cut short is in ``Analysis.skipped``, with the reason."""
     if not isinstance(vars_, dict):
         vars_ = {v.name: v for v in vars_}
     k = k or default_k(reqs)
@@ -65,7 +73,7 @@ def analyse(
                 "a shorter k (analysis.k, --k) analyses shorter traces"
             )
     try:
-        ctx = Context(reqs, vars_, k, timeout_s, deadline)
+        ctx = Context(reqs, vars_, k, timeout_s, deadline, memory_mb)
     except OutOfTime:
         return give_up(
             f"the time budget of {budget_s:g} s ran out while unrolling traces of k = {k} ticks"
@@ -100,11 +108,16 @@ def analyse(
                 )
             )
     seconds["encode"] = time.perf_counter() - t0
+    memout: list[str] = []  # once z3 reached its memory limit, its context is not asked again
 
     def step(name: str, run: Callable[[], object], default: object) -> object:
-        """One analysis, timed; ``default`` when the budget is gone before or during it
-        (findings it made before that stay: each was checked on its own)."""
+        """One analysis, timed; ``default`` when the budget or z3's memory is gone
+        before or during it (findings it made before that stay: each was checked on
+        its own)."""
         t = time.perf_counter()
+        if memout:
+            skipped[name] = f"z3 reached its memory limit of {memory_mb} MB before it{MEMORY_KEY}"
+            return default
         if deadline is not None and time.monotonic() >= deadline:
             skipped[name] = f"the time budget of {budget_s:g} s ran out before it"
             return default
@@ -112,6 +125,12 @@ def analyse(
             return run()
         except OutOfTime:
             skipped[name] = f"stopped: the time budget of {budget_s:g} s ran out during it"
+            return default
+        except z3.Z3Exception as e:
+            if not is_memout(e):
+                raise
+            memout.append(name)
+            skipped[name] = f"stopped: z3 reached its memory limit of {memory_mb} MB{MEMORY_KEY}"
             return default
         finally:
             seconds[name] = time.perf_counter() - t
@@ -139,6 +158,8 @@ def analyse(
         skipped["redundancy"] = undecided
     if consistent is None and "realizability" not in skipped:
         skipped["realizability"] = undecided
+    if memout:  # explain's example traces would ask the same solver
+        skipped["examples"] = f"z3 reached its memory limit of {memory_mb} MB{MEMORY_KEY}"
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])
@@ -151,6 +172,6 @@ def analyse(
         consistency_text,
         realizability_text,
         seconds,
-        partial(examples, ctx),
+        None if memout else partial(examples, ctx),
         skipped,
     )
