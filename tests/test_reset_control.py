@@ -332,30 +332,35 @@ def test_burst_of_resets_writes_a_handful_of_records(tmp_path: Path) -> None:
 def test_ros_reset_service_only_when_enabled(tmp_path: Path, robot_node: Any) -> None:
     from rosutil import wait_until
 
-    def services() -> list[str]:
+    def services(node: str) -> list[str]:
         try:
-            found = robot_node.get_service_names_and_types_by_node("safety_supervisor", "/")
+            found = robot_node.get_service_names_and_types_by_node(node, "/")
         except Exception:  # noqa: BLE001 - the node is not discovered yet
             return []
         return [n for n, _ in found]
 
-    def services_once_discovered() -> list[str]:
+    def services_once_discovered(node: str) -> list[str]:
         """The daemon's services, once its parameter services (rclpy's, always
         there) are discovered: any service of the node would be by then."""
         return wait_until(
             "the daemon's node and its services to be discovered",
-            lambda: (s := services()) and "/safety_supervisor/get_parameters" in s and s,
+            lambda: (s := services(node)) and f"/{node}/get_parameters" in s and s,
             20,
         )
 
-    for tail, present in (("", False), ("ros:\n  reset_service: true\n", True)):
-        sub = tmp_path / ("on" if present else "off")
+    # A node name of its own for each daemon: a stopped daemon stays in the graph
+    # until its DDS lease expires (docs/reference/faults.md, "Stop"), so an earlier
+    # daemon's services must not be taken for this one's.
+    for present in (False, True):
+        node = f"ss_{'on' if present else 'off'}_{os.getpid()}"
+        sub = tmp_path / node
         sub.mkdir()
-        d = _daemon(sub, tail + f"control:\n  socket: {sub / 'c.sock'}\n")
+        ros = f"ros:\n  node_name: {node}\n" + ("  reset_service: true\n" if present else "")
+        d = _daemon(sub, ros + f"control:\n  socket: {sub / 'c.sock'}\n")
         try:
-            found = services_once_discovered()
+            found = services_once_discovered(node)
             if present:  # discovered with the node's other services, or soon after
-                wait_until(RESET_SERVICE, lambda: RESET_SERVICE in services(), 10)
+                wait_until(RESET_SERVICE, lambda: RESET_SERVICE in services(node), 10)
             else:
                 assert RESET_SERVICE not in found, found
             d.terminate()
