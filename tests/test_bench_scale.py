@@ -17,6 +17,7 @@ from supervisor.tools.bench.scalegen import N_VARIABLES, TIMING_KINDS, generate
 
 ROOT = Path(__file__).resolve().parent.parent
 SKIP = ["--skip-throughput", "--skip-latency", "--skip-record", "--skip-replay", "--skip-ui"]
+# bench runs the scaling and the soak by default; each test here leaves out the other.
 
 
 def _positive(x: Any) -> bool:
@@ -89,7 +90,7 @@ def test_soak_slope() -> None:
 @pytest.mark.slow  # check of 10 requirements (the analyses' budget) and a daemon run
 def test_bench_scale_writes_its_figures(tmp_path: Path) -> None:
     pytest.importorskip("rclpy")
-    p = _bench("--quick", "--scale", "--scale-sizes", "10", "--out", str(tmp_path), timeout=600)
+    p = _bench("--quick", "--skip-soak", "--scale-sizes", "10", "--out", str(tmp_path), timeout=600)
     assert p.returncode == 0, p.stderr
     assert "Traceback" not in p.stderr
     assert "Scaling: generated configs" in p.stdout
@@ -116,7 +117,7 @@ def test_bench_scale_writes_its_figures(tmp_path: Path) -> None:
 def test_bench_soak_samples(tmp_path: Path) -> None:
     pytest.importorskip("rclpy")
     p = _bench(
-        "--soak", "--soak-seconds", "10", "--soak-rate", "5000", "--out", str(tmp_path), timeout=300
+        "--skip-scale", "--soak-seconds", "10", "--soak-rate", "5000", "--out", str(tmp_path), timeout=300
     )
     assert p.returncode == 0, p.stderr
     assert "Soak: the daemon" in p.stdout

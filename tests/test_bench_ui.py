@@ -46,6 +46,7 @@ def test_bench_ui_load(tmp_path: Path) -> None:
     out = tmp_path / "out"
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     skip = ["--skip-throughput", "--skip-record", "--skip-latency", "--skip-replay"]
+    skip += ["--skip-scale", "--skip-soak"]
     args = ["--ui-rates", "5000", "--ui-seconds", "6", "--ui-clients", str(CLIENTS)]
     p = subprocess.run(
         [sys.executable, "-m", "supervisor", "bench", *skip, *args, "--out", str(out)],

@@ -36,12 +36,12 @@ Prints numbers and asserts nothing (speed goals are benchmarks, not tests).
    at 40 Hz beside the stream, reduced (``reduce: min``) and aged (``age_of``) by the
    daemon: its CPU per message and loss without and with it at ``--scan-rate``, and
    the reduction's own cost per scan, timed in this process.
-6. With ``--scale`` (:mod:`~supervisor.tools.bench.scale`): generated configs of N
+6. Scaling (:mod:`~supervisor.tools.bench.scale`): generated configs of N
    requirements over 50 inputs (``--scale-sizes``): parse + formalize, ``check``'s wall
    time and what its analyses did, C generation + build, the library's size, the step's
    ns per tick, and the daemon's CPU per message and memory at ``--scale-rate``; the
    daemon's memory on the bench's config beside.
-7. With ``--soak`` (:mod:`~supervisor.tools.bench.soak`): the daemon at ``--soak-rate``
+7. Soak (:mod:`~supervisor.tools.bench.soak`): the daemon at ``--soak-rate``
    for ``--soak-seconds``, its RSS and open descriptors sampled: first, last, largest,
    the RSS slope over the second half, and the messages lost.
 
@@ -236,12 +236,6 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="scans reduced in this process to time it (default 20000; --quick 5000)",
     )
     p.add_argument(
-        "--scale",
-        action="store_true",
-        help="also generated configs of N requirements over 50 inputs: check, compile, step, "
-        "the daemon's CPU and memory",
-    )
-    p.add_argument(
         "--scale-sizes",
         type=_sizes,
         default=None,
@@ -254,11 +248,6 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         default=10_000.0,
         metavar="R",
         help="offered msg/s over the generated config's 50 topics (default 10000)",
-    )
-    p.add_argument(
-        "--soak",
-        action="store_true",
-        help="also a long run of the daemon: its RSS and open descriptors sampled",
     )
     p.add_argument(
         "--soak-seconds",
@@ -285,6 +274,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--skip-record", action="store_true", help="leave out the recording overhead")
     p.add_argument("--skip-replay", action="store_true", help="leave out the replay throughput")
     p.add_argument("--skip-ui", action="store_true", help="leave out the UI load")
+    p.add_argument(
+        "--skip-scale",
+        action="store_true",
+        help="leave out the generated sets of N requirements (check, compile, step, daemon)",
+    )
+    p.add_argument(
+        "--skip-soak", action="store_true", help="leave out the long run's memory and descriptors"
+    )
     p.add_argument(
         "--naive",
         action="store_true",

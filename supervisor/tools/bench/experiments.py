@@ -81,7 +81,7 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                 say,
                 wd_usec=args.watchdog_usec,
             )
-        if getattr(args, "scale", False):
+        if not args.skip_scale:
             results["scale"] = scale_bench(
                 s,
                 plan,
@@ -91,7 +91,7 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                 say,
                 wd_usec=args.watchdog_usec,
             )
-        if getattr(args, "soak", False):
+        if not args.skip_soak:
             results["soak"] = soak_bench(
                 s, plan, args.soak_rate, args.soak_seconds, say, wd_usec=args.watchdog_usec
             )
