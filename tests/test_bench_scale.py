@@ -117,7 +117,9 @@ def test_bench_scale_writes_its_figures(tmp_path: Path) -> None:
 def test_bench_soak_samples(tmp_path: Path) -> None:
     pytest.importorskip("rclpy")
     p = _bench(
-        "--skip-scale", "--soak-seconds", "10", "--soak-rate", "5000", "--out", str(tmp_path), timeout=300
+        *("--skip-scale", "--soak-seconds", "10", "--soak-rate", "5000"),
+        *("--out", str(tmp_path)),
+        timeout=300,
     )
     assert p.returncode == 0, p.stderr
     assert "Soak: the daemon" in p.stdout

@@ -360,7 +360,7 @@ def test_ros_reset_service_only_when_enabled(tmp_path: Path, robot_node: Any) ->
         try:
             found = services_once_discovered(node)
             if present:  # discovered with the node's other services, or soon after
-                wait_until(RESET_SERVICE, lambda: RESET_SERVICE in services(node), 10)
+                wait_until(RESET_SERVICE, lambda n=node: RESET_SERVICE in services(n), 10)
             else:
                 assert RESET_SERVICE not in found, found
             d.terminate()
