@@ -11,7 +11,6 @@ for the daemon and for this process's rclpy context.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -111,24 +110,3 @@ def test_violation_logged_then_clean_stop(daemon: Daemon, robot_node: Node) -> N
     daemon.terminate()
     events = [r.get("what") for r in daemon.records() if r["event"] == "supervisor"]
     assert "ready" in events and events[-1] == "stop"
-
-
-def test_stopped_daemon_leaves_the_ros_graph_at_once(tmp_path: Path, robot_node: Node) -> None:
-    """Its node is destroyed at the stop, so its DDS participant says goodbye: other
-    nodes do not wait for its lease (20 s with Fast DDS) to expire, and a restarted
-    daemon is never beside its own ghost (docs/reference/faults.md, "Stop")."""
-    from rosutil import SROBOT, wait_until
-
-    node = f"ss_leaves_{os.getpid()}"
-    config = tmp_path / "srobot.yaml"
-    config.write_text(SROBOT.read_text() + f"\nros:\n  node_name: {node}\n")
-    d = Daemon(tmp_path, config)
-    try:
-        d.wait_notify("READY=1", timeout=30)
-        wait_until("the daemon's node", lambda: node in robot_node.get_node_names(), 20)
-        d.terminate()
-        t0 = time.monotonic()
-        wait_until("the daemon's node to leave", lambda: node not in robot_node.get_node_names(), 5)
-        print(f"left the graph {time.monotonic() - t0:.2f} s after the exit")
-    finally:
-        d.close()

@@ -236,9 +236,8 @@ def run_daemon(
         )
     notifier.close()
     # Everything durable is done (the stop record and the log closed, the recording
-    # and the temporary files gone, the node destroyed): exit without the
-    # interpreter's teardown of rclpy's remaining native objects, which crashed now
-    # and then (docs/reference/faults.md, "Stop").
+    # and the temporary files gone): exit without the interpreter's teardown of the
+    # ROS node, whose native destruction crashed now and then (docs/reference/faults.md).
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
