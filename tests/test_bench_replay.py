@@ -164,3 +164,8 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     assert f"| {rec['on']['received']} |" in md
     for c in rep["cases"]:
         assert f"{c['rate']:.0f}" in md
+    # the daemon's stages, as the text report has them
+    stages = r["latency"]["breakdown"]["stages_us"]
+    assert "| stage | p50 µs |" in md and "x the floor (goal: at most 1.3x)" in md
+    for name, st in stages.items():
+        assert f"| {name} | {st['p50']:.1f} |" in md, name

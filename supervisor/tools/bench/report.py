@@ -483,6 +483,7 @@ def format_markdown(r: dict[str, Any]) -> str:
                 f"| {_f(st['p99'], '.3f')} | {_f(st['max'], '.3f')} | {_f(st['mean'], '.3f')} "
                 f"| {st.get('missed', '')} |"
             )
+        out += _breakdown_markdown(lat)
     if "replay" in r:
         rep = r["replay"]
         out += [
@@ -573,6 +574,46 @@ def _format_loss(row: dict[str, Any]) -> str:
         f" + before the first heard {loss['before_first']} + {tail} {loss['after_last']}"
         + ("" if loss["agree"] else "  [DISAGREE]")
     )
+
+
+def _breakdown_markdown(lat: dict[str, Any]) -> list[str]:
+    """The daemon's stages as a table, and the latency goal against the floor."""
+    b = lat.get("breakdown")
+    if not b:
+        return []
+    idle = lat.get("breakdown_idle") or {}
+    cold = idle.get("stages_us", {})
+    head = f"after {idle['idle_ms']:g} ms idle p50 µs" if idle else "after idle"
+    out = [
+        "",
+        f"The daemon's stages in one process, {b['trials']} violations back to back"
+        + (f" and {idle['trials']} after {idle['idle_ms']:g} ms idle each" if idle else "")
+        + ":",
+        "",
+        f"| stage | p50 µs | p99 µs | max µs | {head} | what |",
+        "| --- | ---: | ---: | ---: | ---: | --- |",
+    ]
+    for name, st in b["stages_us"].items():
+        c = cold.get(name, {}).get("p50")
+        out.append(
+            f"| {name} | {_f(st['p50'], '.1f')} | {_f(st['p99'], '.1f')} | {_f(st['max'], '.1f')} "
+            f"| {_f(c, '.1f') if c is not None else ''} | {st['what']} |"
+        )
+    t = b["total_us"]
+    c = idle.get("total_us", {}).get("p50")
+    out.append(
+        f"| total | {_f(t['p50'], '.1f')} | {_f(t['p99'], '.1f')} | {_f(t['max'], '.1f')} "
+        f"| {_f(c, '.1f') if c is not None else ''} | |"
+    )
+    echo, daemon, fs = lat["echo"]["p50"], lat["daemon"]["p50"], lat["fsync"]["p50"]
+    if echo is not None and daemon is not None and fs is not None:
+        floor = echo + fs
+        out += [
+            "",
+            f"Floor (echo p50 + fsync p50) {floor:.3f} ms; daemon p50 {daemon:.3f} ms = "
+            f"{daemon / floor:.2f}x the floor (goal: at most 1.3x).",
+        ]
+    return out
 
 
 def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
