@@ -1,4 +1,4 @@
-"""``bench --scale`` and ``bench --soak``: the generated configs, and the figures each
+"""``bench``'s scaling and soak parts: the generated configs, and the figures each
 part writes to bench.json. Structure and sanity only, never speed."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Generated requirement sets for ``bench --scale``: N FRETISH requirements over 50
+"""Generated requirement sets for ``bench``'s scaling part: N FRETISH requirements over 50
 input variables (bool, int64 and double, one std_msgs topic each), deterministic
 from a seed.
 
@@ -260,7 +260,7 @@ def generate(n: int, seed: int = 1, n_variables: int = N_VARIABLES) -> Generated
             out.qualifiers[q] = out.qualifiers.get(q, 0) + 1
         lines.append(f"  - id: r{i:04d}\n    text: {_quote(text)}")
     head = [
-        f"# bench --scale: {n} generated requirements over {n_variables} inputs (seed {seed})",
+        f"# bench (scaling): {n} generated requirements over {n_variables} inputs (seed {seed})",
         f"component: {COMPONENT}",
         "step:",
         "  policy: on_trigger",

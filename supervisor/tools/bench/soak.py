@@ -1,4 +1,4 @@
-"""A long run of the daemon under the stream (``bench --soak``): does it leak?
+"""A long run of the daemon under the stream (``bench``'s soak): does it leak?
 
 The throughput experiment's run on the bench's config (sRobot by default) at
 ``--soak-rate`` for ``--soak-seconds``, the wait-set baseline beside it; from the
