@@ -3,12 +3,20 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 from sshd import Sshd, sshd_available, start_sshd
+
+# A test suite started in the background by a shell without job control inherits
+# SIGINT ignored, and so would every command it starts: the tests that press Ctrl-C
+# (demo, logs -f, ui) would wait for nothing.  Handled here, SIGINT is back to its
+# default in every child (exec keeps ignored signals, resets handled ones).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
