@@ -119,6 +119,9 @@ class Core:
 
     def advance(self, t: int) -> None:
         """Run every timer due at or before ``t``, each at its own deadline."""
+        if t < self._due:  # nothing is due yet (the loop asks every turn)
+            self.now = t if self.now is None else max(self.now, t)
+            return
         while True:
             d = self.next_deadline(t)
             if d is None or d > t:
@@ -127,6 +130,14 @@ class Core:
                 return
             self.now = d
             self._run_due(d)
+
+    def next_due(self, t: int) -> int | None:
+        """:meth:`next_deadline`, or a time before it: the lower bound the core keeps
+        when it is known (woken at it, the loop's :meth:`advance` finds the rest)."""
+        if not self._due:
+            d = self.next_deadline(t)
+            self._due = _NEVER if d is None else d
+        return None if self._due == _NEVER else self._due
 
     def next_deadline(self, t: int) -> int | None:
         """The earliest timer, looking from ``t``: a step (a periodic monitor's first

@@ -411,15 +411,17 @@ class SupervisorNode:
                 s.sub.handle.pointer: (any(v.name == trigger for v in s.vars), i)
                 for i, s in enumerate(self._subs)
             }
+            handles = [s.sub.handle for s in self._subs]  # rclpy's property, once
+            wake = self._wake.handle
             while not self._stop.is_set() and not self._rebuild and ctx.ok():
                 rt = self.session.runtime
                 now = time.monotonic_ns()
                 wait_set.clear_entities()
-                for s in self._subs:
-                    wait_set.add_subscription(s.sub.handle)
+                for h in handles:
+                    wait_set.add_subscription(h)
                 if srv is not None:
                     wait_set.add_service(srv)
-                wait_set.add_guard_condition(self._wake.handle)
+                wait_set.add_guard_condition(wake)
                 wait_set.wait(max(0, self._deadline(now) - now))
                 ready = wait_set.get_ready_entities("subscription")
                 if ready:
@@ -430,11 +432,9 @@ class SupervisorNode:
                 self.log.flush()  # what this turn logged: to the journal and the copies
 
     def _deadline(self, now: int) -> int:
-        times = [now + MAX_WAIT_NS, *self._next.values()]
-        d = self.core.next_deadline(now)
-        if d is not None:
-            times.append(d)
-        return min(times)
+        d = min(now + MAX_WAIT_NS, *self._next.values())
+        due = self.core.next_due(now)
+        return d if due is None else min(d, due)
 
     def _receive(self, ready: list[_Sub], rt: Runtime) -> None:
         """Take one message from each ready subscription in turn, until all are
