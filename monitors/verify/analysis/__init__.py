@@ -34,7 +34,8 @@ interpreter (``monitors.verify.interpret``) and must agree with what z3 claimed;
 disagreement raises ``AssertionError`` (an encoding bug, never hidden).
 
 The modules, one job each: ``requirements`` (what is analysed), ``results``
-(what is reported), ``context`` (the shared solver), ``consistency`` and
+(what is reported), ``context`` (the shared solver), ``solvers`` (every solver
+within the memory limit), ``consistency`` and
 ``conflicts``, ``realizability`` with ``game``, ``arena`` and ``exists_forall``,
 ``vacuity``, ``redundancy``, ``examples`` (example traces for the report), and
 ``run`` (``analyse``, all of them in order)."""
