@@ -141,6 +141,58 @@ def test_decisions_do_not_depend_on_when_the_loop_wakes(project, seed, wake_seed
     assert "violation" in kinds  # the schedule exercises the policies
 
 
+@pytest.fixture(scope="module")
+def event_project(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """CONFIG stepped on every message: its only timers are the stale inputs' and the
+    policies' (with a periodic step, the next tick is nearly always the earliest)."""
+    d = tmp_path_factory.mktemp("core_event")
+    text = textwrap.dedent(CONFIG).replace(
+        "step: {policy: periodic, period_ms: 10, stale_after_ms: 50}",
+        "step: {policy: on_message, stale_after_ms: 50}",
+    )
+    (d / "c.yaml").write_text(text)
+    p = project_for(d / "c.yaml", ros=False)
+    assert p.ok, p.first_error()
+    return p, d
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), reset_seed=st.integers(0, 10_000), periodic=st.booleans())
+def test_the_loops_wake_up_time_is_never_after_a_deadline(
+    project, event_project, seed, reset_seed, periodic
+):
+    """The daemon's loop sleeps until ``next_due`` and ``advance`` returns at once
+    before it: both rely on it never being later than the true next deadline,
+    whatever the policies, stale inputs and operator resets did meanwhile."""
+    project = project if periodic else event_project
+    messages = schedule(seed, 150)
+    rng = random.Random(reset_seed)
+    core, calls = new_core(project)
+    core.start(0)
+    resets = 0
+
+    def bound_holds(now: int) -> None:
+        true_next = core.next_deadline(now)
+        due = core.next_due(now)
+        assert true_next is None or (due is not None and due <= true_next), (now, due, true_next)
+
+    for t, name, value in messages:
+        # the loop as node.py runs it: woken at next_due until the message's time
+        while (due := core.next_due(t)) is not None and due <= t:
+            core.advance(due)
+            bound_holds(due)
+        core.message(name, value, t)
+        bound_holds(t)
+        if rng.random() < 0.05:
+            resets += 1
+            core.operator_reset(t, via="test")
+            bound_holds(t)
+    end = messages[-1][0] + 200 * MS
+    core.advance(end)
+    if not resets:  # and it decides what a loop waking only for messages decides
+        assert calls.calls == drive(project, messages, [], end).calls
+
+
 def test_a_late_loop_catches_up_tick_by_tick(project):
     core, calls = new_core(project)
     core.start(0)
