@@ -389,11 +389,13 @@ def skipped_lines(a: Analysis) -> list[str]:
     by_why: dict[str, list[str]] = {}
     for name, why in a.skipped.items():
         by_why.setdefault(why, []).append(name)
-    return [
-        f"  skipped:       {', '.join(ns)}: {why}"
-        + ("" if "(limits." in why else f" ({BUDGET_KEY})")
-        for why, ns in by_why.items()
-    ]
+    return [f"  skipped:       {', '.join(ns)}: {_with_setting(why)}" for why, ns in by_why.items()]
+
+
+def _with_setting(why: str) -> str:
+    """A reason with the setting that changes it: the time budget's unless the reason
+    names its own (the memory limit's)."""
+    return why if "(limits." in why else f"{why} ({BUDGET_KEY})"
 
 
 def format_example(ex: Example | None, what: str, variables: dict[str, VarInfo]) -> list[str]:
@@ -414,10 +416,7 @@ def explain_lines(a: Analysis, rid: str) -> list[str]:
         out.append(f"  analysis:  no findings (traces of {a.k} ticks)")
     sat, viol = a.examples(rid)
     if "examples" in a.skipped:
-        why = a.skipped["examples"]
-        out.append(
-            f"  analysis:  skipped: {why}" + ("" if "(limits." in why else f" ({BUDGET_KEY})")
-        )
+        out.append(f"  analysis:  skipped: {_with_setting(a.skipped['examples'])}")
         return out
     out.extend(format_example(sat, "satisfied by", a.variables))
     out.extend(format_example(viol, "violated by", a.variables))

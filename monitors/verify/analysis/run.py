@@ -108,15 +108,17 @@ def analyse(
                 )
             )
     seconds["encode"] = time.perf_counter() - t0
-    memout: list[str] = []  # once z3 reached its memory limit, its context is not asked again
+    reached = f"z3 reached its memory limit of {memory_mb} MB"
+    memout = False  # once z3 reached its memory limit, its context is not asked again
 
     def step(name: str, run: Callable[[], object], default: object) -> object:
         """One analysis, timed; ``default`` when the budget or z3's memory is gone
         before or during it (findings it made before that stay: each was checked on
         its own)."""
+        nonlocal memout
         t = time.perf_counter()
         if memout:
-            skipped[name] = f"z3 reached its memory limit of {memory_mb} MB before it{MEMORY_KEY}"
+            skipped[name] = f"{reached} before it{MEMORY_KEY}"
             return default
         if deadline is not None and time.monotonic() >= deadline:
             skipped[name] = f"the time budget of {budget_s:g} s ran out before it"
@@ -129,8 +131,8 @@ def analyse(
         except z3.Z3Exception as e:
             if not is_memout(e):
                 raise
-            memout.append(name)
-            skipped[name] = f"stopped: z3 reached its memory limit of {memory_mb} MB{MEMORY_KEY}"
+            memout = True
+            skipped[name] = f"stopped: {reached}{MEMORY_KEY}"
             return default
         finally:
             seconds[name] = time.perf_counter() - t
@@ -159,7 +161,7 @@ def analyse(
     if consistent is None and "realizability" not in skipped:
         skipped["realizability"] = undecided
     if memout:  # explain's example traces would ask the same solver
-        skipped["examples"] = f"z3 reached its memory limit of {memory_mb} MB{MEMORY_KEY}"
+        skipped["examples"] = f"{reached}{MEMORY_KEY}"
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])

@@ -38,7 +38,7 @@ from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.scalegen import N_VARIABLES, generate
 from supervisor.tools.bench.session import Session
-from supervisor.tools.bench.throughput import throughput
+from supervisor.tools.bench.throughput import daemon_summary, throughput
 
 SEED = 1
 RATE = 10_000.0
@@ -173,18 +173,9 @@ def daemon_run(
         "offered": rate,
         "seconds": row["seconds"],
         "topics": len(plan.topics),
-        "sent": row["sent"],
-        "achieved": row["achieved"],
-        "received": d["received"],
-        "lost": row["sent"] - d["received"],
-        "loss_pct": d["loss_pct"],
-        "counted_lost": row["daemon_counted_lost"],
-        "violations": row["daemon_violations"],
-        "drained": row["drained"],
-        "cpu_us_per_msg": d["cpu_us_per_msg"],
+        **daemon_summary(row),
         "cpu_us_per_msg_to_exit": d["cpu_us_per_msg_to_exit"],
         "waitset_cpu_us_per_msg": ws.get("cpu_us_per_msg"),
-        "longest_ping_gap_ms": row["longest_ping_gap_ms"],
         "ready_s": mem.get("ready_s"),
         "rss_start_kb": mem.get("start", {}).get("rss_kb"),
         "hwm_start_kb": mem.get("start", {}).get("hwm_kb"),

@@ -31,7 +31,7 @@ from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import SCAN_CLOSEST, Plan, ScanPlan
 from supervisor.tools.bench.publisher import scan_message
 from supervisor.tools.bench.session import Session
-from supervisor.tools.bench.throughput import throughput
+from supervisor.tools.bench.throughput import daemon_summary, throughput
 
 RATE = 10_000.0
 COPIES = 64  # deserialised scans the reader cycles through (a fresh message each time)
@@ -45,23 +45,14 @@ def _side(row: dict[str, Any], scan: str | None) -> dict[str, Any]:
     scans_taken = int(d["received_per_topic"].get(scan, 0)) if scan else 0
     stream = d["received"] - scans_taken
     return {
-        "sent": row["sent"],
-        "achieved": row["achieved"],
-        "received": d["received"],
-        "lost": row["sent"] - d["received"],
-        "loss_pct": d["loss_pct"],
-        "counted_lost": row["daemon_counted_lost"],
+        **daemon_summary(row),
         "loss_agree": row["daemon_loss"]["agree"],
         "loss": row["daemon_loss"],  # per topic: gaps, before the first, after the last
-        "violations": row["daemon_violations"],
-        "drained": row["drained"],
         "cpu_s": d["cpu_s"],
-        "cpu_us_per_msg": d["cpu_us_per_msg"],
         "cpu_us_per_msg_to_exit": d["cpu_us_per_msg_to_exit"],
         "stream_received": stream,
         "scans_sent": scans_sent,
         "scans_received": scans_taken,
-        "longest_ping_gap_ms": row["longest_ping_gap_ms"],
         "waitset": None
         if ws is None
         else {k: ws[k] for k in ("received", "loss_pct", "cpu_s", "cpu_us_per_msg")},

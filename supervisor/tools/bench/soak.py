@@ -20,7 +20,7 @@ from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
 from supervisor.tools.bench.scale import fd_count, proc_memory
 from supervisor.tools.bench.session import Session
-from supervisor.tools.bench.throughput import throughput
+from supervisor.tools.bench.throughput import daemon_summary, throughput
 
 
 def sample_interval(seconds: float) -> float:
@@ -119,7 +119,6 @@ def soak_bench(
     fds = [x["fds"] for x in samples if x["fds"] is not None]
     rss = [x["rss_kb"] for x in samples]
     hwm = [x["hwm_kb"] for x in samples if x["hwm_kb"] is not None]
-    d = row["receivers"]["daemon"]
     out = {
         "offered": rate,
         "seconds": row["seconds"],
@@ -137,17 +136,8 @@ def soak_bench(
         "fds_last": fds[-1] if fds else None,
         "fds_max": max(fds) if fds else None,
         "fds_growth": fds[-1] - fds[0] if fds else None,
-        "sent": row["sent"],
-        "achieved": row["achieved"],
-        "received": d["received"],
-        "lost": row["sent"] - d["received"],
-        "loss_pct": d["loss_pct"],
-        "counted_lost": row["daemon_counted_lost"],
+        **daemon_summary(row),
         "loss": row["daemon_loss"],
-        "violations": row["daemon_violations"],
-        "drained": row["drained"],
-        "cpu_us_per_msg": d["cpu_us_per_msg"],
-        "longest_ping_gap_ms": row["longest_ping_gap_ms"],
     }
     say(
         f"soak: RSS {out['rss_first_kb']} -> {out['rss_last_kb']} kB (max {out['rss_max_kb']}), "

@@ -157,6 +157,24 @@ def throughput(
     return out
 
 
+def daemon_summary(row: dict[str, Any]) -> dict[str, Any]:
+    """The daemon's figures of one :func:`throughput` run that every part reports:
+    what was sent and received, lost (and counted lost), violations, CPU, ping gap."""
+    d = row["receivers"]["daemon"]
+    return {
+        "sent": row["sent"],
+        "achieved": row["achieved"],
+        "received": d["received"],
+        "lost": row["sent"] - d["received"],
+        "loss_pct": d["loss_pct"],
+        "counted_lost": row["daemon_counted_lost"],
+        "violations": row["daemon_violations"],
+        "drained": row["drained"],
+        "cpu_us_per_msg": d["cpu_us_per_msg"],
+        "longest_ping_gap_ms": row["longest_ping_gap_ms"],
+    }
+
+
 def _record_closed(records: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The numbers of the daemon's ``record_closed`` record (written, dropped, ...)."""
     for r in reversed(records):
