@@ -334,7 +334,12 @@ def test_naive_link_calls_glibcs_step(tmp_path) -> None:
         check=True,
     )
     probe = f"import ctypes; print(ctypes.CDLL({str(so)!r}).run())"
-    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", probe], capture_output=True, text=True, timeout=20
+        )
+    except subprocess.TimeoutExpired:
+        return  # glibc's step looping on our globals (seen with Debian's python3) never calls it
     # glibc's step either crashes or returns without calling our handler
     assert r.returncode != 0 or r.stdout.strip() != "1"
 

@@ -1,9 +1,9 @@
 """The wheel as a robot admin gets it: built from this tree, installed (not
-editable, no dependencies) into a fresh venv that sees the system's packages
-(ROS 2, z3, ...) but not this checkout, and used from an empty directory with
-a clean environment: ``init``, ``check`` on what it wrote, ``demo`` and
-``install-service --dry-run``.  Everything the commands read must come from
-the installed package's own data.
+editable, no dependencies) into a fresh venv that sees the dependencies the
+tests run with (ROS 2, z3, ...) but not this checkout, and used from an empty
+directory with a clean environment: ``init``, ``check`` on what it wrote,
+``demo`` and ``install-service --dry-run``.  Everything the commands read must
+come from the installed package's own data.
 """
 
 from __future__ import annotations
@@ -99,7 +99,7 @@ def venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
     root = base / "venv"
     _ok(
         subprocess.run(
-            [sys.executable, "-m", "venv", "--system-site-packages", str(root)],
+            [sys.executable, "-m", "venv", str(root)],
             capture_output=True,
             text=True,
             timeout=120,
@@ -111,8 +111,25 @@ def venv(tmp_path_factory: pytest.TempPathFactory) -> Venv:
     here = _empty_dir(tmp_path_factory, "pip")
     py = str(root / "bin" / "python")
     _ok(v.run(here, py, "-m", "pip", "install", "--no-deps", "--no-index", str(wheel)))
-    site = _ok(v.run(here, py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"))
-    return Venv(root, wheel, Path(site.strip()), home, v.domain_id)
+    site = Path(
+        _ok(
+            v.run(here, py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])")
+        ).strip()
+    )
+    (site / "zz_test_dependencies.pth").write_text(_see_dependencies())
+    return Venv(root, wheel, site, home, v.domain_id)
+
+
+def _see_dependencies() -> str:
+    """A ``.pth`` line that adds the site directories this interpreter really
+    imports from, after the venv's own.  ``venv --system-site-packages`` would
+    see the base interpreter's, which has none of the dependencies when the
+    tests themselves run in a venv (as the README's commands make them).
+    ``site.addsitedir`` also runs their ``.pth`` files, as Python does for its
+    own site directories (https://docs.python.org/3/library/site.html)."""
+    dirs = [p for p in sys.path if Path(p).name in ("site-packages", "dist-packages")]
+    assert dirs, sys.path
+    return f"import site; [site.addsitedir(d) for d in {dirs!r}]\n"
 
 
 def test_wheel_ships_the_package_data(venv: Venv) -> None:
@@ -124,8 +141,8 @@ def test_wheel_ships_the_package_data(venv: Venv) -> None:
 def test_the_venv_imports_the_installed_package_not_the_checkout(
     venv: Venv, tmp_path_factory: pytest.TempPathFactory
 ) -> None:
-    # The editable install of this checkout is in the system site-packages the
-    # venv sees: the venv's own copy must come first.
+    # The editable install of this checkout is in the site-packages the venv
+    # sees: the venv's own copy must come first.
     probe = "import monitors, mitigations, supervisor; print(supervisor.__file__, monitors.__file__, mitigations.__file__)"
     out = _ok(venv.run(_empty_dir(tmp_path_factory, "probe"), "python", "-c", probe))
     for f in out.split():

@@ -760,10 +760,11 @@ def parse_requirement(
 ) -> Requirement:
     """Parse one FRETISH sentence.  ``line``/``col`` say where ``text`` starts in
     ``file`` so that errors point at the offending token in that file."""
+    parser = _parser()  # outside the try: a wrong lark is not an error in the text
     try:
         if not text.strip():
             raise UserError("empty requirement", line=1, col=1)
-        tree = _parser().parse(text)
+        tree = parser.parse(text)
         deep = too_deep(tree, _NESTING_RULES)
         if deep is not None:
             raise UserError(

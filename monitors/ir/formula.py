@@ -26,6 +26,8 @@ from typing import Any, TypeVar
 
 from lark import Lark, Token, Transformer, Tree
 
+from monitors.errors import UserError
+
 BOOL_OPS = ("&", "|", "xor", "->", "<->")
 REL_OPS = ("=", "!=", "<", "<=", ">", ">=")
 ARITH_OPS = ("+", "-", "*", "/", "mod", "^")
@@ -520,8 +522,32 @@ EXPRESSION_NESTING = frozenset(
 _T = TypeVar("_T", bound=type)
 
 
+# The grammars are written for lark 1.x.  ROS's rosidl_parser wheel requires the old
+# distribution of the same project, ``lark-parser`` 0.12, which installs into the same
+# ``lark/`` folder: whichever pip unpacks last is what imports.
+LARK_NEEDED = (1, 1)
+
+
+def _lark_problem() -> UserError | None:
+    import lark
+
+    version = tuple(int(p) for p in re.findall(r"\d+", lark.__version__)[:2])
+    if version >= LARK_NEEDED:
+        return None
+    return UserError(
+        f"lark {lark.__version__} is installed, the grammars need lark "
+        f"{'.'.join(map(str, LARK_NEEDED))} or newer (the old 'lark-parser' package, "
+        "which ros-rosidl-parser requires, was unpacked over it)",
+        file=str(Path(lark.__file__).parent),
+        hint="pip install --force-reinstall --no-deps 'lark>=1.1'",
+    )
+
+
 def expression_parser(grammar: str, **options: object) -> Lark:
     """An LALR parser of ``grammar``, which may ``%import expressions (...)``."""
+    problem = _lark_problem()
+    if problem is not None:
+        raise problem
     return Lark(
         grammar,
         parser="lalr",
@@ -668,8 +694,9 @@ def parse_formula(text: str) -> Formula:
     """Parse FRET past-time syntax (what FRET prints as ``ptLTL``/``pt``)."""
     from lark.exceptions import LarkError, VisitError
 
+    parser = _parser()  # outside the try: a wrong lark is not a syntax error
     try:
-        tree = _parser().parse(text)
+        tree = parser.parse(text)
         if too_deep(tree, _NESTING_RULES) is not None:
             raise FormulaSyntaxError(f"nested more than {MAX_DEPTH} operators deep")
         return _Build().transform(tree)
