@@ -129,7 +129,9 @@ def _see_dependencies() -> str:
     own site directories (https://docs.python.org/3/library/site.html)."""
     dirs = [p for p in sys.path if Path(p).name in ("site-packages", "dist-packages")]
     assert dirs, sys.path
-    return f"import site; [site.addsitedir(d) for d in {dirs!r}]\n"
+    # One statement without a nested scope: site.py runs a .pth line with exec() in a
+    # function, where a comprehension would not see the imported name.
+    return f"import site; list(map(site.addsitedir, {dirs!r}))\n"
 
 
 def test_wheel_ships_the_package_data(venv: Venv) -> None:
