@@ -431,6 +431,9 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         assert seen_page - clean < 1.0, seen_page - clean
         assert console == [], console
         assert all(u.startswith(ui.url) for u in requests), requests
+        # the daemon's own documents pass the UI's schema check, and it is the one publisher
+        assert ui.state()["invalid"]["count"] == 0, ui.state()["invalid"]
+        assert ui.state()["publishers"] == ["/safety_supervisor"], ui.state()["publishers"]
 
         # resets from the page's endpoint
         for _ in range(10):

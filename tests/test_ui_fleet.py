@@ -217,6 +217,20 @@ def test_each_robot_has_its_own_page_stream_and_reset(fleet_served: Any) -> None
     ]
 
 
+def test_a_robots_invalid_documents_and_second_publisher_are_on_its_row() -> None:
+    fleet = Fleet(
+        [RobotSpec("r1", "/robot1", 0)], lambda doc, sock: {"available": False, "why": "t"}
+    )
+    r1 = robot(fleet, "r1")
+    fleet.receive_status(r1, json.dumps(doc_of("robot1", "/x", "t", component="one")), lambda: "/a")
+    forged = doc_of("robot1", "/x", "t2", component="<b>two</b>", lost="many")
+    fleet.receive_status(r1, json.dumps(forged), lambda: "/forger")
+    fleet.on_publishers(r1, ["/forger", "/robot1/safety_supervisor"])
+    row = fleet.row(r1)
+    assert row["component"] == "one" and row["invalid"] == 1 and row["publishers"] == 2
+    assert r1.hub.invalid["publisher"] == "/forger" and "lost" in r1.hub.invalid["why"]
+
+
 def test_one_listed_robot_is_the_page_and_the_single_ui_has_no_fleet(tmp_path: Path) -> None:
     from supervisor.tools.ui.hub import Hub
 

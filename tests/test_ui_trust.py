@@ -364,7 +364,7 @@ def test_a_running_ui_survives_any_request_and_forwards_only_valid_resets(tmp_pa
     host = ui.url.split("/")[2]
     try:
 
-        @settings(max_examples=250, deadline=None, suppress_health_check=list(HealthCheck))
+        @settings(max_examples=800, deadline=None, suppress_health_check=list(HealthCheck))
         @given(data=st.data())
         def one(data: Any) -> None:
             # a valid reset, with a few of its parts replaced by anything
@@ -428,7 +428,8 @@ def test_a_running_ui_survives_any_request_and_forwards_only_valid_resets(tmp_pa
                     :300
                 ]
                 assert ctype.startswith("application/json"), request[:300]
-                assert path.split("?")[0] == "/api/reset", request[:300]
+                # http.server reads a leading "//" as "/" (no open redirect)
+                assert "/" + path.split("?")[0].lstrip("/") == "/api/reset", request[:300]
                 assert forwarded[0].get("requirement") == req, request[:300]
             # the server keeps answering
             state = f"GET /api/state HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()
