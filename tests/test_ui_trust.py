@@ -156,6 +156,17 @@ def test_a_large_body_is_413_and_deep_json_400_in_one_line(served: Any, capfd: A
     assert "Traceback" not in capfd.readouterr().err
 
 
+def test_a_reset_is_logged_terminal_safe(served: Any, capfd: Any) -> None:
+    server, _hub, control = served
+    body = json.dumps({"requirement": "r\x1b[2J\u202e"}).encode()
+    code, _ = raw(
+        server.url(), post(server.url(), body, {**JSON_AUTH, "Content-Length": str(len(body))})
+    )
+    assert code == 200 and control.requests[0]["requirement"] == "r\x1b[2J\u202e"
+    out = capfd.readouterr().out
+    assert "reset r\\x1b[2J\\u202e from 127.0.0.1" in out and "\x1b" not in out, out
+
+
 # ---------------------------------------------------------------- the status schema
 
 

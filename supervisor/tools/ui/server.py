@@ -507,7 +507,8 @@ class Handler(BaseHTTPRequestHandler):
             return
         message = str(answer.get("message", ""))
         what = f"reset {requirement or 'all'} from {client}"
-        print(f"safety-supervisor ui: {what}: {message}", flush=True)
+        # the requirement is the client's and the message the socket's: terminal-safe
+        print(f"safety-supervisor ui: {printable(what)}: {printable(message)}", flush=True)
         hub.note(
             {"event": "ui", "requirement": requirement or "*", "what": what, "detail": message}
         )
