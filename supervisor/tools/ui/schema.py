@@ -147,7 +147,8 @@ def listof(item: Check, limit: int) -> Check:
 
 
 def record(fields: dict[str, Check], required: tuple[str, ...] = ()) -> Check:
-    """An object: the known ``fields`` checked (absent ones as null), others dropped."""
+    """An object: the known ``fields`` checked (absent ones as their default), others
+    dropped."""
 
     def check(v: Any, where: str) -> Any:
         if not isinstance(v, dict):
