@@ -167,6 +167,23 @@ def test_a_reset_is_logged_terminal_safe(served: Any, capfd: Any) -> None:
     assert "reset r\\x1b[2J\\u202e from 127.0.0.1" in out and "\x1b" not in out, out
 
 
+def test_a_failing_handler_is_one_line_and_a_500_never_a_traceback(
+    served: Any, capfd: Any, monkeypatch: Any
+) -> None:
+    server, hub, _control = served
+
+    def broken() -> dict[str, Any]:
+        raise RuntimeError("a bug\nwith a second line")
+
+    monkeypatch.setattr(hub, "snapshot", broken)  # a bug of the UI's own, not an input
+    host = server.url().split("/")[2]
+    code, answer = raw(server.url(), f"GET /api/state HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
+    assert code == 500 and json.loads(answer)["message"] == "internal error (RuntimeError)"
+    err = capfd.readouterr().err
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert "RuntimeError: a bug\\x0awith a second line" in err, err
+
+
 # ---------------------------------------------------------------- the status schema
 
 
