@@ -17,6 +17,7 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +92,13 @@ class FakeControl:
 
 @pytest.fixture
 def served(tmp_path: Path) -> Iterator[tuple[UiServer, Hub, FakeControl]]:
+    with serving(tmp_path) as s:
+        yield s
+
+
+@contextmanager
+def serving(tmp_path: Path) -> Iterator[tuple[UiServer, Hub, FakeControl]]:
+    """The server in this process, with a status document and a stand-in socket."""
     control = FakeControl(tmp_path / "ctl.sock")
     holder: dict[str, Any] = {}
 
@@ -316,7 +324,16 @@ def free_port() -> int:
 class UiProcess:
     """``safety-supervisor ui`` as a child process on the test run's ROS domain."""
 
-    def __init__(self, tmp: Path, port: int, token_file: Path, socket_path: Path) -> None:
+    def __init__(
+        self,
+        tmp: Path,
+        port: int,
+        token_file: Path,
+        socket_path: Path | None,
+        env: dict[str, str] | None = None,
+    ) -> None:
+        """``socket_path`` None: no ``--socket`` (the UI's default); ``env`` on top of
+        the test run's ROS environment."""
         import sys
 
         from rosutil import DOMAIN_ID
@@ -325,9 +342,13 @@ class UiProcess:
 
         self.url = f"http://127.0.0.1:{port}/"
         argv = [sys.executable, "-m", "supervisor", "ui", "--bind", f"127.0.0.1:{port}",
-                "--token-file", str(token_file), "--socket", str(socket_path)]  # fmt: skip
+                "--token-file", str(token_file)]  # fmt: skip
+        if socket_path is not None:
+            argv += ["--socket", str(socket_path)]
         self.stderr = tmp / f"ui-{port}-{time.monotonic_ns()}.stderr"
-        self.child = Child("ui", argv, env=ros_env(DOMAIN_ID), cwd=ROOT, stderr=self.stderr)
+        self.child = Child(
+            "ui", argv, env={**ros_env(DOMAIN_ID), **(env or {})}, cwd=ROOT, stderr=self.stderr
+        )
         deadline = time.monotonic() + 30
         while True:
             try:
@@ -410,6 +431,9 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
         assert seen_page - clean < 1.0, seen_page - clean
         assert console == [], console
         assert all(u.startswith(ui.url) for u in requests), requests
+        # the daemon's own documents pass the UI's schema check, and it is the one publisher
+        assert ui.state()["invalid"]["count"] == 0, ui.state()["invalid"]
+        assert ui.state()["publishers"] == ["/safety_supervisor"], ui.state()["publishers"]
 
         # resets from the page's endpoint
         for _ in range(10):

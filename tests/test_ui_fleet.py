@@ -45,6 +45,7 @@ HERE = socket.gethostname()
         ("- {name: 'r 1'}\n", 1, "'name' must be letters"),
         ("- {name: r1, domain: two}\n", 1, "'domain' must be a whole number"),
         ("- {name: r1}\n- just a name\n", 2, "must be a mapping"),
+        ("- {name: r1}\n- {name: r2, namespace: /b, socket: 5}\n", 2, "'socket' must be a path"),
         ("- {name: r1\n", 2, "invalid YAML"),
     ],
 )
@@ -62,10 +63,15 @@ def test_a_bad_fleet_file_is_one_line_at_its_line(
 
 def test_the_fleet_file_defaults_and_the_command_line(tmp_path: Path) -> None:
     path = tmp_path / "fleet.yaml"
-    path.write_text("- {name: a}\n- {name: b, namespace: robot2/, domain: 7}\n")
-    assert [(r.name, r.namespace, r.domain) for r in load_fleet(path, {"ROS_DOMAIN_ID": "5"})] == [
-        ("a", "/", 5),
-        ("b", "/robot2", 7),
+    path.write_text(
+        "- {name: a}\n- {name: b, namespace: robot2/, domain: 7}\n- {name: c, namespace: /c, socket: c.sock}\n"
+    )
+    env = {"ROS_DOMAIN_ID": "5", "XDG_RUNTIME_DIR": "/run/user/7"}
+    assert [(r.name, r.namespace, r.domain, r.socket) for r in load_fleet(path, env)] == [
+        # without socket: where `reset` looks for a supervisor of that domain
+        ("a", "/", 5, "/run/user/7/safety-supervisor/control-5.sock"),
+        ("b", "/robot2", 7, "/run/user/7/safety-supervisor/control-7.sock"),
+        ("c", "/c", 5, str(tmp_path / "c.sock")),  # relative to the file
     ]
     path.write_text("- {name: a, domain: -1}\n")
     for extra in ([], ["--namespace", "/x"]):
@@ -97,7 +103,7 @@ def test_rows_go_lost_and_stay_and_discovered_robots_join() -> None:
     clock = Clock()
     fleet = Fleet(
         [RobotSpec("r1", "/robot1", 3), RobotSpec("r2", "/robot2", 4)],
-        lambda doc: {"available": False, "why": "test"},
+        lambda doc, sock: {"available": False, "why": "test"},
         clock,
     )
     assert fleet.domains() == [3, 4]
@@ -130,12 +136,19 @@ def test_rows_go_lost_and_stay_and_discovered_robots_join() -> None:
 def test_resets_only_for_a_supervisor_on_this_machine(tmp_path: Path) -> None:
     control = FakeControl(tmp_path / "ctl.sock")
     try:
-        doc = doc_of("robot1", str(control.path), "t")
-        assert local_reset_availability(doc, TOKEN, reset_availability)["available"]
-        far = doc_of("robot1", str(control.path), "t", host="elsewhere")
-        state = local_reset_availability(far, TOKEN, reset_availability)
+        sock = str(control.path)
+        doc = doc_of("robot1", "/forged.sock", "t")
+        state = local_reset_availability(doc, sock, TOKEN, reset_availability)
+        assert state["available"] and state["socket"] == sock  # the fleet file's, not the doc's
+        far = doc_of("robot1", sock, "t", host="elsewhere")
+        state = local_reset_availability(far, sock, TOKEN, reset_availability)
         assert not state["available"] and "elsewhere" in state["why"]
-        assert not local_reset_availability(None, TOKEN, reset_availability)["available"]
+        assert not local_reset_availability(None, sock, TOKEN, reset_availability)["available"]
+        # a discovered supervisor has no socket of its own: its document cannot give one
+        state = local_reset_availability(
+            doc_of("robot1", sock, "t"), None, TOKEN, reset_availability
+        )
+        assert not state["available"] and "fleet file" in state["why"]
     finally:
         control.close()
 
@@ -144,9 +157,10 @@ def test_resets_only_for_a_supervisor_on_this_machine(tmp_path: Path) -> None:
 def fleet_served(tmp_path: Path) -> Iterator[tuple[UiServer, Fleet, FakeControl]]:
     control = FakeControl(tmp_path / "ctl.sock")
     fleet = Fleet(
-        [RobotSpec("r1", "/robot1", 0), RobotSpec("r2", "/robot2", 0)],
-        lambda doc: local_reset_availability(doc, TOKEN, reset_availability),
-    )
+        [RobotSpec("r1", "/robot1", 0, socket=str(control.path)),
+         RobotSpec("r2", "/robot2", 0, socket="/nonexistent")],
+        lambda doc, sock: local_reset_availability(doc, sock, TOKEN, reset_availability),
+    )  # fmt: skip
     server = UiServer(("127.0.0.1", 0), None, TOKEN, lambda: None, fleet=fleet)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     try:
@@ -166,7 +180,8 @@ def test_each_robot_has_its_own_page_stream_and_reset(fleet_served: Any) -> None
     server, fleet, control = fleet_served
     base = server.url()
     r1, r2 = robot(fleet, "r1"), robot(fleet, "r2")
-    fleet.on_status(r1, doc_of("robot1", str(control.path), "t", component="one"))
+    # r1's document names another socket: resets still go to the fleet file's
+    fleet.on_status(r1, doc_of("robot1", "/forged.sock", "t", component="one"))
     fleet.on_status(r2, doc_of("robot2", "/nonexistent", "t", host="far", component="two"))
     code, headers, body = http(base)
     assert code == 200 and "safety-supervisor fleet" in body.decode()
@@ -202,10 +217,24 @@ def test_each_robot_has_its_own_page_stream_and_reset(fleet_served: Any) -> None
     ]
 
 
+def test_a_robots_invalid_documents_and_second_publisher_are_on_its_row() -> None:
+    fleet = Fleet(
+        [RobotSpec("r1", "/robot1", 0)], lambda doc, sock: {"available": False, "why": "t"}
+    )
+    r1 = robot(fleet, "r1")
+    fleet.receive_status(r1, json.dumps(doc_of("robot1", "/x", "t", component="one")), lambda: "/a")
+    forged = doc_of("robot1", "/x", "t2", component="<b>two</b>", lost="many")
+    fleet.receive_status(r1, json.dumps(forged), lambda: "/forger")
+    fleet.on_publishers(r1, ["/forger", "/robot1/safety_supervisor"])
+    row = fleet.row(r1)
+    assert row["component"] == "one" and row["invalid"] == 1 and row["publishers"] == 2
+    assert r1.hub.invalid["publisher"] == "/forger" and "lost" in r1.hub.invalid["why"]
+
+
 def test_one_listed_robot_is_the_page_and_the_single_ui_has_no_fleet(tmp_path: Path) -> None:
     from supervisor.tools.ui.hub import Hub
 
-    fleet = Fleet([RobotSpec("solo", "/", 0)], lambda doc: {"available": False, "why": "t"})
+    fleet = Fleet([RobotSpec("solo", "/", 0)], lambda doc, sock: {"available": False, "why": "t"})
     server = UiServer(("127.0.0.1", 0), None, None, lambda: None, fleet=fleet)
     single = UiServer(("127.0.0.1", 0), Hub(lambda d: {}), None, lambda: None)
     for s in (server, single):
@@ -360,8 +389,8 @@ def test_the_fleet_of_real_supervisors_in_two_namespaces_and_two_domains(tmp_pat
         # robot1 listed on the run's domain, robot3 on the second; robot2 discovered
         fleet_file = tmp_path / "fleet.yaml"
         fleet_file.write_text(
-            f"- {{name: robot1, namespace: /robot1}}\n"
-            f"- {{name: robot3, namespace: /robot3, domain: {second}}}\n"
+            f"- {{name: robot1, namespace: /robot1, socket: r1/ctl.sock}}\n"
+            f"- {{name: robot3, namespace: /robot3, domain: {second}, socket: r3/ctl.sock}}\n"
         )
         token_file = tmp_path / "ui.token"
         token_file.write_bytes(TOKEN + b"\n")

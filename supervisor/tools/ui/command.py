@@ -79,8 +79,8 @@ def add_parser(sub: Any) -> None:
         "--socket",
         default=None,
         metavar="PATH",
-        help="the daemon's control socket (default: the one its status document names, "
-        "else where `reset` looks)",
+        help="the daemon's control socket, where resets go (default: where `reset` looks; "
+        "never the path a status document names)",
     )
     p.add_argument(
         "--fleet",
@@ -107,14 +107,13 @@ def cmd_ui(args: argparse.Namespace) -> int:
     if args.fleet is not None:
         return _fleet(args, token)
 
-    def socket_path(status: dict[str, Any] | None = None) -> str | None:
-        if args.socket:
-            return str(args.socket)
-        doc = status if status is not None else hub.status
-        named = doc.get("control_socket") if isinstance(doc, dict) else None
-        return named if isinstance(named, str) and named else client_control_socket()
+    # Resets go where this command's configuration says, never where a status
+    # document says: any node of the domain can publish one (docs/reference/
+    # ros-interfaces.md, "What the status topic can be trusted for").
+    def socket_path() -> str:
+        return str(args.socket) if args.socket else client_control_socket()
 
-    hub = Hub(lambda doc: reset_availability(socket_path(doc), token))
+    hub = Hub(lambda _doc: reset_availability(socket_path(), token))
     try:
         server = UiServer(args.bind, hub, token, socket_path)
     except OSError as e:
@@ -153,10 +152,12 @@ def _fleet(args: argparse.Namespace, token: bytes | None) -> int:
 
     for option, given in (("--namespace", args.namespace != "/"), ("--socket", args.socket)):
         if given:
-            # each robot's namespace is in the file; its socket in its status document
+            # each robot's namespace and socket are in the file
             raise UserError(f"{option} is for one robot, not with --fleet", file=PROG)
     robots = load_fleet(Path(args.fleet))
-    fleet = Fleet(robots, lambda doc: local_reset_availability(doc, token, reset_availability))
+    fleet = Fleet(
+        robots, lambda doc, sock: local_reset_availability(doc, sock, token, reset_availability)
+    )
     try:
         server = UiServer(args.bind, None, token, lambda: None, fleet=fleet)
     except OSError as e:

@@ -24,7 +24,7 @@ from typing import Any
 from monitors.errors import UserError
 from supervisor.config.fields import check_keys, error_at
 from supervisor.config.yamlload import LineDict, LineList, load_yaml
-from supervisor.names import STATUS_TOPIC, VIOLATIONS_TOPIC
+from supervisor.names import STATUS_TOPIC, VIOLATIONS_TOPIC, client_control_socket
 from supervisor.tools.ui.hub import Hub, utc_now
 from supervisor.tools.ui.streams import Streams
 
@@ -45,6 +45,7 @@ class RobotSpec:
     namespace: str
     domain: int
     line: int = 0
+    socket: str | None = None  # its control socket, if on this machine (``socket:``)
 
 
 def default_domain(env: dict[str, str] | None = None) -> int:
@@ -69,8 +70,10 @@ def _namespace(value: Any, where: LineDict) -> str:
 
 
 def load_fleet(path: Path, env: dict[str, str] | None = None) -> list[RobotSpec]:
-    """The robots of a fleet file: a YAML list of ``{name, namespace, domain}``;
-    every mistake a one-line UserError at its FILE:LINE."""
+    """The robots of a fleet file: a YAML list of ``{name, namespace, domain,
+    socket}``; every mistake a one-line UserError at its FILE:LINE.  ``socket``
+    (relative: to the file's folder) is where that robot's resets go; without it,
+    where ``reset`` looks for a supervisor of the robot's domain on this machine."""
     doc = load_yaml(path)
     if not isinstance(doc, LineList) or not doc:
         raise UserError(
@@ -89,7 +92,7 @@ def load_fleet(path: Path, env: dict[str, str] | None = None) -> list[RobotSpec]
                 file=str(path),
                 line=doc.item_line(i),
             )
-        check_keys(item, {"name", "namespace", "domain"}, "a robot")
+        check_keys(item, {"name", "namespace", "domain", "socket"}, "a robot")
         name = item.get("name")
         if name is None:
             raise error_at("a robot needs a 'name'", item)
@@ -118,7 +121,15 @@ def load_fleet(path: Path, env: dict[str, str] | None = None) -> list[RobotSpec]
                 "namespace" if "namespace" in item else None,
             )
         seen_topics[key] = name
-        robots.append(RobotSpec(name, namespace, domain, item.line))
+        sock = item.get("socket")
+        if sock is not None and (not isinstance(sock, str) or not sock or "\0" in sock):
+            raise error_at(f"'socket' must be a path, not {sock!r}", item, "socket")
+        if sock is None:
+            sock = client_control_socket({**(env if env is not None else os.environ),
+                                          "ROS_DOMAIN_ID": str(domain)})  # fmt: skip
+        else:
+            sock = str(path.parent / sock)
+        robots.append(RobotSpec(name, namespace, domain, item.line, sock))
     return robots
 
 
@@ -146,19 +157,23 @@ def _utc_seconds(ts: Any) -> float | None:
 
 def local_reset_availability(
     doc: dict[str, Any] | None,
+    socket_path: str | None,
     token: bytes | None,
     check: Callable[[str | None, bytes | None], dict[str, Any]],
 ) -> dict[str, Any]:
-    """Resets for a supervisor of the fleet: only one on this machine.  The status
-    document names its host; a robot elsewhere can have a socket at the same path
-    (the unit's /run/safety-supervisor/control.sock) that is not its own."""
+    """Resets for a supervisor of the fleet: through the socket the fleet file gives
+    it (``socket_path``; None for a discovered one), and only while its status says
+    it runs on this machine: a robot elsewhere can have a socket at the same path
+    (the unit's /run/safety-supervisor/control.sock) that is not its own.  The
+    document can only take resets away, never say where they go."""
+    if socket_path is None:
+        return {"available": False, "why": "not in the fleet file: no control socket of its own"}
     if not isinstance(doc, dict):
         return {"available": False, "why": "no status document yet"}
     host = str(doc.get("supervisor") or "").partition(":")[0]
     if host != socket.gethostname():
         return {"available": False, "why": f"the supervisor runs on {host or '?'}, not here"}
-    named = doc.get("control_socket")
-    return check(named if isinstance(named, str) and named else None, token)
+    return check(socket_path, token)
 
 
 @dataclass
@@ -171,6 +186,7 @@ class Robot:
     namespace: str
     configured: bool
     hub: Hub
+    socket: str | None = None  # where its resets go: the fleet file's, never a document's
     status_at: float | None = None  # monotonic time of the last document
     seen_utc: str | None = None  # wall time of the last document
     period_s: float | None = None  # between the last two documents (the daemon's clock)
@@ -193,9 +209,10 @@ class Fleet:
     def __init__(
         self,
         robots: list[RobotSpec],
-        reset_state: Callable[[dict[str, Any] | None], dict[str, Any]],
+        reset_state: Callable[[dict[str, Any] | None, str | None], dict[str, Any]],
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
+        """``reset_state(doc, socket)``: whether a robot's resets can reach its socket."""
         self._lock = threading.Lock()
         self._clock = clock
         self._reset_state = reset_state
@@ -204,12 +221,26 @@ class Fleet:
         self._streams = Streams()
         self.configured = len(robots)
         for spec in robots:
-            self._add(spec.name, spec.name, spec.domain, spec.namespace, configured=True)
+            self._add(spec.name, spec.name, spec.domain, spec.namespace, True, spec.socket)
 
     # ------------------------------------------------------------ robots
 
-    def _add(self, rid: str, name: str, domain: int, namespace: str, configured: bool) -> Robot:
-        robot = Robot(rid, name, domain, namespace, configured, Hub(self._reset_state, self._clock))
+    def _add(
+        self,
+        rid: str,
+        name: str,
+        domain: int,
+        namespace: str,
+        configured: bool,
+        socket_path: str | None = None,
+    ) -> Robot:
+        def reset_state(doc: dict[str, Any] | None) -> dict[str, Any]:
+            return self._reset_state(doc, socket_path)
+
+        robot = Robot(
+            rid, name, domain, namespace, configured, Hub(reset_state, self._clock), socket_path
+        )
+        robot.hub.label = f"robot {name}: "
         self._robots[rid] = robot
         self._by_topic[(domain, namespace)] = robot
         return robot
@@ -249,6 +280,12 @@ class Fleet:
     # ------------------------------------------------------------ inputs
 
     def on_status(self, robot: Robot, doc: dict[str, Any]) -> None:
+        """A document already checked (``receive_status`` checks one off the topic)."""
+        robot.hub.on_status(doc)
+        self._seen(robot, doc)
+        self._broadcast({"type": "robot", "robot": self.row(robot)})
+
+    def _seen(self, robot: Robot, doc: dict[str, Any]) -> None:
         now = _utc_seconds(doc.get("now"))
         with robot.lock:
             if now is not None and robot.last_now is not None and now > robot.last_now:
@@ -256,11 +293,23 @@ class Fleet:
             robot.last_now = now
             robot.status_at = self._clock()
             robot.seen_utc = utc_now()
-        robot.hub.on_status(doc)
-        self._broadcast({"type": "robot", "robot": self.row(robot)})
 
     def on_violation(self, robot: Robot, record: dict[str, Any]) -> None:
         robot.hub.on_violation(record)
+
+    def receive_status(self, robot: Robot, data: bytes | str, publisher: Callable[[], str]) -> None:
+        """A status document off the topic: checked by the robot's hub (schema.py);
+        a bad one is counted on its row, never shown."""
+        if not robot.hub.receive_status(data, publisher):
+            self._broadcast({"type": "robot", "robot": self.row(robot)})
+            return
+        self._seen(robot, robot.hub.status or {})
+        self._broadcast({"type": "robot", "robot": self.row(robot)})
+
+    def on_publishers(self, robot: Robot, names: list[str]) -> None:
+        if names != robot.hub.publishers:
+            robot.hub.on_publishers(names)
+            self._broadcast({"type": "robot", "robot": self.row(robot)})
 
     # ------------------------------------------------------------ outputs
 
@@ -297,6 +346,8 @@ class Fleet:
             "last_seen": seen,
             "lost_after_s": lost_after,
             "state": "waiting" if age is None else ("lost" if age > lost_after else "live"),
+            "invalid": robot.hub.invalid["count"],
+            "publishers": len(robot.hub.publishers),
         }
 
     def snapshot(self) -> dict[str, Any]:

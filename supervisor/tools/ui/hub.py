@@ -13,12 +13,21 @@ Sources (docs/reference/ros-interfaces.md, "What the UI reads"):
   ``events`` is then not shown twice;
 - ``/diagnostics`` stands in for the requirements and inputs while no status
   document has arrived (a daemon without the status topic).
+
+Any node of the domain can publish on those topics: a document or record enters
+through ``receive_status`` / ``receive_violation``, which check it once
+(:mod:`.schema`); a bad one is not shown but counted and said ("invalid status
+from <publisher>"), and a second publisher of the status topic is shown as a
+warning (docs/reference/ros-interfaces.md, "What the status topic can be trusted
+for").
 """
 
 from __future__ import annotations
 
 import json
+import math
 import queue
+import sys
 import threading
 import time
 from collections import Counter, deque
@@ -26,9 +35,15 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
+from monitors.untrusted import Untrusted, printable
+from supervisor.tools.ui.schema import parse_status, parse_violation
 from supervisor.tools.ui.streams import Streams
 
 FEED_LENGTH = 200  # entries a newly opened page gets
+# A flood of bad documents is said once in a while, counted every time: at most one
+# stderr line per WARN_EVERY_S, one update of the pages per SAY_EVERY_S.
+WARN_EVERY_S = 10.0
+SAY_EVERY_S = 0.5
 
 
 def utc_now() -> str:
@@ -62,6 +77,69 @@ class Hub:
         # by (requirement, tick)
         self._pending: Counter[tuple[str, Any]] = Counter()
         self._streams = Streams()
+        # documents and records refused by the schema check: how many, the last one
+        self.invalid: dict[str, Any] = {"count": 0, "publisher": "", "why": "", "at": None}
+        self._invalid_said = self._invalid_warned = -math.inf
+        self._invalid_unwarned = 0
+        self.publishers: list[str] = []  # of the status topic, from the ROS graph
+        self.label = ""  # whose status this is, for stderr (a fleet's robot)
+
+    # ------------------------------------------------------------ untrusted inputs
+
+    def receive_status(self, data: bytes | str, publisher: Callable[[], str]) -> bool:
+        """A status document as it came off the topic: shown if it passes the
+        schema, else counted and said; ``publisher()`` names who sent it."""
+        try:
+            doc = parse_status(data)
+        except Untrusted as e:
+            self.on_invalid(publisher(), f"status: {e}")
+            return False
+        self.on_status(doc)
+        return True
+
+    def receive_violation(self, data: bytes | str, publisher: Callable[[], str]) -> bool:
+        try:
+            record = parse_violation(data)
+        except Untrusted as e:
+            self.on_invalid(publisher(), f"violation record: {e}")
+            return False
+        self.on_violation(record)
+        return True
+
+    def on_invalid(self, publisher: str, why: str) -> None:
+        """A document or record that failed the schema check: counted, said."""
+        now = self._clock()
+        publisher, why = printable(publisher)[:300], printable(why)[:300]
+        with self._lock:
+            count = self.invalid["count"] + 1
+            self.invalid = {"count": count, "publisher": publisher, "why": why, "at": utc_now()}
+            self._invalid_unwarned += 1
+            warn = now - self._invalid_warned >= WARN_EVERY_S
+            if warn:
+                self._invalid_warned, n, self._invalid_unwarned = now, self._invalid_unwarned, 0
+            say = now - self._invalid_said >= SAY_EVERY_S
+            if say:
+                self._invalid_said = now
+            invalid = dict(self.invalid)
+        if warn:
+            more = f" ({n} since the last warning, {count} in all)" if count > 1 else ""
+            print(f"safety-supervisor ui: WARNING: {self.label}invalid {why.partition(':')[0]} "
+                  f"from {publisher}, not shown: {why.partition(': ')[2]}{more}",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        if say:
+            self._broadcast({"type": "invalid", "invalid": invalid})
+
+    def on_publishers(self, names: list[str]) -> None:
+        """The nodes publishing the status topic (the ROS graph); said when it changes."""
+        names = [printable(n)[:300] for n in names[:100]]
+        with self._lock:
+            if names == self.publishers:
+                return
+            self.publishers = names
+        if len(names) > 1:
+            print(f"safety-supervisor ui: WARNING: {self.label}{len(names)} publishers of the "
+                  f"status topic: {', '.join(names)}", file=sys.stderr, flush=True)  # fmt: skip
+        self._broadcast({"type": "publishers", "publishers": names})
 
     # ------------------------------------------------------------ inputs
 
@@ -151,6 +229,8 @@ class Hub:
                 "status_age_s": age,
                 "diagnostics": self._diagnostics,
                 "feed": list(self._feed),
+                "invalid": dict(self.invalid),
+                "publishers": list(self.publishers),
             }
             status = self.status
         out["reset"] = self._reset_state(status)
@@ -209,7 +289,9 @@ def _int(text: str | None) -> int | None:
 
 
 def _float(text: str, scale: float = 1.0) -> float | None:
+    """A finite number (JSON, and so the page, has no NaN or infinity), else None."""
     try:
-        return float(text) * scale
+        value = float(text) * scale
     except ValueError:
         return None
+    return value if math.isfinite(value) else None

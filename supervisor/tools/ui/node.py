@@ -2,14 +2,18 @@
 
 Its own context and executor thread, so the HTTP threads never touch rclpy.
 The QoS of each subscription matches what the daemon offers
-(docs/reference/ros-interfaces.md, "The node" and "What the UI reads").
+(docs/reference/ros-interfaces.md, "The node" and "What the UI reads").  What
+arrives is checked by the hub (:mod:`.schema`); the node names who published it
+from the ROS graph, and watches that graph for a second publisher of the status
+topic ("What the status topic can be trusted for").
 """
 
 from __future__ import annotations
 
-import json
 import sys
 import threading
+import time
+from collections.abc import Callable
 from typing import Any
 
 from supervisor.names import DIAGNOSTICS_TOPIC, STATUS_TOPIC, VIOLATIONS_TOPIC
@@ -24,13 +28,34 @@ def own(name: str) -> str:
     return name.lstrip("/")
 
 
-def _json(msg: Any, what: str) -> dict[str, Any] | None:
-    try:
-        doc = json.loads(msg.data)
-    except ValueError:
-        print(f"safety-supervisor ui: WARNING: {what} is not JSON", file=sys.stderr, flush=True)
-        return None
-    return doc if isinstance(doc, dict) else None
+GRAPH_S = 1.0  # how often the status topic's publishers are listed
+
+
+def publishers(node: Any, topic: str) -> list[str]:
+    """The nodes publishing ``topic`` (fully qualified names), from the ROS graph."""
+    out = []
+    for info in node.get_publishers_info_by_topic(topic):
+        ns = info.node_namespace.rstrip("/")
+        out.append(f"{ns}/{info.node_name}")
+    return sorted(out)
+
+
+def publisher_of(node: Any, topic: str) -> Callable[[], str]:
+    """Who sent a message on ``topic``, as far as the graph tells: rclpy's message
+    info has no publisher, so one publisher is named, several are listed."""
+
+    def name() -> str:
+        try:
+            names = publishers(node, topic)
+        except Exception:  # noqa: BLE001 - naming the sender must not lose the warning
+            names = []
+        if len(names) == 1:
+            return names[0]
+        if not names:
+            return "a publisher no longer in the ROS graph"
+        return "one of " + ", ".join(names)
+
+    return name
 
 
 class UiNode:
@@ -52,6 +77,8 @@ class UiNode:
         # In the daemon's namespace (ros.namespace), its own topics are found by
         # their relative names, as the daemon names them; /diagnostics stays absolute.
         self.node = Node(NODE_NAME, namespace=namespace, context=self._ctx)
+        self._status_topic = self.node.resolve_topic_name(own(STATUS_TOPIC))
+        self._violations_topic = self.node.resolve_topic_name(own(VIOLATIONS_TOPIC))
         latched = QoSProfile(
             depth=1,
             reliability=ReliabilityPolicy.RELIABLE,
@@ -69,18 +96,22 @@ class UiNode:
         self._thread.start()
 
     def _spin(self) -> None:
+        next_graph = 0.0
         while not self._stop.is_set() and self._ctx.ok():
+            if time.monotonic() >= next_graph:
+                next_graph = time.monotonic() + GRAPH_S
+                try:
+                    self._hub.on_publishers(publishers(self.node, self._status_topic))
+                except Exception as e:  # noqa: BLE001 - the graph query must not end the UI
+                    print(f"safety-supervisor ui: WARNING: the ROS graph: {e}",
+                          file=sys.stderr, flush=True)  # fmt: skip
             self._executor.spin_once(timeout_sec=0.1)
 
     def _on_status(self, msg: Any) -> None:
-        doc = _json(msg, "a status document")
-        if doc is not None:
-            self._hub.on_status(doc)
+        self._hub.receive_status(msg.data, publisher_of(self.node, self._status_topic))
 
     def _on_violation(self, msg: Any) -> None:
-        doc = _json(msg, "a violation record")
-        if doc is not None:
-            self._hub.on_violation(doc)
+        self._hub.receive_violation(msg.data, publisher_of(self.node, self._violations_topic))
 
     def _on_diag(self, msg: Any) -> None:
         statuses = []
@@ -160,21 +191,22 @@ class _Domain:
             durability=DurabilityPolicy.TRANSIENT_LOCAL,
         )
 
+        vtopic = violations_topic(robot.namespace)
+
         def on_status(msg: Any) -> None:
-            doc = _json(msg, f"a status document on {robot.topic}")
-            if doc is not None:
-                self._fleet.on_status(robot, doc)
+            self._fleet.receive_status(robot, msg.data, publisher_of(self.node, robot.topic))
 
         def on_violation(msg: Any) -> None:
-            doc = _json(msg, f"a violation record of {robot.topic}")
-            if doc is not None:
-                self._fleet.on_violation(robot, doc)
+            robot.hub.receive_violation(msg.data, publisher_of(self.node, vtopic))
 
         # as UiNode: the status latched, a burst of violations not cut short
         self.node.create_subscription(String, robot.topic, on_status, latched)
-        self.node.create_subscription(String, violations_topic(robot.namespace), on_violation, 100)
+        self.node.create_subscription(String, vtopic, on_violation, 100)
 
     def _discover(self) -> None:
+        for robot in self._fleet.robots():
+            if robot.domain == self.domain and robot.topic in self._watched:
+                self._fleet.on_publishers(robot, publishers(self.node, robot.topic))
         for topic, types in self.node.get_topic_names_and_types():
             if topic in self._watched or "std_msgs/msg/String" not in types:
                 continue

@@ -54,6 +54,10 @@ button:disabled { cursor: not-allowed; }
 svg.spark { width: 120px; height: 24px; }
 svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
 .full { grid-column: 1 / -1; }
+#trust { padding: 0 12px; }
+#trust div { background: #fff3c4; color: #8a6d00; border: 1px solid #e0c96b; border-radius: 4px;
+             padding: 4px 8px; margin-top: 8px; font-weight: 600; }
+#trust-note { color: #777; font-size: 12px; margin: 6px 12px 0; }
 </style>
 </head>
 <body>
@@ -65,6 +69,15 @@ svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
   <span id="quiet"></span>
   <span id="conn" class="off">connecting</span>
 </header>
+<div id="trust">
+  <div id="trust-invalid" hidden></div>
+  <div id="trust-publishers" hidden></div>
+</div>
+<p id="trust-note">What this page shows comes from the supervisor's status topic, which any
+node of the ROS domain can publish: it is a view, not evidence (the violation log is).
+Resets never go where the topic says, only to the control socket this UI was configured with.
+Close the domain to other nodes with SROS2 (DDS Security) enclaves, a private
+ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE.</p>
 <main>
 <section class="full" id="health-section">
   <h2>Supervisor</h2>
@@ -117,49 +130,61 @@ const OPSTATES = {0: "normal", 1: "alert", 2: "alert + slow down", 3: "stop + UV
 const M = {
   status: null, statusAt: null, diag: {requirements: {}, inputs: {}}, diagAt: null,
   learned: {}, seen: {}, values: {}, reset: {available: false, why: "connecting"},
-  hist: {}, feed: [], connected: false,
+  hist: {}, feed: [], connected: false, invalid: {count: 0}, publishers: [],
 };
 const $ = (id) => document.getElementById(id);
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g,
   (c) => ({"&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;"}[c]));
 const now = () => performance.now();
-const fmtAge = (s) => s == null ? "never" : (s < 10 ? s.toFixed(1) : s.toFixed(0)) + " s";
-const fmtTs = (ts) => ts ? String(ts).replace("T", " ").replace(/\.\d+Z$/, "Z") : "";
+// Every value's type is checked before use: the server checks the documents
+// (schema.py), and the page does not rely on it.  Data goes into the page only
+// escaped (esc) or as textContent, never as markup.
+const num = (v) => typeof v === "number" && Number.isFinite(v) ? v : null;
+const arr = (v) => Array.isArray(v) ? v : [];
+const obj = (v) => v !== null && typeof v === "object" && !Array.isArray(v) ? v : {};
+const fixed = (v, d) => num(v) == null ? "?" : num(v).toFixed(d);
+const fmtAge = (s) => num(s) == null ? "never" : (s < 10 ? s.toFixed(1) : s.toFixed(0)) + " s";
+const fmtTs = (ts) => typeof ts === "string" ? ts.replace("T", " ").replace(/\.\d+Z$/, "Z") : "";
 const fmtDur = (s) => {
-  s = Math.floor(s); const h = Math.floor(s / 3600), m = Math.floor(s % 3600 / 60);
+  s = Math.floor(num(s) || 0); const h = Math.floor(s / 3600), m = Math.floor(s % 3600 / 60);
   return (h ? h + " h " : "") + (h || m ? m + " min " : "") + (s % 60) + " s";
 };
 
 function onStatus(doc, age) {
+  if (typeof doc !== "object" || doc === null) return;
   M.status = doc;
-  M.statusAt = now() - 1000 * (age || 0);
+  M.statusAt = now() - 1000 * (num(age) || 0);
   M.seen = {};  // the document's counts include what the topic showed
   const t = Date.now() / 1000;
-  for (const inp of doc.inputs || []) {
+  for (const inp of arr(doc.inputs)) {
+    if (typeof inp.name !== "string") continue;
     M.values[inp.name] = inp.value;
-    const v = typeof inp.value === "boolean" ? +inp.value : inp.value;
-    if (typeof v !== "number") continue;
+    const v = num(typeof inp.value === "boolean" ? +inp.value : inp.value);
+    if (v == null) continue;
     const h = M.hist[inp.name] || (M.hist[inp.name] = []);
-    h.push([t - (inp.age_s || 0), v]);
+    h.push([t - (num(inp.age_s) || 0), v]);
     while (h.length && h[0][0] < t - SPARK_S) h.shift();
   }
 }
 
 function onViolation(rec) {
-  const rid = rec.requirement;
+  const rid = String(obj(rec).requirement ?? "");
   M.learned[rid] = {text: rec.text, formula: rec.formula};
   const s = M.seen[rid] || (M.seen[rid] = {n: 0});
   s.n += 1; s.last = new Date().toISOString();
-  for (const [k, v] of Object.entries(rec.inputs || {})) if (!(k in M.values)) M.values[k] = v;
+  for (const [k, v] of Object.entries(obj(rec.inputs))) if (!(k in M.values)) M.values[k] = v;
 }
 
 function addFeed(entries) {
-  for (const e of entries || []) M.feed.unshift(e);
+  for (const e of arr(entries)) M.feed.unshift(obj(e));
   M.feed.length = Math.min(M.feed.length, FEED_MAX);
 }
 
 function handle(msg) {
-  if (msg.reset) M.reset = msg.reset;
+  msg = obj(msg);
+  if (msg.reset) M.reset = obj(msg.reset);
+  if (msg.invalid) M.invalid = obj(msg.invalid);
+  if (msg.publishers) M.publishers = arr(msg.publishers);
   if (msg.type === "snapshot") {
     M.feed = []; addFeed(msg.feed);
     if (msg.status) onStatus(msg.status, msg.status_age_s);
@@ -177,10 +202,23 @@ function handle(msg) {
   render();
 }
 
+// The status topic is open to any node of the domain: what the UI refused, and
+// whether another node publishes it too (docs/reference/ros-interfaces.md).
+function renderTrust() {
+  const inv = M.invalid, bad = $("trust-invalid"), pubs = $("trust-publishers");
+  bad.hidden = !(num(inv.count) > 0);
+  bad.textContent = bad.hidden ? "" : `invalid status from ${String(inv.publisher ?? "?")}, ` +
+    `not shown (${num(inv.count)} so far; the last at ${fmtTs(inv.at)}): ${String(inv.why ?? "")}`;
+  const names = M.publishers.map(String);
+  pubs.hidden = names.length < 2;
+  pubs.textContent = pubs.hidden ? "" : `${names.length} nodes publish the status topic: ` +
+    `${names.join(", ")}. Only one is the supervisor; what this page shows may be forged.`;
+}
+
 // ------------------------------------------------------------------ rendering
 
 function requirements() {
-  if (M.status) return M.status.requirements || [];
+  if (M.status) return arr(M.status.requirements);
   return Object.values(M.diag.requirements || {}).map((r) => ({
     id: r.id, state: r.state, violations: r.violations, actions: [],
     text: (M.learned[r.id] || {}).text, formula: (M.learned[r.id] || {}).formula,
@@ -188,7 +226,7 @@ function requirements() {
 }
 
 function inputs() {
-  if (M.status) return M.status.inputs || [];
+  if (M.status) return arr(M.status.inputs);
   const since = M.diagAt == null ? 0 : (now() - M.diagAt) / 1000;
   return Object.values(M.diag.inputs || {}).map((i) => ({
     name: i.name, topic: i.topic, value: M.values[i.name], stale: i.stale,
@@ -200,9 +238,9 @@ function render() {
   const st = M.status;
   $("conn").textContent = M.connected ? "live" : "reconnecting";
   $("conn").className = M.connected ? "" : "off";
-  $("component").textContent = st ? st.component : "";
-  $("supervisor").textContent = st ? st.supervisor : (M.diagAt ? "(from /diagnostics)" : "");
-  renderHealth(); renderRequirements(); renderInputs(); renderFeed(); renderOpView(); tick();
+  $("component").textContent = st ? String(st.component ?? "") : "";
+  $("supervisor").textContent = st ? String(st.supervisor ?? "") : (M.diagAt ? "(from /diagnostics)" : "");
+  renderTrust(); renderHealth(); renderRequirements(); renderInputs(); renderFeed(); renderOpView(); tick();
 }
 
 function renderHealth() {
@@ -212,17 +250,18 @@ function renderHealth() {
     rows.push(["status", "no status document yet (a daemon without the status topic shows " +
                "requirements and inputs from /diagnostics only)"]);
   } else {
-    const wd = st.watchdog || {};
-    rows.push(["config", `<code>${esc(st.config)}</code> sha256 <code>${esc((st.config_sha256 || "").slice(0, 16))}</code>`]);
-    rows.push(["uptime", `<span id="uptime">${esc(fmtDur(st.uptime_s || 0))}</span> (pid ${esc(st.pid)}, since ${esc(fmtTs(st.started))})`]);
-    rows.push(["step", `${esc(st.policy)}: ${esc(st.ticks)} ticks, ${esc(Number(st.tick_rate_hz || 0).toFixed(1))} ticks/s`]);
-    rows.push(["received", `${esc(st.received)} messages, ${esc(Number(st.receive_rate_hz || 0).toFixed(1))} msg/s, ` +
-               `<span class="${st.lost ? "fail" : ""}">${esc(st.lost)} lost</span>`]);
-    if (st.events_dropped) rows.push(["events", `<span class="fail">${esc(st.events_dropped)} not shown (more than a document holds)</span>`]);
-    rows.push(["violations", `${esc(st.violations)}; reloads ${esc(st.reloads)}; recording ${st.recording ? "on" : "off"}`]);
-    rows.push(["watchdog", wd.enabled ? `on, every ${esc(wd.interval_s)} s` : "off (not under systemd)"]);
+    const wd = obj(st.watchdog);
+    rows.push(["config", `<code>${esc(st.config)}</code> sha256 <code>${esc(String(st.config_sha256 ?? "").slice(0, 16))}</code>`]);
+    rows.push(["uptime", `<span id="uptime">${esc(fmtDur(st.uptime_s))}</span> (pid ${esc(st.pid)}, since ${esc(fmtTs(st.started))})`]);
+    rows.push(["step", `${esc(st.policy)}: ${esc(st.ticks)} ticks, ${esc(fixed(st.tick_rate_hz, 1))} ticks/s`]);
+    rows.push(["received", `${esc(st.received)} messages, ${esc(fixed(st.receive_rate_hz, 1))} msg/s, ` +
+               `<span class="${num(st.lost) ? "fail" : ""}">${esc(st.lost)} lost</span>`]);
+    if (num(st.events_dropped)) rows.push(["events", `<span class="fail">${esc(st.events_dropped)} not shown (more than a document holds)</span>`]);
+    rows.push(["violations", `${esc(st.violations)}; reloads ${esc(st.reloads)}; recording ${st.recording === true ? "on" : "off"}`]);
+    rows.push(["watchdog", wd.enabled === true ? `on, every ${esc(fixed(wd.interval_s, 1))} s` : "off (not under systemd)"]);
   }
-  rows.push(["resets", M.reset.available ? `through <code>${esc(st ? st.control_socket : "")}</code>`
+  // the socket this UI is configured with, never the one the document names
+  rows.push(["resets", M.reset.available ? `through <code>${esc(M.reset.socket)}</code>`
              : `<span class="muted">unavailable: ${esc(M.reset.why)}</span>`]);
   $("health").innerHTML = rows.map(([k, v]) => `<tr><th>${esc(k)}</th><td>${v}</td></tr>`).join("");
   $("reset-all").disabled = !M.reset.available;
@@ -230,22 +269,24 @@ function renderHealth() {
 
 function renderRequirements() {
   const rows = requirements().map((r) => {
+    r = obj(r);
     const seen = M.seen[r.id];
-    const state = seen ? "violated" : (r.state || "unknown");
-    const count = (r.violations || 0) + (seen ? seen.n : 0);
+    const state = seen ? "violated" : String(r.state || "unknown");
+    const count = (num(r.violations) || 0) + (seen ? seen.n : 0);
     const last = seen ? seen.last : r.last_violation;
-    const acts = (r.actions || []).map((a) =>
-      `<div class="${a.ok ? "ok" : "fail"}">${esc(a.action)} (${esc(a.stage)}) ${a.ok ? "ok" : "failed"}` +
-      `${a.latency_ms != null ? ", " + esc(Number(a.latency_ms).toFixed(1)) + " ms" : ""}` +
+    const acts = arr(r.actions).map((a) => obj(a)).map((a) =>
+      `<div class="${a.ok === true ? "ok" : "fail"}">${esc(a.action)} (${esc(a.stage)}) ${a.ok === true ? "ok" : "failed"}` +
+      `${num(a.latency_ms) != null ? ", " + esc(fixed(a.latency_ms, 1)) + " ms" : ""}` +
       ` <span class="muted">${esc(fmtTs(a.ts))}</span></div>`).join("");
     const learned = M.learned[r.id] || {};
     const text = r.text || learned.text || "";
     const formula = r.formula || learned.formula || "";
-    const stale = (r.stale_inputs || []).length ? `<div class="stale">stale: ${esc(r.stale_inputs.join(", "))}</div>` : "";
-    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" data-violations="${count}">` +
+    const staleIn = arr(r.stale_inputs).map(String);
+    const stale = staleIn.length ? `<div class="stale">stale: ${esc(staleIn.join(", "))}</div>` : "";
+    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" data-violations="${esc(count)}">` +
       `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
       `<td><span class="state state-${esc(state)}">${esc(state)}</span>${stale}</td>` +
-      `<td>${count}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
+      `<td>${esc(count)}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
       `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
   });
   $("requirements").innerHTML = rows.join("") ||
@@ -253,7 +294,7 @@ function renderRequirements() {
 }
 
 function spark(name) {
-  const h = M.hist[name] || [];
+  const h = M.hist[name] || [];  // numbers only (onStatus)
   if (h.length < 2) return `<svg class="spark" viewBox="0 0 120 24"></svg>`;
   const t1 = Date.now() / 1000, t0 = t1 - SPARK_S;
   let lo = Math.min(...h.map((p) => p[1])), hi = Math.max(...h.map((p) => p[1]));
@@ -264,12 +305,12 @@ function spark(name) {
 }
 
 function renderInputs() {
-  const rows = inputs().map((i) =>
-    `<tr class="input" data-input="${esc(i.name)}" data-stale="${i.stale ? 1 : 0}">` +
+  const rows = inputs().map((i) => obj(i)).map((i) =>
+    `<tr class="input" data-input="${esc(i.name)}" data-stale="${i.stale === true ? 1 : 0}">` +
     `<td><b>${esc(i.name)}</b><div class="muted">${esc(i.topic)}</div></td>` +
     `<td class="value">${esc(i.value === undefined ? "?" : JSON.stringify(i.value))}</td>` +
-    `<td><span class="age" data-age="${i.age_s == null ? "" : i.age_s}">${esc(fmtAge(i.age_s))}</span>` +
-    `${i.stale ? ' <span class="stale">stale</span>' : ""}</td><td>${spark(i.name)}</td></tr>`);
+    `<td><span class="age" data-age="${esc(num(i.age_s) ?? "")}">${esc(fmtAge(i.age_s))}</span>` +
+    `${i.stale === true ? ' <span class="stale">stale</span>' : ""}</td><td>${spark(i.name)}</td></tr>`);
   $("inputs").innerHTML = rows.join("") || `<tr><td colspan="4" class="muted">no inputs known yet</td></tr>`;
 }
 
@@ -317,7 +358,7 @@ function tick() {
     el.textContent = fmtAge(Number(el.dataset.age) + since);
   }
   const up = $("uptime");
-  if (up && M.status) up.textContent = fmtDur((M.status.uptime_s || 0) + since);
+  if (up && M.status) up.textContent = fmtDur((num(M.status.uptime_s) || 0) + since);
   const quiet = $("quiet");
   if (M.status && since > QUIET_S) {
     quiet.style.display = ""; quiet.textContent = `no status for ${Math.floor(since)} s`;
@@ -370,7 +411,11 @@ $("tokenbox").addEventListener("submit", (e) => {
 function connect() {
   const es = new EventSource(BASE + "/events");
   es.onopen = () => { M.connected = true; render(); };
-  es.onmessage = (e) => handle(JSON.parse(e.data));
+  es.onmessage = (e) => {
+    let msg;
+    try { msg = JSON.parse(e.data); } catch (err) { return; }  // the server sends JSON only
+    handle(msg);
+  };
   es.onerror = () => { M.connected = false; render(); };  // EventSource reconnects itself
 }
 render();
@@ -447,6 +492,14 @@ function age(e) {
   return e.row.age_s == null ? null : e.row.age_s + (performance.now() - e.at) / 1000;
 }
 
+// Any node of a domain can publish a robot's status topic: refused documents and a
+// second publisher are said on its row (docs/reference/ros-interfaces.md).
+function trust(r) {
+  const n = Number(r.invalid) || 0, p = Number(r.publishers) || 0;
+  return (n > 0 ? ` <div class="fail trust-invalid">${esc(n)} invalid status documents</div>` : "") +
+    (p > 1 ? ` <div class="fail trust-publishers">${esc(p)} publishers of its status topic</div>` : "");
+}
+
 function render() {
   $("conn").textContent = connected ? "live" : "reconnecting";
   $("conn").className = connected ? "" : "off";
@@ -464,7 +517,7 @@ function render() {
     const uptime = state === "live" && r.uptime_s != null ? r.uptime_s + (performance.now() - e.at) / 1000 : r.uptime_s;
     return `<tr class="robot ${state}" data-robot="${esc(r.id)}" data-state="${state}" data-open="${(r.open || []).length}">` +
       `<td><a href="/robot/${encodeURIComponent(r.id)}"><b>${esc(r.name)}</b></a><div class="muted">${where}</div></td>` +
-      `<td><span class="state state-${state}">${label}</span></td>` +
+      `<td><span class="state state-${state}">${label}</span>${trust(r)}</td>` +
       `<td>${esc(r.host)}</td><td>${esc(r.component)}</td>` +
       `<td><code>${esc((r.config_sha256 || "").slice(0, 12))}</code></td>` +
       `<td>${esc(fmtDur(uptime))}</td><td>${num(r.tick_rate_hz, 1)}</td><td>${num(r.receive_rate_hz, 1)}</td>` +
@@ -488,7 +541,7 @@ function handle(msg) {
 function connect() {
   const es = new EventSource("/fleet/events");
   es.onopen = () => { connected = true; render(); };
-  es.onmessage = (e) => handle(JSON.parse(e.data));
+  es.onmessage = (e) => { let m; try { m = JSON.parse(e.data); } catch (err) { return; } handle(m); };
   es.onerror = () => { connected = false; render(); };  // EventSource reconnects itself
 }
 render();

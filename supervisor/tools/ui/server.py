@@ -14,8 +14,14 @@ Safety of the one state-changing request (``POST /api/reset``), in this order:
    without a CORS preflight, which this server never answers;
 4. ``Authorization: Bearer <token>``, compared in constant time (401 otherwise).
 
-Only then is the reset forwarded to the daemon's control socket, naming the UI and
-the browser's address; the daemon's answer is returned as is.
+Only then is the body read, whatever its framing (``Content-Length``, or
+``Transfer-Encoding: chunked`` decoded within the same cap; both at once, another
+coding, no body: refused), and checked: ``{}`` (all) or ``{"requirement": ID}``,
+anything else 400, over ``MAX_BODY`` 413.  The reset is then forwarded to the control
+socket the UI's own configuration names (never one a status document names: any
+ROS node can publish one), naming the UI and the browser's address; the daemon's
+answer is returned as is.  No exception of a handler reaches http.server's
+traceback printing: one line on stderr and, where the answer has not begun, a 500.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import re
 import secrets
 import socket
 import stat
+import sys
 import threading
 from collections.abc import Callable
 from http import HTTPStatus
@@ -36,13 +43,17 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
 from monitors.errors import UserError
+from monitors.untrusted import Untrusted, load_json, printable
 from supervisor.tools.reset import request
 from supervisor.tools.ui.fleet import Fleet, local_reset_availability
 from supervisor.tools.ui.hub import Hub
 from supervisor.tools.ui.page import FLEET_PAGE, PAGE
 
 KEEPALIVE_S = 10.0  # an SSE comment this often: a closed browser is noticed, proxies keep it
-MAX_BODY = 4096
+MAX_BODY = 4096  # a reset's body is {"requirement": ID}: tens of bytes
+MAX_REQUIREMENT = 200  # characters of an ID; the control socket's limit of its strings
+MAX_CHUNK_LINES = 64  # chunk-size and trailer lines of one chunked body
+IO_TIMEOUT_S = 30.0  # a client that stops sending midway is dropped, its thread freed
 RESET_TIMEOUT_S = 5.0
 # A robot's page in the fleet and its stream, state and reset (fleet names: fleet.NAME_RE)
 ROBOT_PATH = re.compile(r"/robot/([A-Za-z0-9_.-]+)(/events|/api/state|/api/reset)?")
@@ -54,22 +65,32 @@ def reset_availability(socket_path: str | None, token: bytes | None) -> dict[str
     The socket is not connected to: a connection without a request counts as a
     refused call in the daemon's log.  Connecting needs write permission on the
     socket file, which the kernel checks exactly like this."""
+
+    def no(why: str) -> dict[str, Any]:
+        return {"available": False, "why": why, "socket": socket_path}
+
     if token is None:
-        return {"available": False, "why": "no token configured (--token-file)"}
+        return no("no token configured (--token-file)")
     if not socket_path:
-        return {"available": False, "why": "the daemon named no control socket"}
+        return no("no control socket configured")
     try:
         st = os.stat(socket_path)
     except OSError:
-        return {"available": False, "why": f"{socket_path}: not on this machine"}
+        return no(f"{socket_path}: not on this machine")
     if not stat.S_ISSOCK(st.st_mode):
-        return {"available": False, "why": f"{socket_path}: not a socket"}
+        return no(f"{socket_path}: not a socket")
     if not os.access(socket_path, os.W_OK):
-        return {
-            "available": False,
-            "why": f"{socket_path}: permission denied (the UI's user is not in its group)",
-        }
-    return {"available": True, "why": ""}
+        return no(f"{socket_path}: permission denied (the UI's user is not in its group)")
+    return {"available": True, "why": "", "socket": socket_path}
+
+
+class HttpError(Exception):
+    """A request refused with ``code`` and a one-line ``message``."""
+
+    def __init__(self, code: int, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
 
 
 def allowed_hosts(host: str, port: int) -> Callable[[str], bool]:
@@ -104,6 +125,26 @@ def allowed_hosts(host: str, port: int) -> Callable[[str], bool]:
     return ok
 
 
+def reset_body(data: bytes) -> str | None:
+    """The requirement a reset's body names, None for all (``{}``); HttpError (400)
+    for anything else, in one line."""
+    try:
+        body = load_json(data, max_bytes=MAX_BODY, max_depth=2)
+    except Untrusted as e:
+        raise HttpError(HTTPStatus.BAD_REQUEST, f"the body is {e}") from None
+    if not isinstance(body, dict) or not set(body) <= {"requirement"}:
+        raise HttpError(HTTPStatus.BAD_REQUEST, 'the body must be {} or {"requirement": "ID"}')
+    requirement = body.get("requirement")
+    if "requirement" in body and not (
+        isinstance(requirement, str) and 0 < len(requirement) <= MAX_REQUIREMENT
+    ):
+        raise HttpError(
+            HTTPStatus.BAD_REQUEST,
+            f'"requirement" must be an ID of 1 to {MAX_REQUIREMENT} characters',
+        )
+    return requirement
+
+
 class UiServer(ThreadingHTTPServer):
     daemon_threads = True  # an open event stream never holds up the exit
 
@@ -130,6 +171,15 @@ class UiServer(ThreadingHTTPServer):
         self.host_ok = allowed_hosts(address[0], self.server_address[1])
         self.stopping = threading.Event()
 
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """One line, never socketserver's traceback: a handler's failure is the UI's
+        bug, not something a client may print at length on the operator's terminal."""
+        e = sys.exc_info()[1]
+        if isinstance(e, OSError):
+            return  # the client went away
+        print(f"safety-supervisor ui: WARNING: a request from {client_address[0]} failed: "
+              f"{type(e).__name__}: {printable(str(e))[:200]}", file=sys.stderr, flush=True)  # fmt: skip
+
     def url(self) -> str:
         host, port = self.server_address[0], self.server_address[1]
         shown = f"[{host}]" if ":" in str(host) else str(host)
@@ -149,6 +199,7 @@ class Handler(BaseHTTPRequestHandler):
     server: UiServer
     server_version = "safety-supervisor-ui"
     sys_version = ""
+    timeout = IO_TIMEOUT_S
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base's name
         pass  # requests are not logged; resets are, below
@@ -197,9 +248,34 @@ class Handler(BaseHTTPRequestHandler):
             return False
         return hmac.compare_digest(given.strip().encode(), token)
 
+    def _guarded(self, handler: Callable[[], None]) -> None:
+        """``handler``, with any failure one line on stderr and a 500 if the answer
+        has not begun; the connection is then closed."""
+        self._answered = False
+        try:
+            handler()
+        except OSError:
+            self.close_connection = True  # the client went away, or stopped sending
+        except Exception as e:  # noqa: BLE001 - the last guard of a request
+            self.close_connection = True
+            self.server.handle_error(self.request, self.client_address)
+            if not self._answered:
+                try:
+                    self._json(HTTPStatus.INTERNAL_SERVER_ERROR,
+                               {"ok": False, "message": f"internal error ({type(e).__name__})"})  # fmt: skip
+                except OSError:
+                    pass
+
+    def send_response(self, code: int, message: str | None = None) -> None:
+        self._answered = True
+        super().send_response(code, message)
+
     # ------------------------------------------------------------ GET
 
     def do_GET(self) -> None:  # noqa: N802 - http.server's name
+        self._guarded(self._get)
+
+    def _get(self) -> None:
         if not self._host_ok():
             return
         path = self.path.split("?", 1)[0]
@@ -296,22 +372,32 @@ class Handler(BaseHTTPRequestHandler):
     # ------------------------------------------------------------ POST
 
     def do_POST(self) -> None:  # noqa: N802 - http.server's name
+        # a refused request's body is never read: the connection cannot be reused
+        self.close_connection = True
+        self._guarded(self._post)
+
+    def _post(self) -> None:
         if not self._host_ok():
             return
         path = self.path.split("?", 1)[0]
         fleet = self.server.fleet
-        target: tuple[Hub, Callable[[], str | None], dict[str, Any]] | None = None
+        # Where a reset goes: the UI's own configuration, never a status document
+        # (docs/reference/ros-interfaces.md, "What the status topic can be trusted for").
+        target: tuple[Hub, str | None, dict[str, Any]] | None = None
         if fleet is None and path == "/api/reset" and self.server.hub is not None:
             socket_path = self.server.socket_path()
-            state = reset_availability(socket_path, self.server.token)
-            target = (self.server.hub, lambda: socket_path, state)
+            target = (
+                self.server.hub,
+                socket_path,
+                reset_availability(socket_path, self.server.token),
+            )
         elif fleet is not None and (m := ROBOT_PATH.fullmatch(path)) and m[2] == "/api/reset":
             robot = fleet.robot(m[1])
             if robot is not None:
-                doc = robot.hub.status
-                named = doc.get("control_socket") if isinstance(doc, dict) else None
-                state = local_reset_availability(doc, self.server.token, reset_availability)
-                target = (robot.hub, lambda: named if isinstance(named, str) else None, state)
+                state = local_reset_availability(
+                    robot.hub.status, robot.socket, self.server.token, reset_availability
+                )
+                target = (robot.hub, robot.socket, state)
         if target is None:
             self._not_found()
             return
@@ -332,34 +418,80 @@ class Handler(BaseHTTPRequestHandler):
             )
             return
         try:
-            length = int(self.headers.get("Content-Length", "0"))
-        except ValueError:
-            length = -1
-        if not 0 <= length <= MAX_BODY:
-            self._json(HTTPStatus.BAD_REQUEST, {"ok": False, "message": "bad Content-Length"})
-            return
-        try:
-            body = json.loads(self.rfile.read(length) or b"{}")
-        except ValueError:
-            body = None
-        requirement = body.get("requirement") if isinstance(body, dict) else ""
-        if requirement is not None and (not isinstance(requirement, str) or not requirement):
-            self._json(
-                HTTPStatus.BAD_REQUEST,
-                {"ok": False, "message": 'the body must be {} or {"requirement": "ID"}'},
-            )
+            requirement = reset_body(self._body())
+        except HttpError as e:
+            self._json(e.code, {"ok": False, "message": e.message})
             return
         self._reset(requirement, *target)
+
+    def _body(self) -> bytes:
+        """The request's body, whatever its framing, at most ``MAX_BODY`` bytes."""
+        codings = self.headers.get_all("Transfer-Encoding") or []
+        lengths = self.headers.get_all("Content-Length") or []
+        if codings:
+            if lengths:
+                # which one a proxy in front honoured is unknown (request smuggling)
+                raise HttpError(HTTPStatus.BAD_REQUEST, "both Transfer-Encoding and Content-Length")
+            names = [c.strip().lower() for h in codings for c in h.split(",") if c.strip()]
+            if names != ["chunked"]:
+                raise HttpError(HTTPStatus.NOT_IMPLEMENTED,
+                                "only Transfer-Encoding: chunked is understood")  # fmt: skip
+            return self._chunked()
+        if not lengths:
+            raise HttpError(HTTPStatus.BAD_REQUEST, "a reset needs a body ({} for all)")
+        text = lengths[0].strip()
+        if len(lengths) > 1 or not (text.isascii() and text.isdigit()):
+            raise HttpError(HTTPStatus.BAD_REQUEST, "bad Content-Length")
+        if int(text) > MAX_BODY:
+            raise HttpError(HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"a body over {MAX_BODY} bytes")
+        data = self.rfile.read(int(text))
+        if len(data) < int(text):
+            raise HttpError(HTTPStatus.BAD_REQUEST, "the body is shorter than its Content-Length")
+        return data
+
+    def _chunked(self) -> bytes:
+        """A chunked body decoded (RFC 9112, 7.1), within ``MAX_BODY`` bytes."""
+        parts: list[bytes] = []
+        total = 0
+        for _ in range(MAX_CHUNK_LINES):
+            line = self.rfile.readline(256)
+            size_text = line.split(b";", 1)[0].strip()
+            if (
+                not line.endswith(b"\n")
+                or not size_text
+                or not all(c in b"0123456789abcdefABCDEF" for c in size_text)
+            ):
+                raise HttpError(HTTPStatus.BAD_REQUEST, "a chunk size that is not one")
+            size = int(size_text, 16)
+            if size == 0:
+                break
+            total += size
+            if total > MAX_BODY:
+                raise HttpError(
+                    HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"a body over {MAX_BODY} bytes"
+                )
+            chunk = self.rfile.read(size + 2)
+            if len(chunk) < size + 2 or chunk[size:] != b"\r\n":
+                raise HttpError(HTTPStatus.BAD_REQUEST, "a chunk cut short")
+            parts.append(chunk[:size])
+        else:
+            raise HttpError(HTTPStatus.BAD_REQUEST, f"more than {MAX_CHUNK_LINES} chunks")
+        for _ in range(MAX_CHUNK_LINES):  # trailer fields, up to the empty line
+            line = self.rfile.readline(256)
+            if line in (b"\r\n", b"\n"):
+                return b"".join(parts)
+            if not line.endswith(b"\n"):
+                break
+        raise HttpError(HTTPStatus.BAD_REQUEST, "a chunked body without its end")
 
     def _reset(
         self,
         requirement: str | None,
         hub: Hub,
-        socket_path: Callable[[], str | None],
+        path: str | None,
         state: dict[str, Any],
     ) -> None:
         client = self.client_address[0]
-        path = socket_path()
         if not state["available"] or path is None:
             self._json(HTTPStatus.SERVICE_UNAVAILABLE, {"ok": False, "message": state["why"]})
             return
@@ -375,7 +507,8 @@ class Handler(BaseHTTPRequestHandler):
             return
         message = str(answer.get("message", ""))
         what = f"reset {requirement or 'all'} from {client}"
-        print(f"safety-supervisor ui: {what}: {message}", flush=True)
+        # the requirement is the client's and the message the socket's: terminal-safe
+        print(f"safety-supervisor ui: {printable(what)}: {printable(message)}", flush=True)
         hub.note(
             {"event": "ui", "requirement": requirement or "*", "what": what, "detail": message}
         )
