@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
+from monitors.untrusted import printable
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
@@ -58,5 +59,5 @@ def cmd_report(args: argparse.Namespace) -> int:
     integ = rep.data.integrity
     n = sum(len(q.violations) for q in rep.requirements)
     chain = "hash chain intact" if integ.ok else f"HASH CHAIN BROKEN: {integ.first_problem}"
-    print(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}")
+    print(printable(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}"))
     return EXIT_OK if integ.ok else EXIT_FAIL
