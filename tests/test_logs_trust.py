@@ -410,24 +410,37 @@ _ts = st.one_of(
 )
 
 
+_name = st.one_of(
+    st.text(min_size=1, max_size=12),
+    st.sampled_from([NASTY, INJECT, "</script>", "<!--", "a\u2028b"]),
+)
+# the string fields a valid record may fill with any text
+_STRINGS = ("requirement", "text", "formula", "action", "kind", "error", "reason", "what")
+
+
 @st.composite
 def _records(draw: Any) -> dict[str, Any]:
     event = draw(st.sampled_from(["violation", "mitigation", "reset", "supervisor"]))
     rec = record(event)
+    for key in draw(st.lists(st.sampled_from(_STRINGS), max_size=4, unique=True)):
+        if key in rec:  # valid, with text meant for a terminal or a page
+            rec[key] = draw(_name)
     for key in draw(st.lists(st.sampled_from(sorted(rec)), max_size=3, unique=True)):
         if key not in ("prev_sha256", "seq"):
             rec[key] = draw(_ts if key == "ts" else _value)
     if draw(st.booleans()):
         rec[draw(_text)] = draw(_value)
     if event == "violation" and draw(st.booleans()):
-        name = draw(_text)
-        rec["inputs"] = {name: draw(_scalar)}
-        rec["recent"] = [{"tick": draw(st.integers(-2, 3) | _value), name: draw(_value)}]
+        name = draw(_name)
+        number = st.integers() | st.floats() | st.booleans()
+        rec["inputs"] = {name: draw(number | _scalar)}
+        tick = draw(st.integers(-2, 3) | st.integers(0, 2**63) | _value)
+        rec["recent"] = [{"tick": tick, name: draw(number | _value)}]
     return rec
 
 
 @settings(
-    max_examples=40,
+    max_examples=100,
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )

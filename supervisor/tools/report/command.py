@@ -35,8 +35,8 @@ def add_parser(sub: Any) -> None:
         "--config",
         default=None,
         metavar="CONFIG",
-        help="the config the log was written with (default: the one its start record names, "
-        "if unchanged)",
+        help="the config the log was written with (default: a *.yaml beside the log or in "
+        "the recording with the log's config_sha256; the path the log names is never opened)",
     )
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
