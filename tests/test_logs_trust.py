@@ -83,7 +83,20 @@ BAD = {
     "deep_input": (record("violation", inputs={"speed": "@deep"}), {"@deep": DEEP}),
     "long_requirement": (record("violation", requirement="r" * 100_000), None),
     "recorded_ts_year_1": (record("violation", recorded_ts="0001-01-01T00:00:00Z"), None),
+    "input_beyond_int64": (record("violation", recent=[{"tick": 2, "speed": 10**400}]), None),
 }
+
+
+def test_a_constant_input_too_large_for_a_float_step_is_drawn(tmp_path: Path, capsys: Any) -> None:
+    """Found by the fuzz test below: 2^53+3 and 2^53+3+1 are one float apart from zero."""
+    big = 2**53 + 3
+    rec = record(
+        "violation", inputs={"n": big}, recent=[{"tick": 1, "n": big}, {"tick": 2, "n": big}]
+    )
+    log = write_log(tmp_path, [record("supervisor"), rec])
+    rc, _, err = cli(["report", str(log), "-o", str(tmp_path / "r.html"), "--quiet"], capsys)
+    assert rc == 0, err
+    check_markup((tmp_path / "r.html").read_text())
 
 
 def around(bad: dict[str, Any]) -> list[dict[str, Any]]:

@@ -205,9 +205,10 @@ def _bool(key: str, v: Any) -> None:
 
 
 def _number(key: str, v: Any) -> None:
-    """A number, null, or JSON's stand-in for a non-finite one."""
-    ok = v is None or v in _NON_FINITE
-    ok = ok or (isinstance(v, int | float) and not isinstance(v, bool))
+    """A number (an integer within int64), null, or JSON's stand-in for a non-finite one."""
+    ok = v is None or v in _NON_FINITE or isinstance(v, float)
+    # an int64 (the monitor's integers); JSON's are unbounded
+    ok = ok or (isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**63)
     if not ok:
         raise BadRecord(f"{key} must be a number, not {_type(v)}")
 
