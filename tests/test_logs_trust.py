@@ -15,6 +15,7 @@ import os
 import re
 import resource
 import shutil
+import signal
 import subprocess
 import sys
 import zlib
@@ -499,3 +500,28 @@ def test_the_real_command_on_a_crafted_log(tmp_path: Path) -> None:
         assert r.returncode in (0, 1), (argv, r.stderr)
         assert "Traceback" not in r.stderr and not RAW_CONTROL.search(r.stdout + r.stderr)
     check_markup(out.read_text())
+
+
+@pytest.mark.slow
+def test_follow_escapes_and_says_what_it_skips(tmp_path: Path) -> None:
+    from test_logs_query import _Follow
+
+    live = tmp_path / "v.jsonl"
+    live.write_bytes(chain([record("supervisor"), record("violation", tick="x")]))
+    f = _Follow("-f", str(live))
+    try:
+        assert f.take(2)[1].split()[1:3] == ["supervisor", "-"]  # after the header
+        with live.open("ab") as out:
+            out.write(chain([record("reset", tick=-1), record("violation", requirement=NASTY)]))
+        row = f.take(1)[0]
+        assert "violation" in row and "\\x1b]0;pwned\\x07" in row
+        assert not RAW_CONTROL.search(row)
+        assert f.quiet()
+        code, err = f.stop(signal.SIGTERM)
+        assert code == 0, err
+        skipped = [s for s in err.splitlines() if ": skipped: " in s]
+        assert len(skipped) == 2 and all(s.startswith(f"{live}: byte ") for s in skipped), err
+        assert "tick must be" in skipped[0] and "tick must be" in skipped[1]
+    finally:
+        if f.proc.poll() is None:
+            f.proc.kill()

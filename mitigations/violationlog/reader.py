@@ -316,7 +316,7 @@ def records_since(
     is still being written and is left for the next call; a missing file has no
     records yet; a file shorter than ``offset`` was rotated and is read from its start.
     Lines that are not records (an interrupted write, or a record that fails the
-    schema) are skipped; ``skipped`` collects ``byte N: why`` for each.  ``raw``:
+    schema) are skipped; ``skipped`` collects ``byte N: skipped: why`` for each.  ``raw``:
     each record also carries ``_line``, the line as stored without its newline.
     """
     try:
@@ -335,7 +335,7 @@ def records_since(
             rec = parse_record(line)
         except BadRecord as e:
             if skipped is not None:
-                skipped.append(f"byte {at}: {e}")
+                skipped.append(f"byte {at}: skipped: {e}")
         else:
             if raw:
                 rec["_line"] = line.decode("utf-8")

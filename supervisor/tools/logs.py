@@ -8,6 +8,7 @@ the accepted times: docs/reference/commands.md (logs) and docs/reference/log.md.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import re
@@ -389,12 +390,15 @@ class Follower:
         self.old, self.fd = [], None
 
 
-def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
+def _follow(files: list[LogFile], args: argparse.Namespace, skipped: str) -> int:
     """Print the last ``--lines`` selected records, then the new ones until SIGTERM
-    (exit 0) or Ctrl-C (130); the newest file is the one followed."""
+    (exit 0) or Ctrl-C (130); the newest file is the one followed.  ``skipped``: what
+    reading ``files`` said; the followed file's lines are the follower's to report."""
     live = next((f for f in reversed(files) if not f.path.endswith(".gz")), None)
     if live is None:
         raise UserError("--follow needs a log that is not compressed (.gz)")
+    mine = (f"{printable(live.path)}:", f"{printable(live.path)} ")
+    sys.stderr.writelines(s for s in skipped.splitlines(True) if not s.startswith(mine))
     stop = threading.Event()
     follower = Follower(live.path)
     old_handler = None
@@ -425,9 +429,10 @@ def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
 def cmd_logs(args: argparse.Namespace) -> int:
     if args.verify:
         return verify_files(args.files)
-    files = load(args.files)
     if args.follow:
-        return _follow(files, args)
+        said = io.StringIO()
+        return _follow(load(args.files, said), args, said.getvalue())
+    files = load(args.files)
     if args.why:
         return _why([r for f in files for r in f.records], args)
     records = [r for f in files for r in f.records if _selected(r, args)]
