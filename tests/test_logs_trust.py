@@ -525,3 +525,38 @@ def test_follow_escapes_and_says_what_it_skips(tmp_path: Path) -> None:
     finally:
         if f.proc.poll() is None:
             f.proc.kill()
+
+
+def test_every_record_the_writer_makes_passes_the_schema(tmp_path: Path, capsys: Any) -> None:
+    """The schema is the writer's format: nothing the daemon writes is skipped."""
+    from mitigations.violationlog.writer import ViolationLog
+
+    path = tmp_path / "v.jsonl"
+    with ViolationLog(path, "R", "ab" * 32, echo=False) as log:
+        log.supervisor("start", config=str(tmp_path / "r.yaml"), pid=1)
+        log.supervisor("input_stale", input="speed", detail="silent for 612 ms")
+        log.violation(
+            "limit",
+            text="t",
+            formula="f",
+            tick=2,
+            inputs={"speed": float("nan"), "on": True, "n": -(2**63)},
+            recent=[{"tick": 2, "speed": float("inf"), "on": True, "n": 1}],
+            stale=["speed"],
+            policy_state={"flagged_steps": 1, "reset": "after_ms:5", "latched": False},
+            formula_inputs="g",
+        )
+        log.mitigation("limit", action="off", kind="ssh", ok=False, error="e", latency_ms=1.5,
+                       stage="violation", detail={"exit_status": 1, "stderr": "x"})  # fmt: skip
+        log.mitigation(
+            "limit", action="confirm:halt", kind="confirm", ok=True, latency_ms=float("inf")
+        )
+        log.reset("*", reason="operator reset", tick=3, via="control_socket", refused=[],
+                  caller={"uid": 0, "gid": 0, "pid": 1})  # fmt: skip
+        log.supervisor("reload", ok=True, config="r.yaml", kept_state=["limit"], tick=4)
+        log.supervisor("records_lost", lost=[[5, 9]], count=5, reason="ENOSPC", events={})
+        log.supervisor("record_closed", written=1, dropped=0, skipped=0, lost=3, bags=[])
+        log.supervisor("stop", ticks=4, violations=1, reloads=1, inputs={"speed": {"nan": 1}})
+    rc, out, err = cli(["logs", "--json", str(path)], capsys)
+    assert rc == 0 and err == "", err
+    assert out == path.read_text()

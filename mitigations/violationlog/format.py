@@ -325,8 +325,11 @@ SCHEMA: dict[str, dict[str, tuple[Check, bool]]] = {
         "config": (_string, False),
         "tick": (_tick, False),
         "previous_last_sha256": (_sha256, False),
-        "lost": (_ranges, False),
     },
+}
+# A supervisor record's fields whose meaning depends on its ``what``.
+_WHAT: dict[str, dict[str, tuple[Check, bool]]] = {
+    "records_lost": {"lost": (_ranges, True)},  # record_closed's ``lost`` is a count
 }
 
 
@@ -341,7 +344,10 @@ def check_record(rec: Any) -> datetime:
     t = parse_time(rec.get("ts"))
     if "recorded_ts" in rec:
         parse_time(rec["recorded_ts"], "recorded_ts")
-    for key, (check, required) in (_COMMON | SCHEMA[event]).items():
+    fields = _COMMON | SCHEMA[event]
+    if event == "supervisor" and isinstance(rec.get("what"), str):
+        fields |= _WHAT.get(rec["what"], {})
+    for key, (check, required) in fields.items():
         if key in rec:
             check(key, rec[key])
         elif required:
