@@ -193,7 +193,9 @@ def _report_traced(log: Path, out: Path, tmp_path: Path) -> tuple[int, str, list
 
 
 @pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
-@pytest.mark.parametrize("target", ["secret", "/etc/shadow", "/dev/zero", "fifo", "matching"])
+@pytest.mark.parametrize(
+    "target", ["secret", "/etc/shadow", "/dev/zero", "fifo", "matching", "link_beside"]
+)
 def test_report_never_opens_a_path_the_log_names(target: str, tmp_path: Path, capsys: Any) -> None:
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
@@ -207,6 +209,9 @@ def test_report_never_opens_a_path_the_log_names(target: str, tmp_path: Path, ca
         os.mkfifo(path)
     elif target == "matching":  # even the right config is not opened where the log says
         path, digest = str(secret), hashlib.sha256(secret.read_bytes()).hexdigest()
+    elif target == "link_beside":  # a link beside the log is not a config beside it
+        path, digest = str(tmp_path / "config.yaml"), "ab" * 32
+        os.symlink("/etc/shadow", path)
     else:
         path = target
     records = [record("supervisor", config=path, config_sha256=digest)]
