@@ -120,7 +120,8 @@ def test_several_files_in_time_order_and_bad_lines_skipped(generated, tmp_path: 
     rows = [row.split() for row in captured.out.splitlines()[1:]]
     assert [r[0] for r in rows][0] == "2020-01-01T00:00:00.000000Z"
     assert len(rows) == 4
-    assert f"{older}:2: warning: not a log record, skipped" in captured.err
+    assert f"{older}:2: skipped: not JSON" in captured.err
+    assert f"{older}: 1 line skipped" in captured.err
 
 
 def test_errors(generated, tmp_path: Path, capsys) -> None:

@@ -313,7 +313,7 @@ def test_a_report_of_a_recorded_daemon_run(tmp_path: Path) -> None:
         finally:
             d.close()
     out = tmp_path / "report.html"
-    # the config from the log's start record (same file, same SHA-256)
+    # the config beside the log (its SHA-256 is the log's config_sha256)
     r = run("report", str(d.log), "--bag", str(bags), "-o", str(out), timeout=120)
     assert r.returncode == 0, r.stderr
     html = out.read_text()

@@ -33,6 +33,11 @@ who recomputes the hashes; it has no key.
 Non-finite floats, which JSON lacks, are written as the strings ``"nan"``,
 ``"inf"`` and ``"-inf"``.
 
+Since anyone can write a log that verifies, a record is checked against one schema
+where a line is read (:func:`parse_record`, used by the reader): its size and
+nesting, and each event's fields with their types and ranges.  What the readers do
+with a record that fails: docs/reference/faults.md, "Trust".
+
 This package uses the standard library only (the writer adds structlog), so the CLI stays quick to start.
 """
 
@@ -42,8 +47,11 @@ import hashlib
 import json
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from datetime import UTC, datetime
 from typing import Any
+
+from monitors.untrusted import Untrusted, load_json
 
 HEADER = ("ts", "event", "component", "config_sha256", "prev_sha256", "seq")
 EMPTY_SHA256 = hashlib.sha256(b"").hexdigest()
@@ -129,3 +137,232 @@ def describe(rec: dict[str, Any]) -> str:
     label = str(rec.get("event", "?")).upper()
     req = rec.get("requirement")
     return f"{label} {req} {details(rec)}" if req else f"{label} {details(rec)}"
+
+
+# ---------------------------------------------------------------- the record schema
+
+# One line: a violation with ``logging.recent`` at its maximum (10,000 ticks) of a few
+# dozen inputs.  Nesting: the writer's records nest 4 levels (record, recent, row).
+MAX_LINE = 16 * 1024 * 1024
+MAX_DEPTH = 16
+MAX_ID = 256  # a requirement, action, kind, input or ``what``
+MAX_RECENT = 10_000  # rows of ``recent`` (the config's logging.recent maximum)
+MAX_TICK = 2**63 - 1  # the monitor's tick is an int64
+# A robot without a real-time clock boots in 1970; nothing is logged after 2200.
+TS_RANGE = (datetime(1970, 1, 1, tzinfo=UTC), datetime(2200, 1, 1, tzinfo=UTC))
+_NON_FINITE = ("nan", "inf", "-inf")
+
+
+class BadRecord(Untrusted):
+    """A line that is not a record of this format; ``str`` is one line."""
+
+
+def parse_time(text: Any, key: str = "ts") -> datetime:
+    """A record's ISO 8601 time (UTC when it names no zone), within ``TS_RANGE``."""
+    if not isinstance(text, str) or len(text) > 64:
+        raise BadRecord(f"{key} is not an ISO 8601 time")
+    try:
+        t = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise BadRecord(f"{key} is not an ISO 8601 time") from None
+    t = t if t.tzinfo is not None else t.replace(tzinfo=UTC)
+    if not TS_RANGE[0] <= t < TS_RANGE[1]:
+        raise BadRecord(f"{key} is not between the years 1970 and 2199")
+    return t
+
+
+def _type(v: Any) -> str:
+    return "null" if v is None else type(v).__name__
+
+
+def _ident(key: str, v: Any) -> None:
+    if not isinstance(v, str) or not 0 < len(v) <= MAX_ID:
+        raise BadRecord(f"{key} must be a string of 1 to {MAX_ID} characters, not {_type(v)}")
+
+
+def _string(key: str, v: Any) -> None:
+    if not isinstance(v, str):
+        raise BadRecord(f"{key} must be a string, not {_type(v)}")
+
+
+def _opt_string(key: str, v: Any) -> None:
+    if v is not None:
+        _string(key, v)
+
+
+def _tick(key: str, v: Any) -> None:
+    if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= MAX_TICK:
+        raise BadRecord(f"{key} must be a whole number from 0 to 2^63-1")
+
+
+def _count(key: str, v: Any) -> None:
+    _tick(key, v)
+
+
+def _bool(key: str, v: Any) -> None:
+    if not isinstance(v, bool):
+        raise BadRecord(f"{key} must be true or false, not {_type(v)}")
+
+
+def _number(key: str, v: Any) -> None:
+    """A number (an integer within int64), null, or JSON's stand-in for a non-finite one."""
+    ok = v is None or v in _NON_FINITE or isinstance(v, float)
+    # an int64 (the monitor's integers); JSON's are unbounded
+    ok = ok or (isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**63)
+    if not ok:
+        raise BadRecord(f"{key} must be a number, not {_type(v)}")
+
+
+def _scalar(key: str, v: Any) -> None:
+    """An input's value: a Boolean, a number, null (no value yet) or "nan"/"inf"/"-inf"."""
+    if isinstance(v, str) and v not in _NON_FINITE:
+        raise BadRecord(f"{key} must be a Boolean or a number, not a string")
+    if not isinstance(v, bool):
+        _number(key, v)
+
+
+def _inputs(key: str, v: Any) -> None:
+    if not isinstance(v, dict):
+        raise BadRecord(f"{key} must be a mapping of input names to values, not {_type(v)}")
+    for name, x in v.items():
+        if not 0 < len(name) <= MAX_ID:
+            raise BadRecord(f"{key} has a name of more than {MAX_ID} characters")
+        _scalar(f"{key}.{name[:40]!r}", x)
+
+
+def _recent(key: str, v: Any) -> None:
+    if not isinstance(v, list) or len(v) > MAX_RECENT:
+        raise BadRecord(f"{key} must be a list of at most {MAX_RECENT} ticks")
+    for i, row in enumerate(v):
+        if not isinstance(row, dict):
+            raise BadRecord(f"{key}[{i}] must be a mapping, not {_type(row)}")
+        _tick(f"{key}[{i}].tick", row.get("tick"))
+        _inputs(f"{key}[{i}]", {k: x for k, x in row.items() if k != "tick"})
+
+
+def _strings(key: str, v: Any) -> None:
+    if not isinstance(v, list) or not all(isinstance(x, str) for x in v):
+        raise BadRecord(f"{key} must be a list of strings")
+
+
+def _flat(key: str, v: Any) -> None:
+    if not isinstance(v, dict) or any(isinstance(x, dict | list) for x in v.values()):
+        raise BadRecord(f"{key} must be a mapping of names to single values")
+
+
+def _mapping(key: str, v: Any) -> None:
+    if not isinstance(v, dict):
+        raise BadRecord(f"{key} must be a mapping, not {_type(v)}")
+
+
+def _sha256(key: str, v: Any) -> None:
+    # the writer's is hex; the chain checks the hashes themselves, here only the shape
+    if not isinstance(v, str) or len(v) > 64:
+        raise BadRecord(f"{key} must be a SHA-256 (a string of at most 64 characters)")
+
+
+def _ranges(key: str, v: Any) -> None:
+    ok = isinstance(v, list) and all(
+        isinstance(r, list)
+        and len(r) == 2
+        and all(isinstance(x, int) and not isinstance(x, bool) for x in r)
+        for r in v
+    )
+    if not ok:
+        raise BadRecord(f"{key} must be a list of [first, last] seq numbers")
+
+
+def _any(key: str, v: Any) -> None:
+    pass
+
+
+Check = Callable[[str, Any], None]
+# Each event's fields: name -> (check, required).  Fields not named are kept as they
+# are (any JSON within the size and depth bounds): an older or newer writer's.  The
+# chain's fields are the verifier's to require; a reader needs the time and event.
+_COMMON: dict[str, tuple[Check, bool]] = {
+    "event": (_any, True),  # checked first, below
+    "component": (_ident, False),
+    "config_sha256": (_sha256, False),
+    "prev_sha256": (_string, False),
+    "seq": (_count, False),
+    "line_sha256": (_string, False),
+    "dry_run": (_bool, False),
+}
+SCHEMA: dict[str, dict[str, tuple[Check, bool]]] = {
+    "violation": {
+        "requirement": (_ident, True),
+        "tick": (_tick, True),
+        "inputs": (_inputs, True),
+        "text": (_string, False),
+        "formula": (_string, False),
+        "formula_inputs": (_string, False),
+        "recent": (_recent, False),
+        "stale": (_strings, False),
+        "policy_state": (_flat, False),
+    },
+    "mitigation": {
+        "requirement": (_ident, True),
+        "action": (_ident, True),
+        "kind": (_ident, True),
+        "ok": (_bool, True),
+        "error": (_opt_string, False),
+        "latency_ms": (_number, False),
+        "attempt": (_count, False),
+        "stage": (_ident, False),
+        "detail": (_mapping, False),
+    },
+    "reset": {
+        "requirement": (_ident, True),
+        "reason": (_string, True),
+        "tick": (_tick, False),
+        "via": (_string, False),
+        "caller": (_mapping, False),
+    },
+    "supervisor": {
+        "what": (_ident, True),
+        "input": (_ident, False),
+        "config": (_string, False),
+        "tick": (_tick, False),
+        "previous_last_sha256": (_sha256, False),
+    },
+}
+# A supervisor record's fields whose meaning depends on its ``what``.
+_WHAT: dict[str, dict[str, tuple[Check, bool]]] = {
+    "records_lost": {"lost": (_ranges, True)},  # record_closed's ``lost`` is a count
+}
+
+
+def check_record(rec: Any) -> datetime:
+    """``rec`` (a parsed line) against the schema; its time.  :class:`BadRecord`
+    names the first field that is wrong (never its value: it could be anything)."""
+    if not isinstance(rec, dict):
+        raise BadRecord(f"not a record (a JSON {_type(rec)}, not an object)")
+    event = rec.get("event")
+    if not isinstance(event, str) or event not in SCHEMA:
+        raise BadRecord("event is missing or not one of " + ", ".join(EVENTS))
+    t = parse_time(rec.get("ts"))
+    if "recorded_ts" in rec:
+        parse_time(rec["recorded_ts"], "recorded_ts")
+    fields = _COMMON | SCHEMA[event]
+    if event == "supervisor" and isinstance(rec.get("what"), str):
+        fields |= _WHAT.get(rec["what"], {})
+    for key, (check, required) in fields.items():
+        if key in rec:
+            check(key, rec[key])
+        elif required:
+            raise BadRecord(f"{key} is missing")
+    return t
+
+
+def parse_record(line: bytes) -> dict[str, Any]:
+    """One line of a log as a checked record, with ``_ts`` (its time, parsed)."""
+    try:
+        rec = load_json(line, max_bytes=MAX_LINE, max_depth=MAX_DEPTH)
+    except BadRecord:
+        raise
+    except Untrusted as e:
+        raise BadRecord(str(e)) from None
+    rec_ts = check_record(rec)
+    rec["_ts"] = rec_ts
+    return rec

@@ -1,7 +1,11 @@
 """Reading violation logs: records in order, and verification of the hash chain.
 
 The one reader of the format defined in :mod:`mitigations.violationlog.format`;
-rotated files compressed by logrotate (``.gz``) are read as they are.
+rotated files compressed by logrotate (``.gz``) are read as they are, inflated as
+they are read within a bound.  A log is untrusted input (its chain has no key): every
+line is checked against the format's schema (``parse_record``) where it is read, and
+a line that fails is skipped with one located line and counted, never used
+(docs/reference/faults.md, "Trust").
 """
 
 from __future__ import annotations
@@ -9,15 +13,73 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
 import sys
-from collections.abc import Iterator
+import zlib
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
-from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
-from mitigations.violationlog.format import _PREV_RE, EMPTY_SHA256, line_seal_ok, sha256_hex
+from mitigations.violationlog.format import (
+    _PREV_RE,
+    EMPTY_SHA256,
+    MAX_LINE,
+    BadRecord,
+    line_seal_ok,
+    parse_record,
+    sha256_hex,
+)
 from monitors.errors import UserError
+from monitors.untrusted import printable
+
+# A rotated .gz inflates to at most this: logrotate rotates at 100 MB (the shipped
+# snippet's maxsize), so past it the file is not one of ours (a gzip bomb).
+MAX_INFLATED = 1 << 30
+_HEADER_RE = re.compile(rb'"prev_sha256":"([0-9a-f]{64})","seq":(\d{1,19})[,}]')
+SHOWN_SKIPS = 20  # located lines per file for records skipped; the rest are counted
+
+
+class LogLines:
+    """The lines of one file, with their newline, each of at most ``MAX_LINE`` bytes;
+    a ``.gz`` is inflated while it is read, at most ``MAX_INFLATED`` bytes.  Reading
+    ends at damage (a line too long, a compressed stream that is broken or too
+    large): ``damage`` then says so in one located line."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.damage: str | None = None
+        try:
+            self._file: IO[bytes] = (
+                gzip.open(path, "rb") if path.endswith(".gz") else open(path, "rb")  # noqa: SIM115
+            )
+        except OSError as e:
+            raise UserError(f"cannot read log: {e.strerror or e}", file=path) from e
+
+    def __iter__(self) -> Iterator[bytes]:
+        total = n = 0
+        cap = MAX_INFLATED if self.path.endswith(".gz") else None
+        with self._file as f:
+            while True:
+                try:
+                    line = f.readline(MAX_LINE + 1)
+                except (OSError, EOFError, zlib.error) as e:
+                    self._damaged(n + 1, f"{getattr(e, 'strerror', None) or e}")
+                    return
+                if not line:
+                    return
+                n += 1
+                total += len(line)
+                if len(line) > MAX_LINE:
+                    self._damaged(n, f"a line longer than {MAX_LINE} bytes")
+                    return
+                if cap is not None and total > cap:
+                    self._damaged(n, f"inflates to more than {cap} bytes")
+                    return
+                yield line
+
+    def _damaged(self, line: int, why: str) -> None:
+        self.damage = printable(f"{self.path}:{line}: damaged: {why}; read up to there")
 
 
 @dataclass
@@ -77,13 +139,12 @@ def _ranges_text(ranges: Any) -> str:
 
 
 def read_bytes(path: str) -> bytes:
-    try:
-        if path.endswith(".gz"):  # logrotate's compress
-            with gzip.open(path, "rb") as f:
-                return f.read()
-        return Path(path).read_bytes()
-    except (OSError, EOFError) as e:
-        raise UserError(f"cannot read log: {getattr(e, 'strerror', None) or e}", file=path) from e
+    """The whole file (inflated), within :class:`LogLines`' bounds; damage is an error."""
+    src = LogLines(path)
+    data = b"".join(src)
+    if src.damage:
+        raise UserError(src.damage)
+    return data
 
 
 def split_lines(data: bytes) -> list[bytes]:
@@ -99,13 +160,37 @@ def split_lines(data: bytes) -> list[bytes]:
 
 
 def verify_bytes(path: str, data: bytes) -> VerifyResult:
+    return verify_lines(path, split_lines(data))
+
+
+def verify_file(path: str) -> VerifyResult:
+    """The file's chain, read line by line (memory: one line); damage is an error."""
+    src = LogLines(path)
+    res = verify_lines(path, src)
+    if src.damage and not res.broken:
+        res.errors.append(src.damage)
+        res.broken = True
+    return res
+
+
+def _header(line: bytes) -> dict[str, Any] | None:
+    """The chain fields of a line too deep to parse, where the writer puts them (the
+    header comes first, and inside a JSON string a quote is escaped)."""
+    m = _HEADER_RE.search(line)
+    return None if m is None else {"prev_sha256": m[1].decode(), "seq": int(m[2])}
+
+
+def verify_lines(path: str, lines: Iterable[bytes]) -> VerifyResult:
     res = VerifyResult(path)
-    lines = split_lines(data)
     expected = EMPTY_SHA256
     seq: int | None = None  # of the last record; seq restarts at 1 with each writer
-    for i, line in enumerate(lines, 1):
+    ahead = iter(lines)
+    nxt = next(ahead, None)
+    i = 0
+    while nxt is not None:
+        line, nxt = nxt, next(ahead, None)
+        i += 1
         where = f"{path}:{i}"
-        last = i == len(lines)
         if not line.endswith(b"\n"):
             res.errors.append(
                 f"{where}: incomplete final line (writer interrupted or file "
@@ -114,15 +199,20 @@ def verify_bytes(path: str, data: bytes) -> VerifyResult:
             res.broken = True
             break
         try:
-            rec = json.loads(line)
+            # the chain only: the schema is the readers' (a record of the wrong shape
+            # written by the writer, or chained by anyone, still verifies)
+            try:
+                rec = json.loads(line)
+            except RecursionError:  # nested deeper than the parser goes: the header
+                rec = _header(line)
             if not isinstance(rec, dict) or "prev_sha256" not in rec:
                 raise ValueError("not a record")
         except ValueError:
-            nxt = None if last else _PREV_RE.search(lines[i])
+            follows = None if nxt is None else _PREV_RE.search(nxt)
             m = _PREV_RE.search(line)
             if (
-                nxt is not None
-                and nxt.group(1).decode() == sha256_hex(line)
+                follows is not None
+                and follows.group(1).decode() == sha256_hex(line)
                 and (m is None or m.group(1).decode() == expected)
             ):
                 res.warnings.append(
@@ -186,33 +276,48 @@ def parse_time(text: str) -> datetime:
 
 
 def iter_records(path: str, err: Any = None, *, raw: bool = False) -> Iterator[dict[str, Any]]:
-    """The file's records with ``_ts`` (their time, parsed); ``raw``: also ``_line``,
-    the line as stored without its newline (``logs --json``, rotation links)."""
+    """The file's records that pass the schema, with ``_ts`` (their time, parsed);
+    ``raw``: also ``_line``, the line as stored without its newline (``logs --json``,
+    rotation links).  On ``err``: ``FILE:LINE: skipped: why`` for each line that does
+    not pass (the first ``SHOWN_SKIPS``), their count, and damage."""
     err = err or sys.stderr
-    for i, line in enumerate(split_lines(read_bytes(path)), 1):
+    src = LogLines(path)
+    skipped = 0
+    for i, line in enumerate(src, 1):
         try:
-            rec = json.loads(line)
-            if not isinstance(rec, dict) or "event" not in rec or "ts" not in rec:
-                raise ValueError
-            rec["_ts"] = parse_time(str(rec["ts"]))
-        except ValueError:
-            print(f"{path}:{i}: warning: not a log record, skipped", file=err)
+            rec = parse_record(line)
+        except BadRecord as e:
+            skipped += 1
+            if skipped <= SHOWN_SKIPS:
+                print(printable(f"{path}:{i}: skipped: {e}"), file=err)
+            elif skipped == SHOWN_SKIPS + 1:
+                print(printable(f"{path}: more lines skipped: counted only"), file=err)
             continue
         if raw:
-            rec["_line"] = line.rstrip(b"\n").decode("utf-8", "replace")
+            rec["_line"] = line.rstrip(b"\n").decode("utf-8")
         yield rec
+    if skipped:
+        s = "" if skipped == 1 else "s"
+        print(printable(f"{path}: {skipped} line{s} skipped (not a log record)"), file=err)
+    if src.damage:
+        print(src.damage, file=err)
 
 
 def records_since(
-    path: str | Path, offset: int, *, raw: bool = False
+    path: str | os.PathLike[str],
+    offset: int,
+    *,
+    raw: bool = False,
+    skipped: list[str] | None = None,
 ) -> tuple[list[dict[str, Any]], int]:
     """The records appended after byte ``offset``, and the offset to read from next time.
 
     For following a log while the daemon writes it: a last line without its newline
     is still being written and is left for the next call; a missing file has no
     records yet; a file shorter than ``offset`` was rotated and is read from its start.
-    Lines that are not records (an interrupted write) are skipped.  ``raw``: each
-    record also carries ``_line``, the line as stored without its newline.
+    Lines that are not records (an interrupted write, or a record that fails the
+    schema) are skipped; ``skipped`` collects ``byte N: skipped: why`` for each.  ``raw``:
+    each record also carries ``_line``, the line as stored without its newline.
     """
     try:
         with open(path, "rb") as f:
@@ -224,13 +329,16 @@ def records_since(
         return [], offset
     complete = data.rfind(b"\n") + 1
     out = []
-    for line in data[:complete].split(b"\n"):
+    at = offset
+    for line in data[:complete].split(b"\n")[:-1]:
         try:
-            rec = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(rec, dict) and "event" in rec:
+            rec = parse_record(line)
+        except BadRecord as e:
+            if skipped is not None:
+                skipped.append(f"byte {at}: skipped: {e}")
+        else:
             if raw:
-                rec["_line"] = line.decode("utf-8", "replace")
+                rec["_line"] = line.decode("utf-8")
             out.append(rec)
+        at += len(line) + 1
     return out, offset + complete

@@ -8,6 +8,7 @@ the accepted times: docs/reference/commands.md (logs) and docs/reference/log.md.
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import re
@@ -21,14 +22,15 @@ from typing import Any
 
 from mitigations.violationlog.format import EVENTS, details, sha256_hex
 from mitigations.violationlog.reader import (
+    VerifyResult,
     check_seq_gap,
     iter_records,
     parse_time,
-    read_bytes,
     records_since,
-    verify_bytes,
+    verify_file,
 )
 from monitors.errors import UserError
+from monitors.untrusted import printable
 
 FOLLOW_INTERVAL_S = 0.2  # polling, as tail -F does without inotify
 FOLLOW_LINES = 10  # records shown before following, as tail -f and journalctl -f
@@ -102,9 +104,18 @@ def time_arg(text: str) -> datetime:
 
 
 def verify_files(paths: list[str], out: Any = None) -> int:
-    """Each file's chain and ``seq``, and the links between rotated files."""
+    """Each file's chain and ``seq``, and the links between rotated files (printed:
+    what a record says is escaped for the terminal, docs/reference/faults.md)."""
+    status, lines, _ = verify_paths(paths)
     out = out or sys.stdout
-    results = [verify_bytes(p, read_bytes(p)) for p in paths]
+    for line in lines:
+        print(printable(line), file=out)
+    return status
+
+
+def verify_paths(paths: list[str]) -> tuple[int, list[str], list[VerifyResult]]:
+    """``verify_files``' exit status, lines and each file's result."""
+    results = [verify_file(p) for p in paths]
     by_last = {r.last_sha256: r for r in results if r.records}
     linked: dict[str, list[str]] = {}
     for r in results:
@@ -125,27 +136,23 @@ def verify_files(paths: list[str], out: Any = None) -> int:
                 assert r.first is not None
                 check_seq_gap(f"{r.path}:1", old.last_seq + 1, first - 1, r.first, r)
     status = 0
+    out: list[str] = []
     for r in results:
-        for w in r.warnings:
-            print(w, file=out)
-        for e in r.errors:
-            print(e, file=out)
+        out += r.warnings + r.errors
         if r.broken:
             status = 1
             continue
         lost = f", {r.lost} records lost and accounted for (records_lost)" if r.lost else ""
         if r.missing:
             status = 1
-            print(
+            out.append(
                 f"{r.path}: {r.records} records{lost}, {r.missing} records MISSING "
-                "(the hash chain itself is unbroken)",
-                file=out,
+                "(the hash chain itself is unbroken)"
             )
         else:
-            print(f"{r.path}: {r.records} records, chain intact{lost}", file=out)
-        for text in linked.get(r.path, []):
-            print(text, file=out)
-    return status
+            out.append(f"{r.path}: {r.records} records, chain intact{lost}")
+        out += linked.get(r.path, [])
+    return status, out, results
 
 
 def _selected(rec: dict[str, Any], args: argparse.Namespace) -> bool:
@@ -176,8 +183,8 @@ class LogFile:
     newer: list[LogFile] = field(default_factory=list)
 
     @classmethod
-    def read(cls, path: str) -> LogFile:
-        records = list(iter_records(path, raw=True))
+    def read(cls, path: str, err: Any = None) -> LogFile:
+        records = list(iter_records(path, err, raw=True))
         f = cls(path, records)
         if records:
             f.last_sha256 = sha256_hex((records[-1]["_line"] + "\n").encode())
@@ -219,15 +226,17 @@ def in_order(files: list[LogFile]) -> list[LogFile]:
     return out + [f for f in files if f not in out]  # a cycle of links: never dropped
 
 
-def load(paths: list[str]) -> list[LogFile]:
-    return in_order([LogFile.read(p) for p in paths])
+def load(paths: list[str], err: Any = None) -> list[LogFile]:
+    """The files' records, oldest file first; skipped lines and damage on ``err``."""
+    return in_order([LogFile.read(p, err) for p in paths])
 
 
 # ---------------------------------------------------------------- output
 
 
 class Printer:
-    """The selected records as a table (header first) or, ``--json``, as stored."""
+    """The selected records as a table (header first), every field escaped for the
+    terminal, or, ``--json``, as stored."""
 
     def __init__(self, as_json: bool, width: int, out: Any = None) -> None:
         self.as_json = as_json
@@ -245,9 +254,10 @@ class Printer:
             if self.as_json:
                 lines.append(r["_line"])
             else:
-                req = r.get("requirement", "-")
+                req = printable(str(r.get("requirement", "-")))
                 lines.append(
-                    f"{r.get('ts', '-'):<27}  {r['event']:<10}  {req:<{self.width}}  {details(r)}"
+                    printable(f"{r['ts']:<27}  {r['event']:<10}  ")
+                    + f"{req:<{self.width}}  {printable(details(r))}"
                 )
         if lines:
             self.out.write("\n".join(lines) + "\n")
@@ -286,7 +296,7 @@ def _summary(records: list[dict[str, Any]]) -> list[str]:
             f"{req:<{w}}  {r['violations']:>10}  {r['first'] or '-':<27}  "
             f"{r['last'] or '-':<27}  {r['ok']:>6}  {r['failed']:>10}"
         )
-    return out
+    return [printable(line) for line in out]
 
 
 def _summary_json(records: list[dict[str, Any]]) -> list[str]:
@@ -320,6 +330,7 @@ class Follower:
 
     def __init__(self, path: str) -> None:
         self.path = path
+        self.skipped: list[str] = []  # lines that fail the schema, as records_since says
         self.fd: int | None = None
         self.offset = 0
         self.old: list[tuple[int, int]] = []  # (fd, offset) of rotated files still read
@@ -332,9 +343,8 @@ class Follower:
             self.fd = None  # between logrotate's rename and create; tried again
         self.offset = 0
 
-    @staticmethod
-    def _read(fd: int, offset: int) -> tuple[list[dict[str, Any]], int]:
-        return records_since(f"/proc/self/fd/{fd}", offset, raw=True)
+    def _read(self, fd: int, offset: int) -> tuple[list[dict[str, Any]], int]:
+        return records_since(f"/proc/self/fd/{fd}", offset, raw=True, skipped=self.skipped)
 
     def _rotated(self) -> bool:
         try:
@@ -369,8 +379,9 @@ class Follower:
                 out += self._read(fd, offset)[0]
                 os.close(fd)
             self.old = []
-        for r in out:
-            r["_ts"] = _ts(r)
+        for why in self.skipped:
+            print(printable(f"{self.path}: {why}"), file=sys.stderr)
+        self.skipped.clear()
         return out
 
     def close(self) -> None:
@@ -379,19 +390,15 @@ class Follower:
         self.old, self.fd = [], None
 
 
-def _ts(rec: dict[str, Any]) -> datetime:
-    try:
-        return parse_time(str(rec.get("ts")))
-    except ValueError:
-        return datetime.min.replace(tzinfo=UTC)  # a record without a time: never --since
-
-
-def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
+def _follow(files: list[LogFile], args: argparse.Namespace, skipped: str) -> int:
     """Print the last ``--lines`` selected records, then the new ones until SIGTERM
-    (exit 0) or Ctrl-C (130); the newest file is the one followed."""
+    (exit 0) or Ctrl-C (130); the newest file is the one followed.  ``skipped``: what
+    reading ``files`` said; the followed file's lines are the follower's to report."""
     live = next((f for f in reversed(files) if not f.path.endswith(".gz")), None)
     if live is None:
         raise UserError("--follow needs a log that is not compressed (.gz)")
+    mine = (f"{printable(live.path)}:", f"{printable(live.path)} ")
+    sys.stderr.writelines(s for s in skipped.splitlines(True) if not s.startswith(mine))
     stop = threading.Event()
     follower = Follower(live.path)
     old_handler = None
@@ -403,9 +410,7 @@ def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
         selected = [r for r in history if _selected(r, args)]
         lines = FOLLOW_LINES if args.lines is None else args.lines
         selected = selected[len(selected) - lines :] if lines else []
-        printer = Printer(
-            args.json, max((len(str(r.get("requirement", ""))) for r in history), default=0)
-        )
+        printer = Printer(args.json, _width(history))
         printer(selected)
         while not stop.wait(FOLLOW_INTERVAL_S):
             printer(r for r in follower.poll() if _selected(r, args))
@@ -424,9 +429,10 @@ def _follow(files: list[LogFile], args: argparse.Namespace) -> int:
 def cmd_logs(args: argparse.Namespace) -> int:
     if args.verify:
         return verify_files(args.files)
-    files = load(args.files)
     if args.follow:
-        return _follow(files, args)
+        said = io.StringIO()
+        return _follow(load(args.files, said), args, said.getvalue())
+    files = load(args.files)
     if args.why:
         return _why([r for f in files for r in f.records], args)
     records = [r for f in files for r in f.records if _selected(r, args)]
@@ -436,9 +442,13 @@ def cmd_logs(args: argparse.Namespace) -> int:
         return 0
     if args.lines is not None:
         records = records[len(records) - args.lines :] if args.lines else []
-    width = max((len(str(r.get("requirement", ""))) for r in records), default=0)
-    Printer(args.json, width)(records)
+    Printer(args.json, _width(records))(records)
     return 0
+
+
+def _width(records: list[dict[str, Any]]) -> int:
+    """Of the REQUIREMENT column: the longest id as the terminal shows it."""
+    return max((len(printable(str(r.get("requirement", "")))) for r in records), default=0)
 
 
 def _why(records: list[dict[str, Any]], args: argparse.Namespace) -> int:
@@ -472,8 +482,12 @@ def _why(records: list[dict[str, Any]], args: argparse.Namespace) -> int:
                 )
             )
         else:
-            out.append(f"{r.get('ts', '-')}  {r.get('requirement')}  tick {r.get('tick')}")
-            out.append(f"  why: {why.sentence}" if why.sentence else f"  (no why: {why.problem})")
+            out.append(printable(f"{r['ts']}  {r['requirement']}  tick {r['tick']}"))
+            out.append(
+                printable(
+                    f"  why: {why.sentence}" if why.sentence else f"  (no why: {why.problem})"
+                )
+            )
     if out:
         print("\n".join(out))
     return 0

@@ -125,7 +125,7 @@ def why_of(record: dict[str, Any], window: Window | None) -> Why:
         return Why(window, problem="the record has no recent ticks to judge")
     try:
         formula = formula_for_record(record)
-    except (ValueError, UserError) as e:
+    except (ValueError, UserError, RecursionError) as e:  # the log's text: anything
         return Why(window, problem=f"the record's formula cannot be read: {e}")
     missing = missing_inputs(formula, window.trace)
     if missing:
@@ -138,7 +138,7 @@ def why_of(record: dict[str, Any], window: Window | None) -> Why:
     try:
         tree = why_tree(formula, window.trace, last)
         sentence = explain(formula, window.trace, last, first_tick=window.ticks[0])
-    except (ValueError, TypeError, KeyError, UserError) as e:
+    except (ValueError, TypeError, KeyError, UserError, RecursionError) as e:
         return Why(window, problem=f"the interpreter cannot judge this window: {e}")
     if bool(tree.values[last]):
         return Why(

@@ -55,7 +55,7 @@ class Report:
 
 def build(logs: list[str], bags: list[str], config: str | None, quiet: bool = False) -> Report:
     data = load_logs(logs)
-    cfg_path, no_config = resolve_config(config, data, "--bag" if bags else None)
+    cfg_path, no_config = resolve_config(config, data, "--bag" if bags else None, bags)
     project = None
     if cfg_path is not None:
         from supervisor.config import load_config

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
+from monitors.untrusted import printable
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
@@ -34,8 +35,8 @@ def add_parser(sub: Any) -> None:
         "--config",
         default=None,
         metavar="CONFIG",
-        help="the config the log was written with (default: the one its start record names, "
-        "if unchanged)",
+        help="the config the log was written with (default: a *.yaml beside the log or in "
+        "the recording with the log's config_sha256; the path the log names is never opened)",
     )
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
@@ -58,5 +59,5 @@ def cmd_report(args: argparse.Namespace) -> int:
     integ = rep.data.integrity
     n = sum(len(q.violations) for q in rep.requirements)
     chain = "hash chain intact" if integ.ok else f"HASH CHAIN BROKEN: {integ.first_problem}"
-    print(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}")
+    print(printable(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}"))
     return EXIT_OK if integ.ok else EXIT_FAIL

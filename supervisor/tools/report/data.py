@@ -8,17 +8,22 @@ from __future__ import annotations
 
 import hashlib
 import io
+import os
+import stat
 import statistics
-from contextlib import redirect_stderr
+import sys
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from mitigations.violationlog.reader import read_bytes, verify_bytes
 from monitors.errors import UserError
-from supervisor.tools.logs import load, verify_files
+from monitors.untrusted import Untrusted, printable, read_regular
+from supervisor.tools.logs import load, verify_paths
 from supervisor.tools.why import is_start, mark_runs
+
+MAX_CONFIG = 4 * 1024 * 1024  # bytes of a config file looked at (ours are < 100 kB)
+MAX_CANDIDATES = 200  # files beside a log or in a recording hashed to find the config
 
 
 @dataclass
@@ -61,28 +66,22 @@ def to_ns(text: str) -> int:
 
 
 def load_logs(paths: list[str]) -> LogData:
-    """Every file verified (with the links between rotated files) and read."""
-    for p in paths:
-        read_bytes(p)  # a missing or unreadable file: one UserError naming it
-    out = io.StringIO()
-    status = verify_files(paths, out)
-    lines = out.getvalue().splitlines()
-    first = None
-    for p in paths:
-        res = verify_bytes(p, read_bytes(p))
-        if res.errors:
-            first = res.errors[0]
-            break
+    """Every file verified (with the links between rotated files) and read; the lines
+    that are not records (and damage) are printed on stderr and kept for the page."""
+    status, lines, results = verify_paths(paths)
+    lines = [printable(s) for s in lines]
+    first = next((r.errors[0] for r in results if r.errors), None)
     if status and first is None:  # a gap across a rotation link
         first = next((s for s in lines if "warning" not in s and "chain intact" not in s), None)
     skipped = io.StringIO()
-    with redirect_stderr(skipped):  # lines that are not records: shown in the page
-        files = load(paths)  # oldest first by rotation links (as `logs` reads them)
+    files = load(paths, skipped)  # oldest first by rotation links (as `logs` reads them)
     records = [r for f in files for r in f.records]  # in the order written
     if not records:
         raise UserError("not a violation log: no record in it", file=paths[0])
+    sys.stderr.write(skipped.getvalue())
     mark_runs(records)
     _times(records)
+    first = printable(first) if first is not None else None
     integrity = Integrity(status == 0, first, lines, skipped.getvalue().splitlines())
     return LogData(paths, integrity, records)
 
@@ -111,55 +110,109 @@ def _times(records: list[dict[str, Any]]) -> None:
 
 
 def config_path(data: LogData) -> str | None:
-    """The config named by the last ``start`` (or ``replay``) supervisor record."""
+    """The config named by the last ``start`` (or ``replay``) supervisor record: only
+    ever shown (escaped), never opened (docs/reference/faults.md, "Trust")."""
     for r in reversed(data.records):
         if is_start(r) and r.get("config"):
             return str(r["config"])
     return None
 
 
-def file_sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+def config_hash(data: LogData) -> str | None:
+    """The config_sha256 of the last start (or replay), else of the last record."""
+    for r in reversed(data.records):
+        if is_start(r) and r.get("config_sha256"):
+            return str(r["config_sha256"])
+    return next(
+        (str(r["config_sha256"]) for r in reversed(data.records) if r.get("config_sha256")), None
+    )
+
+
+def _candidates(data: LogData, bags: list[str]) -> list[Path]:
+    """Regular files (not links) named ``*.yaml``/``*.yml`` beside the logs and in
+    the recordings, as an incident's files are kept together."""
+    dirs: list[Path] = []
+    for name in [*data.paths, *bags]:
+        p = Path(name)
+        for d in (p, p.parent) if p.is_dir() else (p.parent,):
+            if d not in dirs:
+                dirs.append(d)
+    out: list[Path] = []
+    for d in dirs:
+        try:
+            names = sorted(os.listdir(d or "."))
+        except OSError:
+            continue
+        for n in names:
+            f = d / n
+            try:
+                regular = stat.S_ISREG(os.lstat(f).st_mode)
+            except OSError:
+                continue
+            if regular and f.suffix in (".yaml", ".yml") and f not in out:
+                out.append(f)
+    return out[:MAX_CANDIDATES]
+
+
+def _sha256(path: Path) -> str | None:
+    """The file's SHA-256, if it is a regular file of at most MAX_CONFIG bytes."""
+    try:
+        return hashlib.sha256(read_regular(path, max_bytes=MAX_CONFIG)).hexdigest()
+    except Untrusted:
+        return None
 
 
 def resolve_config(
-    given: str | None, data: LogData, needed_for: str | None
+    given: str | None, data: LogData, needed_for: str | None, bags: list[str] | None = None
 ) -> tuple[Path | None, str]:
     """The config to read the log with, and why there is none.
 
     ``--config``: it must be one the records were written with (its SHA-256 among
-    their ``config_sha256``). Else the ``start`` record's path, if that file is still
-    the same config. ``needed_for``: what cannot be done without one (an error)."""
+    their ``config_sha256``).  Else a file beside the logs or in the recordings whose
+    SHA-256 is the log's.  The path a ``start`` record names is never opened: the log
+    is anybody's to write (docs/reference/faults.md, "Trust"), and a file whose hash
+    does not match is never parsed, so none of its lines is ever shown.
+    ``needed_for``: what cannot be done without one (an error)."""
     hashes = data.hashes
     if given is not None:
         p = Path(given)
         try:
-            digest = file_sha256(p)
-        except OSError as e:
-            raise UserError(f"cannot read config: {e.strerror or e}", file=given) from e
+            digest = hashlib.sha256(read_regular(p, max_bytes=MAX_CONFIG)).hexdigest()
+        except Untrusted as e:
+            raise UserError(f"cannot read config: {e}", file=given) from None
         if hashes and digest not in hashes:
+            shown = ", ".join(sorted(printable(h[:12]) + "..." for h in hashes))
             raise UserError(
                 f"SHA-256 {digest[:12]}... is not the config the log was written with "
-                f"(config_sha256 {', '.join(sorted(h[:12] + '...' for h in hashes))})",
+                f"(config_sha256 {shown})",
                 file=given,
             )
         return p, ""
+    want = config_hash(data)
+    found = None
+    if hashes:
+        by_hash: dict[str, Path] = {}
+        for f in _candidates(data, bags or []):
+            digest = _sha256(f)
+            if digest in hashes:
+                by_hash.setdefault(digest, f)
+        found = by_hash.get(want or "") or next(iter(by_hash.values()), None)
+    if found is not None:
+        return found, ""
     named = config_path(data)
-    why, where = "the log names no config file", data.paths[0]
+    where = ", ".join(sorted({str(Path(p).parent) for p in data.paths}))
+    why = (
+        f"no *.yaml beside the log ({where}) or in the recording has its config_sha256"
+        if hashes
+        else "the log has no config_sha256"
+    )
     if named is not None:
-        p = Path(named)
-        where = named
-        try:
-            digest = file_sha256(p)
-        except OSError as e:
-            why = f"the config the log names cannot be read ({e.strerror or e})"
-        else:
-            if not hashes or digest in hashes:
-                return p, ""
-            why = "the config the log names has changed since (its SHA-256 differs)"
+        why += f" (it was written with {printable(named)})"
     if needed_for is not None:
-        raise UserError(f"{needed_for} needs the config: {why}; give --config CONFIG", file=where)
-    return None, f"{why} ({where})" if named else why
+        raise UserError(
+            f"{needed_for} needs the config: {why}; give --config CONFIG", file=data.paths[0]
+        )
+    return None, why
 
 
 def median(values: list[float]) -> float:

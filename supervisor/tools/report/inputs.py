@@ -133,7 +133,7 @@ def series_from_log(data: LogData, cfg: Config | None) -> dict[str, Series]:
             if not isinstance(tick, int):
                 continue
             for k, v in row.items():
-                if k != "tick":
+                if k != "tick" and v is not None:  # null: no value yet
                     seen.setdefault(k, {})[(r["_run"], tick)] = value(v)
     out = {}
     for name, vals in seen.items():

@@ -32,8 +32,23 @@ def _v(x: Any) -> str:
 
 
 def _ts(ns: int) -> str:
-    dt = datetime.fromtimestamp(ns // 1_000_000_000, tz=UTC)
+    try:
+        dt = datetime.fromtimestamp(ns // 1_000_000_000, tz=UTC)
+    except (OverflowError, ValueError, OSError):  # a time estimated far out of range
+        return f"{ns} ns since 1970"
     return f"{dt:%Y-%m-%dT%H:%M:%S}.{ns % 1_000_000_000 // 1000:06d}Z"
+
+
+# In JSON text these occur only inside strings, where the escapes mean the same; so
+# no record's text can end the <script> element or open an HTML comment in it.
+_SCRIPT_SAFE = str.maketrans(
+    {"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "\u2028": "\\u2028", "\u2029": "\\u2029"}
+)
+
+
+def script_json(doc: Any) -> str:
+    """``doc`` as JSON that is safe inside a ``<script>`` element."""
+    return json.dumps(doc, separators=(",", ":")).translate(_SCRIPT_SAFE)
 
 
 def anchor(i: int) -> str:
@@ -47,7 +62,7 @@ def render(rep: Report) -> str:
     violated = [q for q in rep.requirements if q.violations]
     timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys})
     t0, _ = domain(recs, rep.series)
-    tl_json = json.dumps(tl_data, separators=(",", ":")).replace("</", "<\\/")
+    tl_json = script_json(tl_data)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
         f"<title>safety-supervisor report: {e(comp)}</title>",

@@ -184,11 +184,12 @@ def _input(s: Series, ln: Lane, t0: int, t1: int) -> list[str]:
                 )
         return out
     lo, hi = _range(s)
-    if hi == lo:
-        lo, hi = lo - 1, hi + 1
+    span = hi - lo
 
     def yv(v: float) -> float:
-        return round(ln.y + ln.h - 3 - (v - lo) * (ln.h - 6) / (hi - lo), 2)
+        # a constant (or a span floats cannot hold) is drawn mid-lane
+        frac = (v - lo) / span if 0 < span < math.inf else 0.5
+        return round(ln.y + ln.h - 3 - (frac if math.isfinite(frac) else 0.5) * (ln.h - 6), 2)
 
     parts: list[str] = []
     pen = False
