@@ -446,3 +446,119 @@ def test_fuzzed_clients_never_stop_a_running_daemon(daemon: tuple[Any, Path]) ->
     assert answer["ok"] is True and took < 1.0, took
     sane(d)
     d.terminate()
+
+
+def _break(srv: ControlServer) -> None:
+    """End the server's thread as a bug in it would (its selector fails under it)."""
+    assert srv.running()
+    restarts, sel = srv.restarts, srv._selector
+    assert sel is not None
+    sel.close()
+    deadline = time.monotonic() + 5
+    # Ended, or already restarted by the loop.
+    while srv.running() and srv.restarts == restarts and time.monotonic() < deadline:
+        time.sleep(0.02)  # polling: the thread has no event to await from here
+    assert srv.restarts > restarts or not srv.running()
+
+
+@pytest.mark.ros
+def test_a_dead_control_thread_is_restarted_then_stops_the_watchdog(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The node in this process on a real DDS domain with a real control socket;
+    only the thread's failure is injected.  It is recorded and restarted
+    (CONTROL_RESTARTS times); after that it stays down: STATUS= and the status
+    document say so, and WATCHDOG=1 stops, so systemd restarts the daemon."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rosutil import SROBOT, ros_node, spin_until
+    from std_msgs.msg import String
+
+    from mitigations.violationlog.writer import ViolationLog
+    from monitors.backends.load import compile_spec
+    from supervisor.daemon.node import CONTROL_RESTARTS, SupervisorNode
+    from supervisor.daemon.notify import Notifier
+    from supervisor.daemon.process import _shutdown_ros, init_ros
+    from supervisor.daemon.session import build_session
+    from supervisor.pipeline import project_for
+
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(str(tmp_path / "notify.sock"))
+    notify.settimeout(0.05)
+    monkeypatch.setenv("NOTIFY_SOCKET", str(tmp_path / "notify.sock"))
+    notifier = Notifier()
+    project = project_for(SROBOT)
+    session = build_session(project, compile_spec(project.spec(), tmp_path / "build"))
+    srv = open_control(ControlConfig(socket=str(tmp_path / "c.sock"), file="cfg.yaml"))
+    datagrams: list[tuple[float, str]] = []
+
+    def notes(seconds: float) -> list[str]:
+        end = time.monotonic() + seconds
+        got = []
+        while time.monotonic() < end:
+            try:
+                data = notify.recv(4096).decode()
+            except TimeoutError:
+                continue
+            datagrams.append((time.monotonic(), data))
+            got.append(data)
+        return got
+
+    def failures(log_path: Path) -> list[dict[str, Any]]:
+        lines = log_path.read_text().splitlines()
+        return [r for r in map(json.loads, lines) if r.get("what") == "control_failed"]
+
+    with ros_node() as robot, ViolationLog(tmp_path / "v.jsonl", "sRobot", "x") as log:
+        ctx = init_ros()
+        node = SupervisorNode(
+            session, log, context=ctx, notifier=notifier, watchdog_s=0.1, control=srv
+        )
+        docs: list[dict[str, Any]] = []
+        qos = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        robot.create_subscription(
+            String, "/safety_supervisor/status", lambda m: docs.append(json.loads(m.data)), qos
+        )
+        loop = threading.Thread(target=node.run)
+        loop.start()
+        try:
+            assert "WATCHDOG=1" in "\n".join(notes(0.5))
+            for n in range(1, CONTROL_RESTARTS + 1):
+                _break(srv)
+                # Restarted by the loop: answered again (an accepted reset or the
+                # rate limit's refusal, 1 per second in the example).
+                answer = ask(srv.path)
+                assert answer["ok"] is True or answer["refused"] == "rate", answer
+                log.flush()
+                assert len(failures(tmp_path / "v.jsonl")) == n
+            assert all(r["restarted"] and r["error"] for r in failures(tmp_path / "v.jsonl"))
+            assert srv.health()["restarts"] == CONTROL_RESTARTS
+            _break(srv)  # once more: it stays down
+            t_down = time.monotonic()
+            seen = notes(1.5)
+            late = [t for t, d in datagrams if "WATCHDOG=1" in d.splitlines() and t > t_down + 0.3]
+            assert late == [], "pings went on with the control socket down"
+            assert any("control=down" in d for d in seen), seen
+            log.flush()
+            last = failures(tmp_path / "v.jsonl")[-1]
+            assert last["restarted"] is False, last
+            doc = spin_until(
+                robot,
+                "a status document saying the control socket is down",
+                lambda: next(
+                    (d for d in reversed(docs) if d["control"] and not d["control"]["alive"]),
+                    None,
+                ),
+                10,
+            )
+            assert doc["control"]["restarts"] == CONTROL_RESTARTS and doc["control"]["error"]
+            with pytest.raises(OSError):  # nobody accepts: not a hang, a refusal
+                ask(srv.path, timeout=2)
+        finally:
+            node.stop()
+            loop.join(5)
+            node.close()
+            _shutdown_ros(ctx)
+            notify.close()

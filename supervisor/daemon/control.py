@@ -208,6 +208,10 @@ class ControlServer:
             and time.monotonic() - self._beat < STALL_S
         )
 
+    def running(self) -> bool:
+        """The thread has not ended (it may be late: :meth:`alive`)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def health(self) -> dict[str, Any]:
         """For the status document: whether it serves, and its counts."""
         return {
