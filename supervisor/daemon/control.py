@@ -50,7 +50,7 @@ MAX_DISCARD = 1 << 20  # bytes discarded after a request line before the connect
 MAX_CLIENTS = 256  # connections served at once; the oldest without a request makes room
 SELECT_S = 0.2  # how soon close() stops the thread; the thread's heartbeat
 STALL_S = 5.0  # a thread that has not gone round its loop for this long is not serving
-BACKLOG = 128
+BACKLOG = socket.SOMAXCONN  # bursts of connects queue up instead of failing (EAGAIN)
 _UCRED = struct.Struct("3i")  # struct ucred: pid, uid, gid
 
 

@@ -21,6 +21,7 @@ import os
 import pwd
 import socket
 import stat
+import time
 from typing import Any
 
 from monitors.errors import UserError
@@ -28,6 +29,7 @@ from monitors.untrusted import Untrusted, load_json, printable
 from supervisor.names import client_control_socket
 
 MAX_ANSWER = 65536
+CONNECT_RETRY_S = 0.02
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,7 +69,7 @@ def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.settimeout(timeout)
         try:
-            s.connect(path)
+            _connect(s, path, time.monotonic() + timeout)
         except (FileNotFoundError, ConnectionRefusedError):
             raise UserError(
                 "no supervisor is running here",
@@ -124,6 +126,19 @@ def _checked(line: bytes, path: str) -> dict[str, Any]:
     if not isinstance(answer.get("refused", ""), str):
         raise wrong("'refused' is not a string")
     return answer
+
+
+def _connect(s: socket.socket, path: str, deadline: float) -> None:
+    """Connect; a full listen queue (EAGAIN: a flood of other clients) is tried
+    again until ``deadline``, the daemon accepts its queue within milliseconds."""
+    while True:
+        try:
+            s.connect(path)
+            return
+        except BlockingIOError:
+            if time.monotonic() + CONNECT_RETRY_S > deadline:
+                raise
+            time.sleep(CONNECT_RETRY_S)
 
 
 def _who_may(path: str) -> tuple[str, str]:
