@@ -562,3 +562,32 @@ def test_a_dead_control_thread_is_restarted_then_stops_the_watchdog(
             node.close()
             _shutdown_ros(ctx)
             notify.close()
+
+
+def test_past_the_client_limit_an_operator_is_never_the_one_evicted(
+    served: ControlServer,
+) -> None:
+    """Clients that were answered but keep their connection, and bursts of idle
+    ones, fill the server past MAX_CLIENTS; an operator's reset, sent at once,
+    is answered every time, and read to its end (no connection reset)."""
+    from supervisor.daemon.control import MAX_CLIENTS
+
+    held: list[socket.socket] = []
+    try:
+        for _ in range(MAX_CLIENTS - 10):  # answered, never closed: they linger
+            s = connect(served.path)
+            s.sendall(RESET)
+            held.append(s)
+        for s in held:
+            answer_of(s)
+        for _ in range(20):
+            operator = connect(served.path)
+            operator.sendall(RESET)
+            held.extend(connect(served.path) for _ in range(30))  # a burst, idle
+            with operator:
+                answer = answer_of(operator)
+                assert answer["ok"] is True, answer
+                assert operator.recv(10) == b""  # EOF, not ECONNRESET
+    finally:
+        for s in held:
+            s.close()

@@ -48,6 +48,7 @@ ANSWER_TIMEOUT_S = 5.0  # the loop answers within one iteration; the watchdog co
 LINGER_S = 1.0  # after the answer: discard what the client still sends, until its EOF
 MAX_DISCARD = 1 << 20  # bytes discarded after a request line before the connection ends
 MAX_CLIENTS = 256  # connections served at once; the oldest without a request makes room
+EVICT_POLL = 32  # clients read (for a request already sent) before one is evicted
 SELECT_S = 0.2  # how soon close() stops the thread; the thread's heartbeat
 STALL_S = 5.0  # a thread that has not gone round its loop for this long is not serving
 BACKLOG = socket.SOMAXCONN  # bursts of connects queue up instead of failing (EAGAIN)
@@ -151,8 +152,9 @@ class ControlServer:
 
     The thread serves every client at once with a selector: a client has
     ``CLIENT_DEADLINE_S`` from its connect to send its line, a line is at most
-    ``MAX_REQUEST`` bytes, and past ``MAX_CLIENTS`` connections the oldest that
-    has not sent its line yet is answered and closed, so idle or slow clients
+    ``MAX_REQUEST`` bytes, and past ``MAX_CLIENTS`` connections one that was
+    answered, else the oldest that has not sent its line, is closed (answered
+    ``busy``), so idle or slow clients
     never keep an operator's reset waiting.  Whatever one client sends or does
     ends at most that client's connection (docs/reference/ros-interfaces.md,
     "Control socket").  :meth:`alive` and :meth:`health` tell the loop whether
@@ -344,15 +346,27 @@ class ControlServer:
         self._selector.register(conn, selectors.EVENT_READ, client)
 
     def _evict(self) -> bool:
-        """Close the oldest client still sending its line, answered: room for a new one."""
-        waiting = [c for c in self._clients.values() if c.state == "reading"]
-        if not waiting:
-            return False
-        oldest = min(waiting, key=lambda c: c.deadline)
-        self.evicted += 1
-        oldest.reply(self, _busy(f"more than {MAX_CLIENTS} clients at once"))
-        self._drop(oldest)
-        return True
+        """Make room for a new connection: close one that was answered already
+        (lingering), else the oldest that has not sent a line, after reading
+        what it has sent (a request already there is served, not evicted;
+        nothing unread is left to turn the close into a connection reset)."""
+        clients = list(self._clients.values())
+        answered = [c for c in clients if c.state == "lingering"]
+        if answered:
+            self.evicted += 1
+            self._drop(min(answered, key=lambda c: c.deadline))
+            return True
+        reading = sorted((c for c in clients if c.state == "reading"), key=lambda c: c.deadline)
+        for c in reading[:EVICT_POLL]:
+            self._guard(c, lambda c: c.poll(self))
+            if self._clients.get(c.fd) is not c:
+                return True  # it failed while read: closed, room made
+            if c.state == "reading":
+                self.evicted += 1
+                c.reply(self, _busy(f"more than {MAX_CLIENTS} clients at once"))
+                self._drop(c)
+                return True
+        return False
 
     def _submit(self, client: _Client, req: ControlRequest) -> None:
         """Hand a request to the loop; the answer comes back through _on_answer."""
@@ -566,6 +580,11 @@ class _Client:
             self._read(srv)
         if self.state == "writing" and events & selectors.EVENT_WRITE:
             self._write(srv)
+
+    def poll(self, srv: ControlServer) -> None:
+        """Read what the client has sent so far, if anything (for _evict)."""
+        with contextlib.suppress(BlockingIOError):
+            self._read(srv)
 
     def _read(self, srv: ControlServer) -> None:
         if self.state == "reading":
