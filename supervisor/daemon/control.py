@@ -280,8 +280,8 @@ class ControlServer:
         self._nudge()
 
     def _serve(self) -> None:
-        sel = self._selector
-        assert sel is not None
+        sel, nudge = self._selector, self._nudge_r
+        assert sel is not None and nudge is not None
         try:
             while not self._stop.is_set():
                 self._beat = now = time.monotonic()
@@ -289,9 +289,9 @@ class ControlServer:
                 for key, events in sel.select(max(0.0, min(SELECT_S, soonest - now))):
                     if key.fileobj is self._sock:
                         self._accept()
-                    elif key.fileobj is self._nudge_r:
+                    elif key.fileobj is nudge:
                         with contextlib.suppress(OSError):
-                            self._nudge_r.recv(4096)  # type: ignore[union-attr]
+                            nudge.recv(4096)
                     else:
                         self._guard(key.data, lambda c, ev=events: c.on_events(self, ev))
                 while self._answered:
