@@ -340,6 +340,7 @@ def test_the_findings_against_a_running_daemon(daemon: tuple[Any, Path]) -> None
     with connect(sock) as s:
         s.sendall(b"y" * 5000 + b"\n")
         assert answer_of(s)["refused"] == "bad_request"
+        assert s.recv(10) == b""  # EOF, not ECONNRESET
     sane(d)
     d.terminate()
 
@@ -445,6 +446,18 @@ def test_fuzzed_clients_never_stop_a_running_daemon(daemon: tuple[Any, Path]) ->
     took, answer = timed_reset(sock)
     assert answer["ok"] is True and took < 1.0, took
     sane(d)
+
+    # Nothing silently lost: the refused requests are counted in the summaries.
+    def refused_bad() -> int:
+        return sum(
+            r["refused"].get("bad_request", 0)
+            for r in d.records()
+            if r.get("what") == "reset_refused"
+        )
+
+    from rosutil import wait_until
+
+    wait_until("refusals summarised", lambda: refused_bad() > 0, 10, d.explain)
     d.terminate()
 
 
