@@ -85,6 +85,7 @@ if TYPE_CHECKING:  # rosbags loads only when recording is on
 
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STATUS_EVERY_NS = 1_000_000_000
+CONTROL_RESTARTS = 3  # a control thread that fails again after this many stays down
 # Longest a loop turn spends taking messages before its timed work (watchdog,
 # heartbeat, timers) runs: a flood never starves them (docs/reference/ros-interfaces.md).
 TURN_BUDGET_NS = 20_000_000
@@ -208,6 +209,7 @@ class SupervisorNode:
         self._reset_gate = ResetGate()
         self._refusals = Refusals()
         self._control_seen = (cfg.control.socket, cfg.control.group)
+        self._control_down = False  # its thread failed more than CONTROL_RESTARTS times
         self._wake = self.node.create_guard_condition(_never)
         if control is not None:
             control.start(self._wake.trigger)
@@ -294,6 +296,8 @@ class SupervisorNode:
             watchdog_s=self.watchdog_ns / 1e9 if self.watchdog_ns else None,
             control_socket=self.control.path if self.control is not None else None,
         )
+        # Whether operators can reset: the socket thread's health and counts.
+        doc["control"] = self.control.health() if self.control is not None else None
         msg = _msg("std_msgs/msg/String")()
         msg.data = json.dumps(doc)
         try:
@@ -551,7 +555,7 @@ class SupervisorNode:
             self._publish_diagnostics(now)
             nxt["diagnostics"] = now + int(self.session.config.ros.diagnostics_ms * 1e6)
         if self.watchdog_ns and now >= nxt.get("watchdog", now):
-            if self._ticking(now):
+            if self._ticking(now) and self._control_serving():
                 self.notifier.watchdog()
                 nxt["watchdog"] = now + self.watchdog_ns
         if now >= nxt["status"]:
@@ -609,6 +613,8 @@ class SupervisorNode:
             parts.append(f"waiting_for={','.join(missing)}")
         if latched:
             parts.append(f"latched={','.join(sorted(latched))}")
+        if not self._control_serving():
+            parts.append("control=down")
         return " ".join(parts)
 
     def stop_stats(self) -> dict[str, dict[str, Any]]:
@@ -670,9 +676,33 @@ class SupervisorNode:
         except Exception as e:  # noqa: BLE001 - the caller went away; the reset stands
             warn(f"cannot answer {RESET_SERVICE}: {e}")
 
+    def _control_serving(self) -> bool:
+        """The control socket's thread serves (no socket: nothing to serve).  The
+        watchdog pings only while it does: an operator who cannot reset is a
+        failure systemd must see (docs/reference/ros-interfaces.md, "Control socket")."""
+        return self.control is None or self.control.alive()
+
+    def _control_health(self) -> None:
+        """A control thread that ended is recorded and started again, at most
+        ``CONTROL_RESTARTS`` times; after that it stays down, the status and
+        STATUS= say so and the watchdog stops."""
+        control = self.control
+        # A thread that runs but is late (the process was stopped, the machine is
+        # swamped) is not restarted: the watchdog waits for it (_control_serving).
+        if control is None or control.running() or self._control_down:
+            return
+        error = control.health()["error"] or "it ended"
+        warn(f"control socket {control.path}: its thread failed: {error}")
+        if control.restarts < CONTROL_RESTARTS and control.revive():
+            self.log.supervisor("control_failed", socket=control.path, error=error, restarted=True)
+            return
+        self._control_down = True
+        self.log.supervisor("control_failed", socket=control.path, error=error, restarted=False)
+
     def _control_work(self, now: int) -> None:
         """Answer the control socket's requests; report refused calls once per interval."""
         cfg = self.session.config.control
+        self._control_health()
         if self.control is not None:
             for req in self.control.take():
                 if req.refused is not None:

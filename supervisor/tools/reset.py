@@ -21,12 +21,15 @@ import os
 import pwd
 import socket
 import stat
+import time
 from typing import Any
 
 from monitors.errors import UserError
+from monitors.untrusted import Untrusted, load_json, printable
 from supervisor.names import client_control_socket
 
 MAX_ANSWER = 65536
+CONNECT_RETRY_S = 0.02
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -56,8 +59,9 @@ def cmd_reset(args: argparse.Namespace) -> int:
     if args.requirement is not None:
         req["requirement"] = args.requirement
     answer = request(path, req, args.timeout)
-    print(answer.get("message", ""), flush=True)
-    return 0 if answer.get("ok") is True else 1
+    # The daemon's words, one line and safe for the terminal whoever answered.
+    print(printable(answer["message"]), flush=True)
+    return 0 if answer["ok"] else 1
 
 
 def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
@@ -65,7 +69,7 @@ def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.settimeout(timeout)
         try:
-            s.connect(path)
+            _connect(s, path, time.monotonic() + timeout)
         except (FileNotFoundError, ConnectionRefusedError):
             raise UserError(
                 "no supervisor is running here",
@@ -92,13 +96,49 @@ def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
             raise UserError(f"no answer within {timeout:g} s", file=path) from None
         except OSError as e:
             raise UserError(f"connection failed: {e.strerror or e}", file=path) from None
-    try:
-        answer = json.loads(data.partition(b"\n")[0])
-    except ValueError:
-        answer = None
-    if not isinstance(answer, dict):
+    line, nl, _ = data.partition(b"\n")
+    if not nl and len(data) >= MAX_ANSWER:
+        raise UserError(f"the answer is longer than {MAX_ANSWER} bytes", file=path)
+    if not line.strip():
         raise UserError("the supervisor closed the connection without an answer", file=path)
+    return _checked(line, path)
+
+
+def _checked(line: bytes, path: str) -> dict[str, Any]:
+    """The one schema check of an answer (docs/reference/ros-interfaces.md,
+    "Control socket"): an object with ``ok`` (bool) and ``message`` (string),
+    ``refused`` a string if present.  Whatever else comes back (a wrong
+    program on the socket) is one UserError."""
+
+    def wrong(why: str) -> UserError:
+        return UserError(f"the answer is not understood: {why}", file=path)
+
+    try:
+        answer = load_json(line, max_bytes=MAX_ANSWER, max_depth=4)
+    except Untrusted as e:
+        raise wrong(str(e)) from None
+    if not isinstance(answer, dict):
+        raise wrong(f"a JSON {type(answer).__name__}, not an object")
+    if not isinstance(answer.get("ok"), bool):
+        raise wrong("'ok' is missing or not true/false")
+    if not isinstance(answer.get("message"), str):
+        raise wrong("'message' is missing or not a string")
+    if not isinstance(answer.get("refused", ""), str):
+        raise wrong("'refused' is not a string")
     return answer
+
+
+def _connect(s: socket.socket, path: str, deadline: float) -> None:
+    """Connect; a full listen queue (EAGAIN: a flood of other clients) is tried
+    again until ``deadline``, the daemon accepts its queue within milliseconds."""
+    while True:
+        try:
+            s.connect(path)
+            return
+        except BlockingIOError:
+            if time.monotonic() + CONNECT_RETRY_S > deadline:
+                raise
+            time.sleep(CONNECT_RETRY_S)
 
 
 def _who_may(path: str) -> tuple[str, str]:
