@@ -204,6 +204,7 @@ def test_off_and_default(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
         ({"event": "supervisor", "what": "ready"}, 6),
         ({"event": "supervisor", "what": "reload", "ok": False}, 3),
         ({"event": "supervisor", "what": "records_lost"}, 3),
+        ({"event": "supervisor", "what": "control_failed"}, 3),
         ({"event": "supervisor", "what": "input_stale"}, 4),
     ],
 )

@@ -46,7 +46,7 @@ _SUPERVISOR_WARNINGS = frozenset(
         "control_unchanged",
     }
 )
-_SUPERVISOR_ERRORS = frozenset({"internal_error", "records_lost"})
+_SUPERVISOR_ERRORS = frozenset({"internal_error", "records_lost", "control_failed"})
 
 
 def priority(rec: Mapping[str, Any]) -> int:
