@@ -238,8 +238,8 @@ def test_a_huge_metadata_yaml_is_one_located_line_within_512_mb(tmp_path: Path, 
     text = meta.read_text()
     # 30 MB of topics: the attack's 52 MB file reached 1.75 GB
     entry = (
-        "\n    - topic_metadata: {name: /t%d, type: std_msgs/msg/Int64, "
-        "serialization_format: cdr, offered_qos_profiles: ''}\n      message_count: 0"
+        "\n  - topic_metadata: {name: /t%d, type: std_msgs/msg/Int64, "
+        "serialization_format: cdr, offered_qos_profiles: ''}\n    message_count: 0"
     )
     extra = "".join(entry % i for i in range(300_000))
     meta.write_text(
