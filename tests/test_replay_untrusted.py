@@ -567,3 +567,24 @@ def test_the_real_cli_on_mutated_bags_smoke(tmp_path: Path, cfg: Path) -> None:
         assert r["rc"] in (0, 1), (name, r)
         assert "Traceback" not in r["err"] and len(errors(r["err"])) <= 1, (name, r)
         assert r["peak"] < PEAK, (name, r["peak"])
+
+
+def test_report_with_a_bomb_bag_reads_up_to_the_damage(
+    tmp_path: Path, cfg: Path, capsys: Any
+) -> None:
+    # report --bag reads the bag with replay's readers: the bomb is a note on the page
+    trace = tmp_path / "t.jsonl"
+    trace.write_text(
+        "".join(f'{{"t_ns": {1000 + i}, "name": "x", "value": {i * 60}}}\n' for i in range(3))
+    )
+    log = tmp_path / "log.jsonl"
+    rc, err = in_process(capsys, "replay", str(cfg), str(trace), "--quiet", "-o", str(log))
+    assert rc == 0, err
+    bag = bomb_mcap(tmp_path / "bomb.mcap", "zstd", 1 * GIB, 1 * GIB, False)
+    page = tmp_path / "r.html"
+    args = ["report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page)]
+    rc, err = in_process(capsys, *args, "--quiet")
+    assert rc == 0, err
+    assert "Traceback" not in err and "internal error" not in err
+    html = page.read_text()
+    assert "bomb.mcap" in html and "more than 67108864" in html
