@@ -588,3 +588,12 @@ def test_report_with_a_bomb_bag_reads_up_to_the_damage(
     assert "Traceback" not in err and "internal error" not in err
     html = page.read_text()
     assert "bomb.mcap" in html and "more than 67108864" in html
+
+
+def test_a_huge_topic_id_is_read_without_a_table_of_its_size(
+    tmp_path: Path, cfg: Path, capsys: Any
+) -> None:
+    f = hostile(tmp_path, "UPDATE topics SET id = 4611686018427387904",
+                "UPDATE messages SET topic_id = 4611686018427387904")  # fmt: skip
+    rc, err = in_process(capsys, "replay", str(cfg), str(f), "--quiet")
+    assert rc == 0 and "replayed 5 messages" in LAST_OUT[0], err

@@ -155,6 +155,9 @@ class Sqlite(Source):
         except (apsw.Error, UserError) as e:
             self._drop()
             raise Damage(f"damaged database ({e})") from None
+        # topic id -> index by search: the ids are the file's, any int64 (no table)
+        keys = np.array(sorted(wanted), dtype=np.int64)
+        index = np.array([wanted[k] for k in sorted(wanted)], dtype=np.int32)
         try:
             try:
                 cur = con.execute(query, list(wanted))
@@ -172,12 +175,10 @@ class Sqlite(Source):
                     ts, tids, data, ok = zip(*rows, strict=True)
                     good = len(rows) if all(ok) else ok.index(0)
                     if good:
-                        raw = raw_chunk(list(ts[:good]), [], list(data[:good]))  # type: ignore[arg-type]
-                        raw.topic = np.fromiter(
-                            (wanted[t] for t in tids[:good]),
-                            np.int32,
-                            count=good,  # type: ignore[index]
-                        )
+                        raw = raw_chunk(list(ts[:good]), [], list(data[:good]))
+                        # the query matched these ids: numbers equal to a wanted one
+                        at = np.searchsorted(keys, np.asarray(tids[:good], dtype=np.int64))
+                        raw.topic = index[at]
                         yield raw
                         n += good
                         last = ts[good - 1]
