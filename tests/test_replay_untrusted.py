@@ -39,8 +39,10 @@ component: Robot
 step: {policy: on_message}
 variables:
   x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}
+  level: {type: double, topic: /status, msg: acme_msgs/msg/Status, field: level, initial: 0.0}
 requirements:
   - {id: R1, text: Robot shall always satisfy x < 100}
+  - {id: R2, text: Robot shall always satisfy level < 100.0}
 """
 
 # The child reports its own peak resident size (ru_maxrss of the replay it ran).
@@ -446,28 +448,50 @@ def valid_mcap(compression: str) -> bytes:
     buf = io.BytesIO()
     w = McapWriter(buf, chunk_size=300, compression=CompressionType[compression.upper()])
     int64 = w.register_msgdef("std_msgs/msg/Int64", "int64 data")
-    string = w.register_msgdef("std_msgs/msg/String", "string data")
+    # a string before the field read: its length decides where the field is
+    status = w.register_msgdef("acme_msgs/msg/Status", "string note\nfloat64 level")
     for i in range(40):
         w.write_message("/x", int64, {"data": i}, log_time=100 * i)
-        w.write_message("/s", string, {"data": "n" * (i % 7)}, log_time=100 * i + 50)
+        w.write_message(
+            "/status", status, {"note": "n" * (i % 7), "level": i / 4}, log_time=100 * i + 50
+        )
     w.finish()
     return buf.getvalue()
 
 
 VALID = {c: valid_mcap(c) for c in ("zstd", "lz4", "none")}
+
+
+def _offsets(data: bytes) -> list[int]:
+    """Where each top-level record of a valid MCAP file starts."""
+    out, pos = [], 8
+    while pos + 9 <= len(data) - 8:
+        out.append(pos)
+        pos += 9 + struct.unpack_from("<Q", data, pos + 1)[0]
+    return out
+
+
+RECORDS = {c: _offsets(d) for c, d in VALID.items()}
 BOMB = {c: zeros_compressed(c, 256 << 20) for c in ("zstd", "lz4")}
 HUGE = [2**64 - 1, 2**63, 2**32, 1 << 40, 0]
 
 
 @st.composite
 def mutated_mcap(draw: st.DrawFn) -> bytes:
-    data = bytearray(VALID[draw(st.sampled_from(sorted(VALID)))])
+    kind = draw(st.sampled_from(sorted(VALID)))
+    data = bytearray(VALID[kind])
     for _ in range(draw(st.integers(1, 4))):
-        how = draw(st.sampled_from(["flip", "truncate", "u64", "u32", "bomb"]))
+        how = draw(st.sampled_from(["flip", "truncate", "u64", "u32", "bomb", "op", "length"]))
         if not data:
             break
         at = draw(st.integers(0, len(data) - 1))
-        if how == "flip":
+        record = draw(st.sampled_from(RECORDS[kind]))
+        if how == "op" and record < len(data):
+            data[record] = draw(st.integers(0, 255))
+        elif how == "length" and record + 9 <= len(data):
+            n = draw(st.one_of(st.sampled_from(HUGE), st.integers(0, 64)))
+            data[record + 1 : record + 9] = struct.pack("<Q", n)
+        elif how == "flip":
             data[at] ^= 1 << draw(st.integers(0, 7))
         elif how == "truncate":
             del data[at:]
