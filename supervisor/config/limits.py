@@ -1,4 +1,5 @@
-"""The ``limits:`` section: how much memory and time ``check`` may spend on one config.
+"""The ``limits:`` section: how much memory and time ``check`` may spend on one config,
+and how far ``replay`` may inflate one chunk of a bag.
 
 A time bound is paid for in monitor state and in analysis size, so a typo such as
 ``within 100000 hours`` must be refused before anything is built
@@ -12,7 +13,14 @@ from dataclasses import dataclass
 from supervisor.config.fields import as_mapping, check_keys, number
 from supervisor.config.yamlload import LineDict
 
-LIMITS_KEYS = {"monitor_memory_mb", "analysis_budget_s", "analysis_memory_mb"}
+LIMITS_KEYS = {
+    "monitor_memory_mb",
+    "analysis_budget_s",
+    "analysis_memory_mb",
+    "replay_chunk_mb",
+    "replay_ratio",
+}
+MAXIMA = {"replay_chunk_mb": 65536.0, "replay_ratio": 1e6}
 MB = 1 << 20
 
 
@@ -26,6 +34,11 @@ class Limits:
     # What z3 may hold during the analyses (its max_memory); reached, the analysis
     # running stops and the later ones are skipped, said as such.
     analysis_memory_mb: float = 512.0
+    # One chunk of a bag as replay and report --bag inflate it: its size, and that
+    # size over the compressed one (docs/reference/faults.md, "Trust"; a bag is input
+    # anybody could have written).
+    replay_chunk_mb: float = 64.0
+    replay_ratio: float = 100.0
     line: int | None = None  # of 'limits:' (for errors about the whole monitor)
 
     @property
@@ -36,6 +49,10 @@ class Limits:
     def analysis_memory_bytes(self) -> int:
         return int(self.analysis_memory_mb * MB)
 
+    @property
+    def replay_chunk_bytes(self) -> int:
+        return int(self.replay_chunk_mb * MB)
+
 
 def load_limits(doc: LineDict) -> Limits:
     raw = doc.get("limits")
@@ -45,7 +62,7 @@ def load_limits(doc: LineDict) -> Limits:
     check_keys(s, LIMITS_KEYS, "limits")
     values: dict[str, float] = {}
     for key in sorted(LIMITS_KEYS):
-        v = number(s, key, "limits")
+        v = number(s, key, "limits", **({"maximum": MAXIMA[key]} if key in MAXIMA else {}))
         if v is not None:
             values[key] = v
     return Limits(**values, line=doc.key_line("limits"))

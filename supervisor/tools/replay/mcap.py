@@ -13,11 +13,16 @@ from typing import Any
 import numpy as np
 
 from monitors.errors import UserError
+from monitors.untrusted import Untrusted, inflate
 from supervisor.tools.replay.storage import (
+    DEFAULT_BOUNDS,
+    NS_MAX,
+    Bounds,
     Damage,
     Raw,
     Source,
     normalise_type,
+    open_regular,
     raw_chunk,
     typestore_of,
 )
@@ -41,21 +46,30 @@ def _string(buf: Any, pos: int) -> tuple[str, int]:
     return bytes(buf[pos + 4 : pos + 4 + n]).decode(), pos + 4 + n
 
 
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
+def _decompress(compression: str, data: bytes, size: int, at: int, bounds: Bounds) -> bytes:
+    """A chunk's records, never more than the bounds: its declared size is checked
+    before anything is inflated, and the inflating stops at the cap."""
+    cap = bounds.chunk_bytes
+    if size > cap or (not compression and len(data) > cap):
+        raise Damage(
+            f"the chunk at byte {at} holds {max(size, len(data) if not compression else 0)} "
+            f"bytes, more than {cap} ({bounds.says()})"
+        )
+    if not compression:
+        return data
+    if compression not in ("zstd", "lz4"):
+        raise Damage(
+            f"the chunk at byte {at} is compressed with '{compression[:40]}', which is not supported"
+        )
     try:
-        if compression == "zstd":
-            import zstandard
-
-            return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        if compression == "lz4":
-            import lz4.frame
-
-            return lz4.frame.decompress(data)
-    except Exception as e:  # noqa: BLE001 - any failure here is a damaged chunk
-        raise Damage(f"a {compression} chunk does not decompress ({e})") from None
-    if compression:
-        raise Damage(f"a chunk is compressed with '{compression}', which is not supported")
-    return data
+        out = inflate(compression, data, max_size=cap, max_ratio=int(bounds.ratio))
+    except Untrusted as e:
+        raise Damage(f"the {compression} chunk at byte {at}: {e} ({bounds.says()})") from None
+    if len(out) != size:
+        raise Damage(
+            f"the chunk at byte {at} inflates to {len(out)} bytes, not the {size} it declares"
+        )
+    return out
 
 
 class Mcap(Source):
@@ -67,8 +81,11 @@ class Mcap(Source):
         path: Path,
         counts: dict[str, int] | None = None,
         topics: dict[str, str] | None = None,
+        bounds: Bounds = DEFAULT_BOUNDS,
     ) -> None:
         self.path = path
+        self.bounds = bounds
+        self.warnings: list[str] = []
         self.label = str(path)
         self.counts = counts
         self._schemas: dict[int, tuple[str, str, str]] = {}
@@ -89,9 +106,12 @@ class Mcap(Source):
         """Every schema and channel (and the message counts) from the summary at the
         end of the file, if it has an intact one."""
         try:
-            with self.path.open("rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm:
+            with (
+                open_regular(self.path) as f,
+                mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as mm,
+            ):
                 return self._summary_of(mm, len(mm))
-        except (OSError, ValueError):
+        except (OSError, ValueError, Damage):
             return False  # empty or unreadable: the pass over the file says why
 
     def _summary_of(self, mm: mmap.mmap, size: int) -> bool:
@@ -150,11 +170,7 @@ class Mcap(Source):
     def _records(self, ids: dict[str, int], head: bool = False) -> Iterator[Raw]:
         """The wanted messages, chunk by chunk; with head, only the types up to the
         first message."""
-        try:
-            f = self.path.open("rb")
-        except OSError as e:
-            raise Damage(e.strerror or str(e)) from None
-        with f:
+        with open_regular(self.path) as f:
             size = os.fstat(f.fileno()).st_size
             if size < len(MAGIC):
                 raise Damage("the file is empty" if not size else "the file ends early (at byte 0)")
@@ -183,23 +199,31 @@ class Mcap(Source):
                 body = pos + 9
                 if body + length > size:
                     raise Damage(f"the record at byte {pos} is cut short: the file ends early")
+                if op == 0:
+                    raise Damage(f"the record at byte {pos} has opcode 0, which MCAP never uses")
                 if op == MESSAGE_INDEX and pending is not None:
                     (cid,) = struct.unpack_from("<H", mm, body)
                     (n,) = struct.unpack_from("<I", mm, body + 2)
+                    if 6 + n > length:
+                        raise Damage(f"the message index at byte {pos} is longer than its record")
                     indexes[cid] = np.frombuffer(mm, _INDEX, n // 16, body + 6).copy()
                 else:
                     if pending is not None:
+                        # taken before it is read: a chunk that is damage is not read again
+                        at, pending = pending, None
                         if head:
-                            self._head_chunk(mm, pending, indexes)
+                            self._head_chunk(mm, at, indexes)
                         else:
-                            yield from self._chunk(mm, pending, indexes, ids)
-                        pending, indexes = None, {}
+                            yield from self._chunk(mm, at, indexes, ids)
+                        indexes = {}
                     if op == SCHEMA:
                         self._schema(mm, body)
                     elif op == CHANNEL:
                         self._channel(mm, body)
                     elif op == MESSAGE:
                         cid, _, t, _ = _MSG.unpack_from(mm, body)
+                        if t > NS_MAX or length < _MSG.size:
+                            raise Damage(_bad_message(pos, t))
                         self._count += 1
                         self._last_t = t
                         k = ids.get(self._channels.get(cid, ("", 0))[0], -1)
@@ -215,18 +239,21 @@ class Mcap(Source):
                     elif op in (DATA_END, FOOTER):
                         break
                 pos = body + length
-        except Damage as e:
-            # the last whole chunk is readable even without its indexes
-            if pending is not None:
-                yield from self._chunk(mm, pending, {}, ids)
+        except (Damage, struct.error, ValueError, UnicodeDecodeError) as e:
+            if not isinstance(e, Damage):
+                e = Damage(f"a malformed record at byte {pos} ({e})")
             if loose[0]:
                 yield raw_chunk(*loose).in_order()
+            # the last whole chunk is readable even without its indexes
+            if pending is not None and not head:
+                try:
+                    yield from self._chunk(mm, pending, {}, ids)
+                except (Damage, struct.error, ValueError, UnicodeDecodeError):
+                    pass  # damaged too: the damage found first is the one said
             where = f"after byte {pos}, {self._count} messages read"
             if self._last_t is not None:
                 where += f", the last at t_ns {self._last_t}"
             raise Damage(f"damaged: {e} ({where})") from None
-        except (struct.error, ValueError, UnicodeDecodeError) as e:
-            raise Damage(f"damaged: a malformed record at byte {pos} ({e})") from None
         if pending is not None:
             yield from self._chunk(mm, pending, indexes, ids)
         if loose[0]:
@@ -240,10 +267,13 @@ class Mcap(Source):
         ids: dict[str, int],
     ) -> Iterator[Raw]:
         pos, body = at
+        _, length = _REC.unpack_from(mm, pos)
         _, _, usize, _ = struct.unpack_from("<QQQI", mm, body)
         compression, p = _string(mm, body + 28)
         (n,) = struct.unpack_from("<Q", mm, p)
-        buf = _decompress(compression, mm[p + 8 : p + 8 + n], usize)
+        if p + 8 + n > body + length:
+            raise Damage(f"the chunk at byte {pos} holds more bytes than its record")
+        buf = _decompress(compression, mm[p + 8 : p + 8 + n], usize, pos, self.bounds)
         if indexes and all(c in self._channels for c in indexes):
             raw = self._indexed(buf, indexes, ids)
         else:
@@ -262,6 +292,8 @@ class Mcap(Source):
 
     def _indexed(self, buf: bytes, indexes: dict[int, np.ndarray], ids: dict[str, int]) -> Raw:
         """Every message's time and place from the chunk's indexes, with numpy."""
+        if any(len(ix) and int(ix["t"].max()) > NS_MAX for ix in indexes.values()):
+            raise Damage("a message index gives a log time past 2^63-1 ns")
         self._count += sum(len(ix) for ix in indexes.values())
         lasts = [int(ix["t"].max()) for ix in indexes.values() if len(ix)]
         if lasts:
@@ -279,9 +311,11 @@ class Mcap(Source):
         order = np.lexsort((o, t))  # by time, then as written
         t, o, top = t[order], o[order], top[order]
         arr = np.frombuffer(buf, np.uint8)
-        if len(o) and (o.max() + _MSG_HEAD > len(arr) or (arr[o] != MESSAGE).any()):
+        if len(o) and (o.min() < 0 or o.max() + _MSG_HEAD > len(arr) or (arr[o] != MESSAGE).any()):
             raise Damage("a message index points outside its chunk's messages")
         lengths = arr[(o + 1)[:, None] + np.arange(8)].copy().view("<u8").reshape(len(o))
+        if len(lengths) and (lengths.max() > len(arr) or lengths.min() < _MSG.size):
+            raise Damage("a message in a chunk has an impossible length")
         end = o + 9 + lengths.astype(np.int64)
         if len(end) and end.max() > len(arr):
             raise Damage("a message in a chunk is cut short")
@@ -302,6 +336,8 @@ class Mcap(Source):
                 raise Damage(f"a record in the chunk at byte {at} is cut short")
             if op == MESSAGE:
                 cid, _, t, _ = _MSG.unpack_from(buf, body)
+                if t > NS_MAX or length < _MSG.size:
+                    raise Damage(f"in the chunk at byte {at}: {_bad_message(pos, t)}")
                 self._count += 1
                 self._last_t = t
                 if cid not in cmap:
@@ -327,3 +363,9 @@ class Mcap(Source):
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
         return self._records(ids)
+
+
+def _bad_message(pos: int, t: int) -> str:
+    if t > NS_MAX:
+        return f"the message at byte {pos} has a log time past 2^63-1 ns ({t})"
+    return f"the message record at byte {pos} is shorter than a message header"

@@ -38,7 +38,8 @@ numpy; any other field is deserialised message by message.
 
 from __future__ import annotations
 
-import json
+import re
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +52,7 @@ from rosbags.typesys.store import Typestore
 
 from mitigations.rosmsg import COMPATIBLE
 from monitors.errors import UserError
+from monitors.untrusted import Untrusted, load_json, printable, read_regular
 from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
 from supervisor.inputs.paths import ReadError
@@ -60,10 +62,14 @@ from supervisor.tools.replay.mcap import Mcap
 from supervisor.tools.replay.sqlite import Sqlite
 from supervisor.tools.replay.storage import (
     CHUNK,
+    DEFAULT_BOUNDS,
     DTYPES,
+    METADATA_BYTES,
+    RECORD_BYTES,
     RECORD_TOPICS,
     RECORDS_TOPIC,
     STRING,
+    Bounds,
     Damage,
     Event,
     Progress,
@@ -71,6 +77,7 @@ from supervisor.tools.replay.storage import (
     Source,
     field_value,
     normalise_type,
+    open_regular,
 )
 from supervisor.tools.replay.trace import Trace
 
@@ -131,37 +138,106 @@ class _TopicReader:
 # --- rosbag2 directories --------------------------------------------------------------
 
 
-def bag_dir(path: Path) -> list[Source]:
-    meta = path / "metadata.yaml"
+def _load_metadata(meta: Path) -> Any:
+    """The parsed metadata.yaml, at most METADATA_BYTES of a regular file."""
     try:
-        info = yaml.safe_load(meta.read_text(encoding="utf-8"))["rosbag2_bagfile_information"]
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as e:
+        text = read_regular(meta, max_bytes=METADATA_BYTES)
+    except Untrusted as e:
         raise UserError(f"not a readable rosbag2 metadata file ({e})", file=str(meta)) from None
-    if info.get("compression_mode") and info.get("compression_format"):
+    try:
+        return yaml.load(text, Loader=_YamlLoader)  # noqa: S506 - a safe loader
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        line = mark.line + 1 if mark is not None else None
+        problem = getattr(e, "problem", None) or str(e).splitlines()[0]
         raise UserError(
-            f"compressed bag ({info['compression_format']}, per {info['compression_mode'].lower()})",
-            file=str(path),
+            f"not a readable rosbag2 metadata file ({printable(str(problem))})",
+            file=str(meta),
+            line=line,
+        ) from None
+
+
+def bag_info(meta: Path) -> tuple[dict[str, str], dict[str, int], list[str]]:
+    """The topics (name -> type), message counts and storage file names of a bag's
+    metadata.yaml: one check of its shape, each fault one line naming the key."""
+
+    def bad(where: str, what: str) -> UserError:
+        return UserError(f"{where}: {what}", file=str(meta))
+
+    doc = _load_metadata(meta)
+    info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+    if not isinstance(info, dict):
+        raise bad("rosbag2_bagfile_information", "missing, or not a mapping")
+    mode, fmt = info.get("compression_mode"), info.get("compression_format")
+    if mode and fmt:
+        raise UserError(
+            f"compressed bag ({printable(str(fmt)[:40])}, per {printable(str(mode)[:40]).lower()})",
+            file=str(meta.parent),
             hint="decompress it: ros2 bag convert",
         )
-    topics = {
-        t["topic_metadata"]["name"]: normalise_type(t["topic_metadata"]["type"])
-        for t in info.get("topics_with_message_count") or []
-    }
-    files = [path / p for p in info.get("relative_file_paths") or []]
+    entries = info.get("topics_with_message_count") or []
+    if not isinstance(entries, list):
+        raise bad("topics_with_message_count", "not a list")
+    topics: dict[str, str] = {}
+    counts: dict[str, int] = {}
+    for k, t in enumerate(entries):
+        tm = t.get("topic_metadata") if isinstance(t, dict) else None
+        name = tm.get("name") if isinstance(tm, dict) else None
+        typ = tm.get("type") if isinstance(tm, dict) else None
+        if not isinstance(name, str) or not isinstance(typ, str):
+            raise bad(f"topics_with_message_count[{k}]", "no topic_metadata with a name and a type")
+        n = t.get("message_count") or 0
+        if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+            raise bad(f"topics_with_message_count[{k}].message_count", "not a whole number >= 0")
+        topics[name] = normalise_type(typ)
+        counts[name] = n
+    files = info.get("relative_file_paths") or []
+    if not isinstance(files, list):
+        raise bad("relative_file_paths", "not a list")
+    for k, f in enumerate(files):
+        # a bag names its own files: never a path elsewhere, a device or a FIFO
+        if not (isinstance(f, str) and _FILE_NAME.fullmatch(f)):
+            shown = printable(repr(f)[:80])
+            raise bad(
+                f"relative_file_paths[{k}]",
+                f"{shown} is not a file name in the bag directory ending in .mcap or .db3",
+            )
+    return topics, counts, files
+
+
+_FILE_NAME = re.compile(r"[^/\\\x00]+\.(mcap|db3)")
+_YamlLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: 10x faster
+
+
+def bag_dir(path: Path, bounds: Bounds = DEFAULT_BOUNDS) -> list[Source]:
+    topics, counts, names = bag_info(path / "metadata.yaml")
+    files = [path / p for p in names]
     if not files:
         files = sorted([*path.glob("*.mcap"), *path.glob("*.db3")])
-    counts = {
-        t["topic_metadata"]["name"]: int(t.get("message_count") or 0)
-        for t in info.get("topics_with_message_count") or []
-    }
     sources: list[Source] = []
     for k, f in enumerate(files):
         if not f.exists():
             raise UserError(f"the bag's file {f.name} is missing", file=str(path))
         # the bag's counts are per topic over all its files: give them to the first
         part = counts if k == 0 else {}
-        sources.append(Mcap(f, part, topics) if f.suffix == ".mcap" else Sqlite(f, part))
+        sources.append(_storage(f, bounds, part, topics))
     return sources
+
+
+def _storage(
+    f: Path,
+    bounds: Bounds,
+    counts: dict[str, int] | None = None,
+    topics: dict[str, str] | None = None,
+) -> Source:
+    """One storage file, if it is a regular file (a FIFO would be waited on)."""
+    try:
+        open_regular(f).close()
+    except Damage as e:
+        raise UserError(str(e), file=str(f)) from None
+    if f.suffix == ".mcap":
+        return Mcap(f, counts, topics, bounds)
+    return Sqlite(f, counts)
 
 
 # --- the recording --------------------------------------------------------------------
@@ -200,7 +276,7 @@ class Recording:
     def __init__(self, sources: list[Source], cfg: Config) -> None:
         self.sources = sources
         self.cfg = cfg
-        self.warnings: list[str] = []
+        self.warnings: list[str] = [w for s in sources for w in s.warnings]
         by_topic: dict[str, list[Variable]] = {}
         for v in cfg.inputs:
             if v.topic:
@@ -255,7 +331,8 @@ class Recording:
         lines = [f"reading {len(self.topics)} topic(s): {', '.join(self.topics) or 'none'}"]
         for label, topics in self.ignored.items():
             lines.append(f"{label}: ignored (not in the config): {', '.join(sorted(topics))}")
-        return "\n".join([*lines, *self.warnings])
+        # topic names come from the recording: never control sequences on a terminal
+        return "\n".join(printable(line) for line in [*lines, *self.warnings])
 
     def _readers(self, src: Source) -> dict[int, _TopicReader]:
         out: dict[int, _TopicReader] = {}
@@ -434,9 +511,9 @@ class Recording:
         except Exception as e:  # noqa: BLE001
             raise ValueError(f"does not decode as {STRING}: {e}") from None
         try:
-            rec = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise ValueError(f"not a JSON record ({e.msg})") from None
+            rec = load_json(text, max_bytes=RECORD_BYTES)
+        except Untrusted as e:
+            raise ValueError(f"not a JSON record ({e})") from None
         if not isinstance(rec, dict):
             raise ValueError("not a JSON object")
         return rec
@@ -453,8 +530,10 @@ class Recording:
         last = -1
         try:
             for whole in src.chunks(ids, chunk):
-                for i in range(0, len(whole), chunk):
-                    raw = whole.part(i, i + chunk)
+                neg = np.flatnonzero(whole.t_ns < 0)  # a reader's int64 wrapped round
+                cut = int(neg[0]) if len(neg) else len(whole)
+                for i in range(0, cut, chunk):
+                    raw = whole.part(i, min(i + chunk, cut))
                     batch, error = self._decode(src, readers, raw, first)
                     first += len(raw)
                     if len(batch):
@@ -463,12 +542,21 @@ class Recording:
                         last = int(batch.t_ns[-1])
                         yield batch
                     if error:
-                        yield UserError(error, file=src.label)
+                        yield _printable(UserError(error, file=src.label))
                         return
+                if cut < len(whole):
+                    raise Damage(
+                        f"damaged: message {first + 1} read has a receive time past 2^63-1 ns"
+                    )
         except Damage as e:
-            yield UserError(str(e), file=src.label)
+            yield _printable(UserError(str(e), file=src.label))
         except UserError as e:
-            yield e
+            yield _printable(e)
+        except (struct.error, ValueError, OverflowError, IndexError, UnicodeDecodeError) as e:
+            # a fault of the recording no check above names: damage all the same,
+            # never a traceback (docs/reference/faults.md, "Trust")
+            text = f"damaged: {type(e).__name__}: {e}; {first} messages read"
+            yield _printable(UserError(text, file=src.label))
 
     def _warn_order(self, src: Source, t: int) -> None:
         text = (
@@ -611,20 +699,19 @@ def _merge(parts: list[Batch]) -> Batch | None:
 def _open_one(path: Path, cfg: Config) -> list[Source]:
     if not path.exists():
         raise UserError("no such file or directory", file=str(path))
+    bounds = Bounds(cfg.limits.replay_chunk_bytes, cfg.limits.replay_ratio)
     if path.is_dir():
         if (path / "metadata.yaml").exists():
-            return bag_dir(path)
+            return bag_dir(path, bounds)
         files = sorted([*path.glob("*.mcap"), *path.glob("*.db3")])
         if not files:
             raise UserError(
                 "not a rosbag2 bag: no metadata.yaml, .mcap or .db3 file", file=str(path)
             )
         # a bag directory whose recorder died before writing metadata.yaml
-        return [Mcap(f) if f.suffix == ".mcap" else Sqlite(f) for f in files]
-    if path.suffix == ".mcap":
-        return [Mcap(path)]
-    if path.suffix == ".db3":
-        return [Sqlite(path)]
+        return [_storage(f, bounds) for f in files]
+    if path.suffix in (".mcap", ".db3"):
+        return [_storage(path, bounds)]
     if path.suffix in (".jsonl", ".json", ".ndjson"):
         return [Trace(path, cfg)]
     raise UserError(
@@ -638,8 +725,19 @@ def open_recordings(paths: list[Path], cfg: Config) -> Recording:
     """Open bags, storage files and traces for cfg's topic variables; type mismatches
     are errors here, before anything is read (``Recording.warnings`` lists the config
     topics no recording has)."""
-    sources = [s for p in paths for s in _open_one(Path(p), cfg)]
-    return Recording(sources, cfg)
+    try:
+        sources = [s for p in paths for s in _open_one(Path(p), cfg)]
+        return Recording(sources, cfg)
+    except UserError as e:
+        raise _printable(e) from None
+
+
+def _printable(e: UserError) -> UserError:
+    """The error with whatever a recording put in it (topic names, types, text)
+    made safe for a terminal."""
+    e.message = printable(e.message)
+    e.args = (e.message,)
+    return e
 
 
 __all__ = [

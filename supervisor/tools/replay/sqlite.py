@@ -14,11 +14,15 @@ import apsw
 import numpy as np
 
 from monitors.errors import UserError
+from monitors.untrusted import printable
 from supervisor.tools.replay.storage import (
+    CHUNK_BYTES,
+    NS_MAX,
     Damage,
     Raw,
     Source,
     normalise_type,
+    open_regular,
     raw_chunk,
     typestore_of,
 )
@@ -26,11 +30,19 @@ from supervisor.tools.replay.storage import (
 # --- sqlite3 storage ------------------------------------------------------------------
 
 
+# One row as the database holds it, checked where it is read: a receive time in
+# int64 nanoseconds, a blob (sqlite3 lets any column hold any type, and a bag is
+# input anybody could have written; docs/reference/faults.md, "Trust").
+_ROW_OK = "typeof(timestamp) = 'integer' AND timestamp >= 0 AND typeof(data) = 'blob'"
+_FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payloads
+
+
 class Sqlite(Source):
     def __init__(self, path: Path, counts: dict[str, int] | None = None) -> None:
         self.path = path
         self.label = str(path)
         self.counts = counts
+        self.warnings: list[str] = []
         self._tmp: Path | None = None
         self._cut = False  # truncated: read a copy whose header counts the pages present
         try:
@@ -50,15 +62,43 @@ class Sqlite(Source):
                 raise UserError(
                     f"not a readable rosbag2 sqlite3 file ({e})", file=self.label
                 ) from None
+        for k, row in enumerate(rows, 1):
+            if not (
+                isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)
+            ):
+                con.close()
+                self._drop()
+                shown = printable(repr(tuple(row))[:120])
+                raise UserError(
+                    f"row {k} of table topics is {shown}: not (whole number, name, type)",
+                    file=self.label,
+                )
         self._ids = {tid: name for tid, name, _ in rows}
         self.topics = {name: normalise_type(typ) for _, name, typ in rows}
         defs: list[tuple[str, str, str]] = []
         try:
-            defs = con.execute(
-                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
-            ).fetchall()
+            defs = [
+                d
+                for d in con.execute(
+                    "SELECT topic_type, encoding, encoded_message_definition "
+                    "FROM message_definitions"
+                )
+                if all(isinstance(x, str) for x in d)
+            ]
         except apsw.Error:
             pass  # bags before version 8 have no definitions
+        try:
+            # rows of no topic (NULL or unknown id) are never replayed: counted, said
+            (lost,) = con.execute(
+                "SELECT count(*) FROM messages "
+                "WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)"
+            ).fetchone()
+        except apsw.Error:
+            lost = 0  # no readable messages table: reading it says where
+        if lost:
+            self.warnings.append(
+                f"warning: {self.label}: {lost} message rows name no topic of the bag: not replayed"
+            )
         con.close()
         self._drop()
         self.store = typestore_of(defs)
@@ -73,18 +113,32 @@ class Sqlite(Source):
             self._tmp = None
 
     def _patched(self) -> Path:
-        data = bytearray(self.path.read_bytes())
-        if len(data) < 100 or not data.startswith(b"SQLite format 3\x00"):
-            raise UserError("not an sqlite3 file", file=self.label)
-        size = struct.unpack_from(">H", data, 16)[0]
-        page = 65536 if size == 1 else size
-        pages = len(data) // page
-        del data[pages * page :]
-        struct.pack_into(">I", data, 28, pages)
-        fd, name = tempfile.mkstemp(suffix=".db3")
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        self._tmp = Path(name)
+        """A copy of the whole pages present, its header counting them, copied in
+        blocks (a bag can be larger than memory)."""
+        try:
+            f = open_regular(self.path)
+        except Damage as e:
+            raise UserError(str(e), file=self.label) from None
+        with f:
+            head = f.read(100)
+            if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+                raise UserError("not an sqlite3 file", file=self.label)
+            size = struct.unpack_from(">H", head, 16)[0]
+            page = 65536 if size == 1 else size
+            if page < 512 or page & (page - 1):
+                raise UserError(f"not an sqlite3 file (page size {size})", file=self.label)
+            pages = os.fstat(f.fileno()).st_size // page
+            fd, name = tempfile.mkstemp(suffix=".db3")
+            self._tmp = Path(name)
+            with os.fdopen(fd, "wb") as out:
+                out.write(head[:28] + struct.pack(">I", pages) + head[32:])
+                left = pages * page - 100
+                while left > 0:
+                    block = f.read(min(left, 1 << 20))
+                    if not block:
+                        break
+                    out.write(block)
+                    left -= len(block)
         return self._tmp
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
@@ -92,25 +146,44 @@ class Sqlite(Source):
         # Only the wanted topics' rows: the extra topics' payloads are never fetched.
         marks = ",".join("?" * len(wanted))
         query = (
-            f"SELECT timestamp, topic_id, data FROM messages WHERE topic_id IN ({marks}) "
-            "ORDER BY timestamp"
+            f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages "
+            f"WHERE topic_id IN ({marks}) ORDER BY timestamp"
         )
         n, last = 0, None
-        con = self._connect()
         try:
-            lut = np.full(max(wanted, default=0) + 1, -1, dtype=np.int32)
-            for tid, k in wanted.items():
-                lut[tid] = k
+            con = self._connect()
+        except (apsw.Error, UserError) as e:
+            self._drop()
+            raise Damage(f"damaged database ({e})") from None
+        # topic id -> index by search: the ids are the file's, any int64 (no table)
+        keys = np.array(sorted(wanted), dtype=np.int64)
+        index = np.array([wanted[k] for k in sorted(wanted)], dtype=np.int32)
+        try:
             try:
                 cur = con.execute(query, list(wanted))
-                while rows := list(islice(cur, chunk)):
-                    ts, tids, data = zip(*rows, strict=True)
-                    n += len(rows)
-                    last = ts[-1]
-                    raw = raw_chunk(list(ts), [], list(data))
-                    raw.topic = lut[np.asarray(tids, dtype=np.int64)]
-                    yield raw
-                return
+                while True:
+                    rows: list[tuple[object, ...]] = []
+                    size = 0
+                    while len(rows) < chunk and size < CHUNK_BYTES:
+                        got = list(islice(cur, min(_FETCH, chunk - len(rows))))
+                        if not got:
+                            break
+                        rows += got
+                        size += sum(len(r[2]) for r in got if isinstance(r[2], bytes))
+                    if not rows:
+                        return
+                    ts, tids, data, ok = zip(*rows, strict=True)
+                    good = len(rows) if all(ok) else ok.index(0)
+                    if good:
+                        raw = raw_chunk(list(ts[:good]), [], list(data[:good]))
+                        # the query matched these ids: numbers equal to a wanted one
+                        at = np.searchsorted(keys, np.asarray(tids[:good], dtype=np.int64))
+                        raw.topic = index[at]
+                        yield raw
+                        n += good
+                        last = ts[good - 1]
+                    if good < len(rows):
+                        raise Damage(_bad_row(n, rows[good], last))
             except apsw.Error:
                 pass
             # A failed read loses its chunk's rows: read them again one by one up to the
@@ -121,6 +194,10 @@ class Sqlite(Source):
             try:
                 cur = con.execute(f"{query} LIMIT -1 OFFSET ?", [*wanted, n])
                 while row := cur.fetchone():
+                    if not row[3]:
+                        if ts_:
+                            yield raw_chunk(ts_, tops, data_)
+                        raise Damage(_bad_row(n + len(ts_), row, last))
                     ts_.append(row[0])
                     tops.append(wanted[row[1]])
                     data_.append(row[2])
@@ -138,3 +215,17 @@ class Sqlite(Source):
         finally:
             con.close()
             self._drop()
+
+
+def _bad_row(n: int, row: tuple[object, ...], last: object) -> str:
+    """Why row ``n + 1`` (in timestamp order) is damage."""
+    t, _, data = row[:3]
+    if not isinstance(t, int) or isinstance(t, bool):
+        why = f"its timestamp is {printable(repr(t)[:60])}, not a whole number of nanoseconds"
+    elif not 0 <= t <= NS_MAX:
+        why = f"its timestamp {t} is negative"
+    else:
+        what = "NULL" if data is None else type(data).__name__
+        why = f"its data is {what}, not a blob (t_ns {t})"
+    where = f"{n} messages read" + (f", the last at t_ns {last}" if last is not None else "")
+    return f"damaged: message row {n + 1} in timestamp order: {why}; {where}"

@@ -3,9 +3,13 @@ chunks of receive times, topic ids and payloads, and where the damage is."""
 
 from __future__ import annotations
 
+import fcntl
+import os
+import stat
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from pathlib import Path
+from typing import Any, BinaryIO, Literal
 
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
@@ -19,6 +23,14 @@ RECORDS_TOPIC = "/safety_supervisor/records"
 RECORD_TOPICS = (RECORDS_TOPIC, VIOLATIONS_TOPIC)
 STRING = "std_msgs/msg/String"
 CHUNK = 100_000
+# What a bag or trace may make replay hold (docs/reference/faults.md, "Trust"): a
+# chunk of raw messages in bytes, the metadata.yaml, one JSON-lines line, one JSON
+# record on the records topic.  Each is far above what the daemon or rosbag2 writes.
+CHUNK_BYTES = 64 << 20
+METADATA_BYTES = 4 << 20
+LINE_BYTES = 1 << 20
+RECORD_BYTES = 16 << 20
+NS_MAX = 2**63 - 1  # a receive time in int64 nanoseconds (year 2262)
 
 ValueEvent = tuple[int, str, list[tuple[str, Any]]]
 RecordEvent = tuple[int, Literal["record"], dict[str, Any]]
@@ -90,6 +102,37 @@ class Damage(Exception):
     """A source ends here; its message locates the damage (the source adds the file)."""
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """How far one chunk of a bag may inflate (the config's ``limits:``)."""
+
+    chunk_bytes: int = 64 << 20
+    ratio: float = 100.0
+
+    def says(self) -> str:
+        return (
+            f"limits.replay_chunk_mb {self.chunk_bytes / (1 << 20):g}, "
+            f"limits.replay_ratio {self.ratio:g}"
+        )
+
+
+DEFAULT_BOUNDS = Bounds()
+
+
+def open_regular(path: Path) -> BinaryIO:
+    """``path`` opened for reading if it is a regular file: never waits on a FIFO or
+    reads a device, whatever a bag names; ``Damage`` otherwise."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as e:
+        raise Damage(f"cannot open: {e.strerror}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise Damage("not a regular file")
+    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+    return os.fdopen(fd, "rb")
+
+
 class Source:
     """One file or bag directory: its topics and a stream of raw chunks."""
 
@@ -97,6 +140,7 @@ class Source:
     topics: dict[str, str]  # topic -> recorded type
     counts: dict[str, int] | None  # messages per topic, when the bag's metadata says
     store: Typestore
+    warnings: list[str]  # what was found at opening and is not read (said in the summary)
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
         raise NotImplementedError
