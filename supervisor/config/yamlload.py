@@ -17,6 +17,7 @@ from typing import Any
 import yaml
 
 from monitors.errors import UserError
+from supervisor.config.imported import MAX_CONFIG_BYTES, decode, read_bytes
 
 # PyYAML composes and constructs nested collections recursively; a config nests
 # a few levels, so anything deeper is refused before composing.
@@ -127,12 +128,7 @@ def load_yaml(path: Path | str, text: str | None = None) -> Any:
     """Parse a YAML file; syntax errors become UserError at the offending line."""
     file = str(path)
     if text is None:
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as e:
-            raise UserError(f"cannot read: {e.strerror}", file=file) from None
-        except UnicodeDecodeError:
-            raise UserError("not UTF-8 text", file=file) from None
+        text = decode(read_bytes(path, "config", MAX_CONFIG_BYTES), file)
     loader = _make_loader(file)
     try:
         _check_nesting(text, loader, file)
