@@ -361,3 +361,44 @@ def test_sixty_megabyte_requirement_text_is_refused_fast(tmp_path):
     line = one_located_line(stderr)
     assert line.startswith(f"{p}: cannot read config: larger than"), line
     assert peak < limit, peak
+
+
+# ------------------------------------------------- the generated code's comments
+
+EVIL_ID = "x*\\\n/ int pwned; /*\x1b"  # a spliced '*/', then code
+
+
+def evil_spec() -> Any:
+    from monitors.ir.formula import parse_formula
+    from monitors.ir.spec import MonitorSpec, RequirementSpec, VarDecl
+
+    return MonitorSpec(
+        "c\n-- pwned",
+        (VarDecl("a", "bool"),),
+        (RequirementSpec(EVIL_ID, parse_formula("H a")),),
+    )
+
+
+def test_no_text_ends_a_c_comment(tmp_path):
+    """The monitors package is a compiler of its own: whatever a requirement id
+    holds stays inside its comment (gcc's preprocessor drops comments)."""
+    from monitors.backends.c99 import write_c
+
+    c_file, _h = write_c(evil_spec(), tmp_path)
+    pre = subprocess.run(
+        ["gcc", "-std=c99", "-E", "-I", str(tmp_path), str(c_file)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "int pwned;" not in pre and "\x1b" not in c_file.read_text()
+
+
+def test_no_text_ends_a_haskell_comment():
+    from monitors.backends.copilot import generate_haskell
+
+    hs = generate_haskell(evil_spec())
+    assert "\x1b" not in hs
+    for line in hs.splitlines():
+        if " pwned" in line:  # not in a name: C names are mangled
+            assert line.lstrip().startswith("--"), line
