@@ -95,7 +95,11 @@ def parse_define(text: str, file: str, line: int | None) -> Formula:
     try:
         return parse_formula(cleaned)
     except FormulaSyntaxError as e:
-        raise UserError(f"cannot parse define '{text}': {e}", file=file, line=line) from None
+        raise UserError(
+            f"cannot parse define '{printable(str(text))}': {printable(str(e))}",
+            file=file,
+            line=line,
+        ) from None
 
 
 def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
