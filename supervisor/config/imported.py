@@ -41,7 +41,7 @@ def read_bytes(path: Path | str, what: str, max_bytes: int = MAX_IMPORT_BYTES) -
         return read_regular(path, max_bytes=max_bytes)
     except Untrusted as e:
         raise UserError(
-            f"cannot read {what}: {e}",
+            f"cannot read {what}: {str(e).removeprefix('cannot open: ')}",
             file=str(path),
             hint=None if "larger" not in str(e) else "docs/reference/config.md, Limits",
         ) from None
