@@ -402,3 +402,17 @@ def test_no_text_ends_a_haskell_comment():
     for line in hs.splitlines():
         if " pwned" in line:  # not in a name: C names are mangled
             assert line.lstrip().startswith("--"), line
+
+
+def test_yaml_aliases_that_expand_past_the_cap_are_located(tmp_path, capsys):
+    """A "billion laughs": nine lines whose id, printed in its error, fills memory."""
+    lines = ["  a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    lines += [f"  a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 10) + "]" for i in range(1, 9)]
+    p = tmp_path / "c.yaml"
+    p.write_text(
+        "analysis:\n" + "\n".join(lines) + "\ncomponent: c\nstep: {policy: periodic, "
+        "period_ms: 1}\nrequirements: [{id: *a8, text: c shall always satisfy x}]\n"
+    )
+    assert cli_main(["check", str(p)]) == 1
+    line = one_located_line(capsys.readouterr().err)
+    assert line == f"{p}:7:57: expands to more than 1000000 values (YAML aliases)", line
