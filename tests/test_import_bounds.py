@@ -416,3 +416,18 @@ def test_yaml_aliases_that_expand_past_the_cap_are_located(tmp_path, capsys):
     assert cli_main(["check", str(p)]) == 1
     line = one_located_line(capsys.readouterr().err)
     assert line == f"{p}:7:57: expands to more than 1000000 values (YAML aliases)", line
+
+
+def test_control_characters_in_a_fret_text_are_refused_where_they_enter(
+    tmp_path, capsys, monkeypatch
+):
+    """The parser would quote them back to the terminal."""
+    monkeypatch.chdir(tmp_path)
+    text = "test_component shall always satisfy input_signal > 1 \x1b[31m"
+    code, out, err = check_in_process(tmp_path, copilot_export(req(fretish=text)), capsys)
+    assert "\x1b" not in out + err
+    line = one_located_line(err)
+    assert code == 1 and line == (
+        f"{tmp_path / 'f.json'}: requirement 'r1': 'fretish' holds a control character "
+        "(\\x1b) at character 54"
+    ), line

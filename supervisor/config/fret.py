@@ -133,7 +133,7 @@ def _copilot(
         r = Fields(item, f"requirement {i}", file)
         name = r.text("name", max_chars=MAX_NAME_CHARS)
         r.where = named(name, i, "requirement")
-        text = r.text("fretish", max_chars=MAX_TEXT_CHARS)
+        text = r.sentence("fretish", max_chars=MAX_TEXT_CHARS)
         if not name or not text or not text.strip():
             raise r.error("has no name or fretish text")
         reqs.append(
@@ -144,7 +144,7 @@ def _copilot(
                 file=file,
                 line=None,
                 col=1,
-                fret_ptltl=_HTML.sub("", r.text("ptLTL", max_chars=MAX_FORMULA_CHARS) or "")
+                fret_ptltl=_HTML.sub("", r.sentence("ptLTL", max_chars=MAX_FORMULA_CHARS) or "")
                 or None,
                 assumption="assumption" in name.lower(),
             )
@@ -202,11 +202,11 @@ def _database(
         r = Fields(item, f"requirement {i}", file)
         rid = r.text("reqid", max_chars=MAX_NAME_CHARS)
         r.where = named(rid, i, "requirement")
-        text = r.text("fulltext", max_chars=MAX_TEXT_CHARS) or ""
-        rationale = r.text("rationale", max_chars=MAX_TEXT_CHARS) or ""
+        text = r.sentence("fulltext", max_chars=MAX_TEXT_CHARS) or ""
+        rationale = r.sentence("rationale", max_chars=MAX_TEXT_CHARS) or ""
         sem = r.object("semantics")
         sem.text("component_name", max_chars=MAX_NAME_CHARS)
-        ptltl = sem.text("ptExpanded", max_chars=MAX_FORMULA_CHARS)
+        ptltl = sem.sentence("ptExpanded", max_chars=MAX_FORMULA_CHARS)
         owner = requirement_component(item)
         if component is not None and owner is not None and owner != component:
             # A project's export holds every component's requirements; a config

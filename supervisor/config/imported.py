@@ -73,6 +73,19 @@ def read_json(path: Path | str, what: str, text: str | None = None) -> Any:
         raise UserError(str(e), file=file) from None
 
 
+def control_at(text: str) -> str | None:
+    """Where ``text`` holds a control or invisible format character (anything but
+    tab and line breaks), said for an error; None if it holds none.  Such a
+    character has no meaning in a sentence or formula, and would reach terminals
+    through the parser's messages."""
+    if text.isprintable():
+        return None
+    for i, c in enumerate(text):
+        if not c.isprintable() and c not in "\t\n\r":
+            return f"a control character ({printable(c)}) at character {i + 1}"
+    return None
+
+
 def kind(value: object) -> str:
     """How an error names what a field holds instead."""
     if value is None:
@@ -111,6 +124,14 @@ class Fields:
             raise self.error(f"'{key}' must be text, not {kind(value)}")
         if max_chars is not None and len(value) > max_chars:
             raise self.error(f"'{key}' is longer than {max_chars} characters")
+        return value
+
+    def sentence(self, key: str, *, max_chars: int) -> str | None:
+        """A text field read by a parser: no control characters either."""
+        value = self.text(key, max_chars=max_chars)
+        where = control_at(value) if value is not None else None
+        if where is not None:
+            raise self.error(f"'{key}' holds {where}")
         return value
 
     def list(self, key: str) -> list[Any]:

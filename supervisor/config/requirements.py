@@ -27,7 +27,7 @@ from supervisor.config.fields import (
     typed_value,
 )
 from supervisor.config.fret import load_fret_export
-from supervisor.config.imported import is_c_identifier
+from supervisor.config.imported import control_at, is_c_identifier
 from supervisor.config.limits import MAX_ID_CHARS, MAX_TEXT_CHARS
 from supervisor.config.model import RequirementEntry, Variable
 from supervisor.config.yamlload import LineDict, LineList
@@ -119,6 +119,14 @@ def load_requirements(
                 f"requirement '{rid}': text must be a FRETISH sentence, not {_kind(text)}",
                 item,
                 "text",
+            )
+        bad = control_at(text) if text is not None else None
+        if bad is not None:
+            raise UserError(
+                f"requirement '{rid}': its text holds {bad}",
+                file=str(path),
+                line=getattr(text, "line", item.key_line("text")),
+                col=getattr(text, "col", None),
             )
         if text is not None and len(text) > MAX_TEXT_CHARS:
             # Refused before the parser sees it: its time and memory grow with the text.
