@@ -47,7 +47,8 @@ def write(tmp_path: Path, text: str, name: str = "c.yaml") -> Path:
 
 def test_requirements_and_variables_export():
     reqs, internal, other = load_fret_export(LM)
-    assert len(reqs) == 12 and reqs[0].id == "LM-012"
+    # FRET's names are mapped to C identifiers, each kept for display
+    assert len(reqs) == 12 and reqs[0].id == "LM_012" and reqs[0].display == "LM-012"
     assert reqs[0].text.startswith("when emergency_button the liquid_mixer shall")
     assert all(r.fret_ptltl and "<b>" not in r.fret_ptltl for r in reqs)
     assert internal == []
@@ -85,7 +86,7 @@ def test_requirements_export_is_a_list(tmp_path):
 def test_copilot_export_from_ogma():
     reqs, internal, other = load_fret_export(DATA / "ogma" / "fcs-3-small.json")
     assert [(r.id, r.text) for r in reqs] == [
-        ("testCopilot-001", "test_component shall satisfy (input_signal <= 5)")
+        ("testCopilot_001", "test_component shall satisfy (input_signal <= 5)")
     ]
     assert reqs[0].fret_ptltl == "(O (( input_signal <= 5 )))"
     assert internal == [] and other == [{"name": "input_signal", "type": "double"}]
@@ -316,11 +317,15 @@ def test_a_project_export_keeps_the_components_requirements(tmp_path):
     p = project_export(tmp_path)
     notes: list[str] = []
     reqs, _internal, other = load_fret_export(p, "liquid_mixer", notes)
-    assert {r.id for r in reqs} == {f"LM-{i:03}" for i in range(1, 13)}
-    assert notes == [
+    assert {r.id for r in reqs} == {f"LM_{i:03}" for i in range(1, 13)}
+    assert notes[0] == (
         "19 requirements of other components left out: 'vehicle' (19); "
         "this config is for 'liquid_mixer'"
-    ]
+    )
+    assert notes[1].startswith(
+        "12 requirement names are not C identifiers, so the ids are: 'LM-012' -> 'LM_012', "
+    ) and notes[1].endswith(" and 2 more (other characters as '_'); refine them by these ids")
+    assert len(notes) == 2
     assert "kias" not in {v["name"] for v in other}
     notes = []
     reqs, _internal, _other = load_fret_export(p, "vehicle", notes)
@@ -341,7 +346,7 @@ def test_check_on_a_project_export_notes_the_other_components(tmp_path, monkeypa
     ) in out
     assert "error" not in out and "LPC_" not in out
     spec = project_for(cfg).spec()
-    assert {r.id for r in spec.requirements} == {f"LM-{i:03}" for i in range(1, 13)}
+    assert {r.id for r in spec.requirements} == {f"LM_{i:03}" for i in range(1, 13)}
     assert not {"kias", "lift_mode"} & {v.name for v in spec.inputs}
 
 
@@ -350,7 +355,7 @@ def test_a_requirement_without_text_is_a_note(tmp_path, monkeypatch, capsys):
     export = project_export(tmp_path, parent=True)
     notes: list[str] = []
     reqs, _internal, _other = load_fret_export(export, "liquid_mixer", notes)
-    assert "LM-000" not in {r.id for r in reqs}
+    assert "LM_000" not in {r.id for r in reqs}
     assert "requirement 'LM-000' has no text (a parent requirement in FRET); left out" in notes
     monkeypatch.chdir(tmp_path)
     assert cli_main(["check", str(mixer_config(tmp_path, export))]) == 0

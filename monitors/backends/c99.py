@@ -192,6 +192,11 @@ def reset_each_name(spec: MonitorSpec, req: RequirementSpec) -> str:
 
 
 def _comment(text: str) -> str:
+    """``text`` inside one line's block comment, whatever it holds: printable
+    ASCII only (a newline or a backslash before one would end or splice the
+    line), and no ``*/``."""
+    if not all(" " <= c <= "~" and c != "\\" for c in text):
+        text = "".join(c if " " <= c <= "~" and c != "\\" else f"<U+{ord(c):04X}>" for c in text)
     return text.replace("*/", "* /")
 
 

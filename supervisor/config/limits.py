@@ -11,6 +11,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from supervisor.config.fields import as_mapping, check_keys, number
+from supervisor.config.imported import (  # the bounds of the files, fixed, beside the settings
+    MAX_CONFIG_BYTES,
+    MAX_FORMULA_CHARS,
+    MAX_ID_CHARS,
+    MAX_IMPORT_BYTES,
+    MAX_IMPORT_DEPTH,
+    MAX_TEXT_CHARS,
+)
 from supervisor.config.yamlload import LineDict
 
 LIMITS_KEYS = {
@@ -22,6 +30,18 @@ LIMITS_KEYS = {
 }
 MAXIMA = {"replay_chunk_mb": 65536.0, "replay_ratio": 1e6}
 MB = 1 << 20
+
+
+__all__ = [
+    "MAX_CONFIG_BYTES",
+    "MAX_FORMULA_CHARS",
+    "MAX_ID_CHARS",
+    "MAX_IMPORT_BYTES",
+    "MAX_IMPORT_DEPTH",
+    "MAX_TEXT_CHARS",
+    "Limits",
+    "load_limits",
+]
 
 
 @dataclass(frozen=True)

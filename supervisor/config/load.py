@@ -18,7 +18,8 @@ from monitors.ir.functions import expand_functions
 from supervisor.config.control import load_control
 from supervisor.config.fields import as_mapping, check_keys, error_at
 from supervisor.config.functions import load_functions
-from supervisor.config.limits import load_limits
+from supervisor.config.imported import decode, read_bytes
+from supervisor.config.limits import MAX_CONFIG_BYTES, load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
 from supervisor.config.record import load_record
@@ -52,11 +53,10 @@ TOP_KEYS = {
 def load_config(path: str | Path) -> Config:
     path = Path(path)
     file = str(path)
-    try:
-        raw_bytes = path.read_bytes()
-    except OSError as e:
-        raise UserError(f"cannot read config: {e.strerror}", file=file) from None
-    doc = load_yaml(path, raw_bytes.decode("utf-8", errors="replace"))
+    # Capped before parsing, a regular file only, UTF-8 with the bad byte located
+    # (docs/reference/config.md, "Limits").
+    raw_bytes = read_bytes(path, "config", MAX_CONFIG_BYTES)
+    doc = load_yaml(path, decode(raw_bytes, file))
     if not isinstance(doc, dict):
         raise UserError(
             "the config must be a YAML mapping (component:, variables:, requirements:, ...)",

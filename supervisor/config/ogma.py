@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
+from monitors.untrusted import printable
+from supervisor.config.imported import Fields, decode, named, read_bytes, read_json, top_list
+from supervisor.config.limits import MAX_TEXT_CHARS
 
 _OGMA_LINE = re.compile(r'^\(\s*"([^"]+)"\s*,\s*"([^"]+)"\s*,\s*"([^"]*)"\s*,\s*"([^"]+)"\s*\)\s*$')
 # The C and ROS type names OGMA's databases use, as monitor types: the integers
@@ -44,48 +46,14 @@ def _topic_type(name: str) -> tuple[str | None, str | None]:
 
 
 def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
-    """OGMA's variable database: JSON (OGMA 1.7+) or the older one-tuple-per-line format."""
+    """OGMA's variable database: JSON (OGMA 1.7+) or the older one-tuple-per-line format.
+    Read within the import bounds, every field read type-checked
+    (supervisor/config/imported.py)."""
     file = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise UserError(f"cannot read OGMA variable database: {e.strerror}", file=file) from None
-    out: list[dict[str, Any]] = []
+    text = decode(read_bytes(path, "OGMA variable database"), file)
     if text.lstrip().startswith("{"):
-        try:
-            db = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise UserError(
-                f"invalid JSON: {e.msg}", file=file, line=e.lineno, col=e.colno
-            ) from None
-        topics = {t.get("topic"): t for t in db.get("topics", []) if isinstance(t, dict)}
-        for item in db.get("inputs", []):
-            name, ctype = item.get("name"), item.get("type", "")
-            conns = [
-                c for c in item.get("connections", []) if str(c.get("scope", "")).startswith("ros")
-            ]
-            if not name or not conns:
-                continue
-            topic = conns[0].get("topic")
-            msg = str(topics.get(topic, {}).get("type", "")).replace("::", "/")
-            vtype = ogma_type(ctype)
-            if vtype is None:
-                raise UserError(
-                    f"variable '{name}' has type '{ctype}', which is not a C or ROS number or bool",
-                    file=file,
-                    hint="known: " + ", ".join(OGMA_TYPES),
-                )
-            out.append(
-                {
-                    "name": name,
-                    "type": vtype,
-                    "topic": topic,
-                    "msg": msg or None,
-                    "field": conns[0].get("field") or "data",
-                    "line": None,
-                }
-            )
-        return out
+        return _json_database(read_json(path, "OGMA variable database", text), file)
+    out: list[dict[str, Any]] = []
     for lineno, raw in enumerate(text.splitlines(), 1):
         line = raw.strip()
         if not line or line.startswith(("#", "--")):
@@ -97,7 +65,7 @@ def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
         msg, vtype = _topic_type(ttype)
         if msg is None:
             raise UserError(
-                f"unknown topic type '{ttype}'",
+                f"unknown topic type '{printable(ttype)}'",
                 file=file,
                 line=lineno,
                 hint="known: " + ", ".join(f"{n}_t" for n in _INTS) + ", bool, float, double",
@@ -105,7 +73,8 @@ def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
         declared = ogma_type(ctype)
         if declared is not None and declared != vtype:
             raise UserError(
-                f"variable '{name}' is {ctype} but its topic carries {ttype}",
+                f"variable '{printable(name)}' is {printable(ctype)} but its topic carries "
+                f"{printable(ttype)}",
                 file=file,
                 line=lineno,
             )
@@ -117,6 +86,54 @@ def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
                 "msg": msg,
                 "field": "data",
                 "line": lineno,
+            }
+        )
+    return out
+
+
+def _json_database(db: object, file: str) -> list[dict[str, Any]]:
+    topics: dict[str, str] = {}
+    for i, item in enumerate(top_list(db, "topics", file), 1):
+        t = Fields(item, f"topic {i}", file)
+        topic = t.text("topic", max_chars=MAX_TEXT_CHARS)
+        t.where = named(topic, i, "topic")
+        mtype = t.text("type", max_chars=MAX_TEXT_CHARS)
+        if topic is not None:
+            topics[topic] = mtype or ""
+    out: list[dict[str, Any]] = []
+    for i, item in enumerate(top_list(db, "inputs", file), 1):
+        v = Fields(item, f"variable {i}", file)
+        name = v.text("name", max_chars=MAX_TEXT_CHARS)
+        v.where = named(name, i, "variable")
+        ctype = v.text("type", max_chars=MAX_TEXT_CHARS) or ""
+        conns = []
+        for j, c in enumerate(v.list("connections"), 1):
+            conn = Fields(c, f"{v.where}: connection {j}", file)
+            scope = conn.text("scope", max_chars=MAX_TEXT_CHARS) or ""
+            topic = conn.text("topic", max_chars=MAX_TEXT_CHARS)
+            field = conn.text("field", max_chars=MAX_TEXT_CHARS)
+            if scope.startswith("ros"):
+                conns.append((topic, field))
+        if not name or not conns:
+            continue
+        topic, field = conns[0]
+        msg = topics.get(topic or "", "").replace("::", "/")
+        vtype = ogma_type(ctype)
+        if vtype is None:
+            raise UserError(
+                f"variable '{printable(name)}' has type '{printable(ctype)}', which is not a C "
+                "or ROS number or bool",
+                file=file,
+                hint="known: " + ", ".join(OGMA_TYPES),
+            )
+        out.append(
+            {
+                "name": name,
+                "type": vtype,
+                "topic": topic,
+                "msg": msg or None,
+                "field": field or "data",
+                "line": None,
             }
         )
     return out

@@ -8,12 +8,12 @@ config's mitigations and variables (the settings themselves are
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import Any
 
 from mitigations.settings import POLICY_KEYS, Confirm, Escalation, Mitigation, PolicyConfig
 from monitors.errors import UserError
+from monitors.untrusted import printable
 from supervisor.config.fields import (
     as_linedict,
     as_mapping,
@@ -27,6 +27,8 @@ from supervisor.config.fields import (
     typed_value,
 )
 from supervisor.config.fret import load_fret_export
+from supervisor.config.imported import control_at, is_c_identifier
+from supervisor.config.limits import MAX_ID_CHARS, MAX_TEXT_CHARS
 from supervisor.config.model import RequirementEntry, Variable
 from supervisor.config.yamlload import LineDict, LineList
 
@@ -58,13 +60,16 @@ def load_requirements(
             relative_to(path, entry_path),
             str(component) if isinstance(component, str) else None,
             file_notes,
+            taken=frozenset(by_id),
         )
         line = doc.key_line("requirements_from")
         left_out += [f"{path}:{line}: note: {entry_path}: {n}" for n in file_notes]
         for r in imported:
             if r.id in by_id:
                 raise error_at(
-                    f"duplicate requirement id '{r.id}' in {entry_path}", doc, "requirements_from"
+                    f"duplicate requirement id '{r.id}' in {printable(str(entry_path))}",
+                    doc,
+                    "requirements_from",
                 )
             r.on_violation = mitigation_names(
                 defaults.get("on_violation"), defaults, "on_violation"
@@ -98,14 +103,41 @@ def load_requirements(
             )
         check_keys(item, REQ_KEYS, "a requirement")
         rid = item.get("id")
-        if not rid or not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", str(rid)):
+        if not isinstance(rid, str) or not is_c_identifier(rid):
+            # An id names C functions and log records (docs/reference/config.md).
+            shown = printable(rid) if isinstance(rid, str) else rid
             raise error_at(
-                f"requirement id '{rid}' must be a C identifier (letters, digits, '_')",
+                f"requirement id '{shown}' must be a C identifier (letters, digits, '_', "
+                f"at most {MAX_ID_CHARS} characters, not starting with a digit)",
                 item,
                 "id" if rid else None,
             )
         rid = str(rid)
         text = item.get("text")
+        if text is not None and not isinstance(text, str):
+            raise error_at(
+                f"requirement '{rid}': text must be a FRETISH sentence, not {_kind(text)}",
+                item,
+                "text",
+            )
+        bad = control_at(text) if text is not None else None
+        if bad is not None:
+            raise UserError(
+                f"requirement '{rid}': its text holds {bad}",
+                file=str(path),
+                line=getattr(text, "line", item.key_line("text")),
+                col=getattr(text, "col", None),
+            )
+        if text is not None and len(text) > MAX_TEXT_CHARS:
+            # Refused before the parser sees it: its time and memory grow with the text.
+            raise UserError(
+                f"requirement '{rid}': its text is longer than {MAX_TEXT_CHARS} characters",
+                file=str(path),
+                line=getattr(text, "line", item.key_line("text")),
+                col=getattr(text, "col", None),
+                hint="a FRETISH sentence is one requirement; split it, or name parts with "
+                "internal variables (docs/reference/config.md, Limits)",
+            )
         existing = by_id.get(rid)
         if existing is not None and existing.line is not None:
             raise error_at(
@@ -115,7 +147,9 @@ def load_requirements(
             raise error_at(
                 f"requirement '{rid}' has no text", item, "id", "add text: <FRETISH sentence>"
             )
-        entry = existing or RequirementEntry(id=rid, text="", file=str(path), line=None, col=1)
+        entry = existing or RequirementEntry(
+            id=rid, text="", file=str(path), line=None, col=1, display=rid
+        )
         if text:
             entry.text = str(text)
             entry.line = getattr(text, "line", item.key_line("text"))
@@ -145,6 +179,14 @@ def load_requirements(
             reqs.append(entry)
             by_id[rid] = entry
     return reqs
+
+
+def _kind(value: object) -> str:
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "a mapping"
+    return "a number or true/false"
 
 
 def check_on_violation(

@@ -9,6 +9,7 @@ from typing import Any
 from monitors.errors import UserError
 from monitors.ir.formula import Formula, FormulaSyntaxError, name_problem, parse_formula
 from monitors.ir.spec import TYPE_ALIASES
+from monitors.untrusted import printable
 from supervisor.config.fields import (
     as_mapping,
     check_keys,
@@ -85,7 +86,7 @@ def check_name(name: str, where: Any, key: str | None = None) -> None:
     # quoted, formula text in FRET's renaming (docs/reference/config.md, "Names").
     why = name_problem(name)
     if why is not None:
-        raise error_at(f"'{name}' is not a usable variable name", where, key, why)
+        raise error_at(f"'{printable(name)}' is not a usable variable name", where, key, why)
 
 
 def parse_define(text: str, file: str, line: int | None) -> Formula:
@@ -94,7 +95,11 @@ def parse_define(text: str, file: str, line: int | None) -> Formula:
     try:
         return parse_formula(cleaned)
     except FormulaSyntaxError as e:
-        raise UserError(f"cannot parse define '{text}': {e}", file=file, line=line) from None
+        raise UserError(
+            f"cannot parse define '{printable(str(text))}': {printable(str(e))}",
+            file=file,
+            line=line,
+        ) from None
 
 
 def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:

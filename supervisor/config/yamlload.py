@@ -17,10 +17,13 @@ from typing import Any
 import yaml
 
 from monitors.errors import UserError
+from supervisor.config.imported import MAX_CONFIG_BYTES, decode, read_bytes
 
 # PyYAML composes and constructs nested collections recursively; a config nests
 # a few levels, so anything deeper is refused before composing.
 MAX_NESTING = 50
+# Values of the whole document with every alias expanded; a config has hundreds.
+MAX_VALUES = 1_000_000
 
 
 class LineDict(dict):
@@ -127,12 +130,7 @@ def load_yaml(path: Path | str, text: str | None = None) -> Any:
     """Parse a YAML file; syntax errors become UserError at the offending line."""
     file = str(path)
     if text is None:
-        try:
-            text = Path(path).read_text(encoding="utf-8")
-        except OSError as e:
-            raise UserError(f"cannot read: {e.strerror}", file=file) from None
-        except UnicodeDecodeError:
-            raise UserError("not UTF-8 text", file=file) from None
+        text = decode(read_bytes(path, "config", MAX_CONFIG_BYTES), file)
     loader = _make_loader(file)
     try:
         _check_nesting(text, loader, file)
@@ -149,9 +147,14 @@ def load_yaml(path: Path | str, text: str | None = None) -> Any:
 
 
 def _check_nesting(text: str, loader: type[yaml.SafeLoader], file: str) -> None:
-    """Refuse collections nested deeper than MAX_NESTING.  PyYAML's event parser
-    keeps an explicit stack (no recursion), so this pass sees any depth."""
+    """Refuse collections nested deeper than MAX_NESTING, and aliases that expand
+    to more than MAX_VALUES values (a "billion laughs": a few lines whose value,
+    once printed in an error, fills memory).  PyYAML's event parser keeps an
+    explicit stack (no recursion), so this pass sees any depth."""
     level = 0
+    sizes: dict[str, int] = {}  # anchor -> values it expands to
+    # values in each open collection (and the whole document), with its anchor
+    counts: list[list[Any]] = [[None, 0]]
     for event in yaml.parse(text, Loader=loader):
         if isinstance(event, yaml.CollectionStartEvent):
             level += 1
@@ -162,8 +165,27 @@ def _check_nesting(text: str, loader: type[yaml.SafeLoader], file: str) -> None:
                     line=event.start_mark.line + 1,
                     col=event.start_mark.column + 1,
                 )
-        elif isinstance(event, yaml.CollectionEndEvent):
+            counts.append([event.anchor, 1])
+            continue
+        if isinstance(event, yaml.CollectionEndEvent):
             level -= 1
+            anchor, n = counts.pop()
+        elif isinstance(event, yaml.AliasEvent):
+            n, anchor = sizes.get(str(event.anchor), 1), None
+        elif isinstance(event, yaml.ScalarEvent):
+            n, anchor = 1, event.anchor
+        else:
+            continue
+        counts[-1][1] += n
+        if counts[-1][1] > MAX_VALUES:
+            raise UserError(
+                f"expands to more than {MAX_VALUES} values (YAML aliases)",
+                file=file,
+                line=event.start_mark.line + 1,
+                col=event.start_mark.column + 1,
+            )
+        if anchor is not None:
+            sizes[str(anchor)] = n
 
 
 def line_of(value: object, default: int | None = None) -> int | None:
