@@ -43,7 +43,7 @@ from monitors.errors import UserError
 from supervisor import data
 from supervisor.config.load import load_config
 from supervisor.tools.bench.errors import BenchError
-from supervisor.tools.bench.httpsoak import HTTP_KINDS, Attacker, SoakUi
+from supervisor.tools.bench.httpsoak import HTTP_KINDS, Attacker, SoakUi, listen_overflows
 from supervisor.tools.bench.numbers import percentiles
 from supervisor.tools.bench.scale import fd_count, proc_memory
 from supervisor.tools.bench.session import session
@@ -197,6 +197,7 @@ def soak(
             ui.wait_listening()
         start_mem, start_fds = proc_memory(d.pid), fd_count(d.pid)
         ui_start = (proc_memory(ui.child.pid), fd_count(ui.child.pid)) if ui else None
+        overflows_before = listen_overflows()
         stop = threading.Event()
         outcomes: Counter[str] = Counter()
         http_outcomes: Counter[str] = Counter()
@@ -263,6 +264,7 @@ def soak(
         for t in threads:
             t.join(60)  # an attack holds its connection at most until the stop
         end_mem, end_fds = proc_memory(d.pid), fd_count(d.pid)
+        overflows_after = listen_overflows()
         ping_gap = d.longest_ping_gap(t0, time.monotonic())
         daemon_alive = d.alive()
         http_part: dict[str, Any] | None = None
@@ -277,6 +279,10 @@ def soak(
                 "attack_outcomes": dict(sorted(http_outcomes.items())),
                 "got_through": len(got_through),
                 "server_errors": sum(n for k, n in http_outcomes.items() if k.endswith(":500")),
+                # machine-wide: other programs' full accept queues count too
+                "listen_overflows": None
+                if overflows_before is None or overflows_after is None
+                else overflows_after - overflows_before,
                 "alive_at_end": ui_alive,
                 "exit_status": ui_exit,
                 "tracebacks": _tracebacks(ui.stderr_path()),

@@ -85,6 +85,21 @@ class SoakUi(UiChild):
             conn.close()
 
 
+def listen_overflows() -> int | None:
+    """The kernel's count of connections dropped for a full accept queue, machine-wide
+    (TcpExt ListenOverflows): an operator's connect then waits for its SYN's
+    retransmission, 1 s later."""
+    try:
+        lines = Path("/proc/net/netstat").read_text().splitlines()
+    except OSError:
+        return None
+    for names, values in zip(lines[::2], lines[1::2], strict=False):
+        if names.startswith("TcpExt:"):
+            row = dict(zip(names.split()[1:], values.split()[1:], strict=False))
+            return int(row["ListenOverflows"]) if "ListenOverflows" in row else None
+    return None
+
+
 def _request(method: str, path: str, headers: list[tuple[str, str]], body: bytes = b"") -> bytes:
     head = f"{method} {path} HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in headers)
     return head.encode("utf-8", "surrogateescape") + b"\r\n" + body
