@@ -1,8 +1,8 @@
 """Soak of the control socket: random hostile clients for minutes while an operator's
 reset must be answered within 1 s throughout.
 
-``python -m supervisor.tools.bench.control [--minutes 10] [--clients 16] [CONFIG]``
-starts ``safety-supervisor run`` (sRobot by default, its control socket in the
+``python -m supervisor.tools.bench.control [--minutes 10] [--clients 16]
+[--http-clients 16] [--no-ui] [CONFIG]`` starts ``safety-supervisor run`` (sRobot by default, its control socket in the
 bench's temp dir, the watchdog on) and runs ``--clients`` threads, each opening
 connection after connection of a random kind: random bytes, deep JSON, over-long
 lines, partial lines, idle and slow clients, bursts of connections, resets with
@@ -13,11 +13,21 @@ answered, missed, latency percentiles, attack connections by kind, the daemon's
 RSS and descriptors at start and end, the longest gap between watchdog pings, and
 whether the daemon's log verifies and its control socket never failed.
 docs/reference/ros-interfaces.md, "Control socket".
+
+Unless ``--no-ui``, the same run also starts ``safety-supervisor ui`` on the
+daemon's control socket and domain and attacks its HTTP port with
+``--http-clients`` threads (:mod:`supervisor.tools.bench.httpsoak`), while the
+operator's reset is also sent the page's way every 250-500 ms: an HTTP answer
+within 1 s, relayed from the daemon, and one ``reset`` record with ``via: ui`` per
+reset the daemon took.  Both processes must stay alive, print no traceback, and
+the summary has their memory and descriptors before and after.
+docs/BENCHMARKS.md, "Control socket and UI soak".
 """
 
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import random
 import socket
@@ -31,6 +41,9 @@ from typing import Any
 
 from monitors.errors import UserError
 from supervisor import data
+from supervisor.config.load import load_config
+from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.bench.httpsoak import HTTP_KINDS, Attacker, SoakUi, listen_overflows
 from supervisor.tools.bench.numbers import percentiles
 from supervisor.tools.bench.scale import fd_count, proc_memory
 from supervisor.tools.bench.session import session
@@ -86,19 +99,109 @@ def _attack(sock: str, kind: str, rnd: random.Random) -> str:
             c.close()
 
 
-def soak(config: Path, minutes: float, clients: int, probe_ms: int) -> dict[str, Any]:
+def _ms(values: list[float]) -> dict[str, float | None]:
+    return {k: None if v is None else round(v * 1000, 2) for k, v in percentiles(values).items()}
+
+
+def _tracebacks(path: Path) -> int:
+    try:
+        return path.read_text(errors="replace").count("Traceback")
+    except OSError:
+        return 0
+
+
+class HttpProbe:
+    """The operator's reset through the UI every 250-500 ms, on a thread of its own:
+    ``{}`` or ``{"requirement": ID}`` as the page sends them, timed to its answer."""
+
+    def __init__(self, ui: SoakUi, requirements: list[str], stop: threading.Event) -> None:
+        self.ui = ui
+        self.requirements = requirements
+        self.stop = stop
+        self.latencies: list[float] = []
+        self.answers: Counter[str] = Counter()
+        self.misses: list[str] = []
+        self.sent = 0
+        self.thread = threading.Thread(target=self._run, name="http-probe", daemon=True)
+
+    def _run(self) -> None:
+        rnd = random.Random(1)
+        while not self.stop.is_set():
+            body = rnd.choice([{}, {"requirement": rnd.choice(self.requirements)}])
+            p0 = time.monotonic()
+            self.sent += 1
+            try:
+                status, answer = self.ui.reset(body, 5.0)
+            except (OSError, http.client.HTTPException, ValueError) as e:
+                self.misses.append(f"{type(e).__name__}: {e}")
+            else:
+                took = time.monotonic() - p0
+                message = str(answer.get("message", ""))
+                if status != 200:
+                    self.misses.append(f"HTTP {status}: {message}")
+                else:
+                    self.latencies.append(took)
+                    self.answers[_kind(answer.get("ok") is True, message)] += 1
+                    if took > ANSWER_LIMIT_S:
+                        self.misses.append(f"answered after {took:.3f} s")
+            self.stop.wait(max(0.0, rnd.uniform(0.25, 0.5) - (time.monotonic() - p0)))
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "sent": self.sent,
+            "answered": len(self.latencies),
+            "answers": dict(self.answers),
+            "missed": len(self.misses),
+            "misses": self.misses[:10],
+            "latency_ms": _ms(self.latencies),
+        }
+
+
+def _kind(ok: bool, message: str) -> str:
+    """The daemon's answer as the UI relays it (its message; the UI adds no other)."""
+    if ok:
+        return "accepted"
+    if message.startswith("not reset: rate limited"):
+        return "rate"
+    if message.startswith("not reset:"):
+        return "still_violated"
+    return "other"
+
+
+def soak(
+    config: Path,
+    minutes: float,
+    clients: int,
+    probe_ms: int,
+    ui_on: bool,
+    http_clients: int,
+    max_resets: int | None = None,
+) -> dict[str, Any]:
+    requirements = [r.id for r in load_config(config).requirements]
     with session(None) as s:
         work = s.tmp / "daemon"
         work.mkdir()
         sock = str(work / "c.sock")
         cfg = work / "soak.yaml"
-        cfg.write_text(config.read_text().rstrip("\n") + f"\ncontrol:\n  socket: {sock}\n")
+        control_cfg = f"\ncontrol:\n  socket: {sock}\n"
+        if max_resets is not None:
+            control_cfg += f"  max_resets: {max_resets}\n"
+        cfg.write_text(config.read_text().rstrip("\n") + control_cfg)
         d = s.daemon(cfg, work, watchdog_usec=2_000_000)
         d.wait_ready(120)
         d.watch_pings()
+        ui: SoakUi | None = None
+        if ui_on:
+            (s.tmp / "ui").mkdir()
+            ui = SoakUi(s, s.tmp / "ui", sock)
+            ui.wait_listening()
         start_mem, start_fds = proc_memory(d.pid), fd_count(d.pid)
+        ui_start = (proc_memory(ui.child.pid), fd_count(ui.child.pid)) if ui else None
+        overflows_before = listen_overflows()
         stop = threading.Event()
         outcomes: Counter[str] = Counter()
+        http_outcomes: Counter[str] = Counter()
+        got_through: list[str] = []
         lock = threading.Lock()
 
         def attacker(seed: int) -> None:
@@ -109,17 +212,36 @@ def soak(config: Path, minutes: float, clients: int, probe_ms: int) -> dict[str,
                 with lock:
                     outcomes[f"{kind}:{result}"] += 1
 
+        def http_attacker(seed: int) -> None:
+            assert ui is not None
+            a = Attacker(ui, seed, stop)
+            while not stop.is_set():
+                kind = a.rnd.choice(HTTP_KINDS)
+                result, through = a.attack(kind)
+                with lock:
+                    http_outcomes[f"{kind}:{result}"] += 1
+                    if through:
+                        got_through.append(kind)
+
         threads = [
             threading.Thread(target=attacker, args=(i,), daemon=True) for i in range(clients)
         ]
+        if ui is not None:
+            threads += [
+                threading.Thread(target=http_attacker, args=(1000 + i,), daemon=True)
+                for i in range(http_clients)
+            ]
+        probe = HttpProbe(ui, requirements, stop) if ui is not None else None
         t0 = time.monotonic()
         for t in threads:
             t.start()
+        if probe is not None:
+            probe.thread.start()
         latencies: list[float] = []
         answers: Counter[str] = Counter()
         misses: list[str] = []
         end = t0 + minutes * 60
-        peak_rss = 0
+        peak_rss = ui_peak = 0
         while time.monotonic() < end:
             p0 = time.monotonic()
             try:
@@ -133,12 +255,44 @@ def soak(config: Path, minutes: float, clients: int, probe_ms: int) -> dict[str,
                 if took > ANSWER_LIMIT_S:
                     misses.append(f"answered after {took:.3f} s")
             peak_rss = max(peak_rss, proc_memory(d.pid)["rss_kb"] or 0)
+            if ui is not None:
+                ui_peak = max(ui_peak, proc_memory(ui.child.pid)["rss_kb"] or 0)
             stop.wait(max(0.0, probe_ms / 1000 - (time.monotonic() - p0)))
         stop.set()
+        if probe is not None:
+            probe.thread.join(15)
         for t in threads:
-            t.join(15)
+            t.join(60)  # an attack holds its connection at most until the stop
         end_mem, end_fds = proc_memory(d.pid), fd_count(d.pid)
+        overflows_after = listen_overflows()
         ping_gap = d.longest_ping_gap(t0, time.monotonic())
+        daemon_alive = d.alive()
+        http_part: dict[str, Any] | None = None
+        if ui is not None and probe is not None:
+            ui_alive = ui.child.alive()
+            ui_end = (proc_memory(ui.child.pid), fd_count(ui.child.pid))
+            ui_exit = ui.child.stop(10)  # SIGTERM: the UI stops its server and node
+            http_part = {
+                **probe.summary(),
+                "attackers": http_clients,
+                "attack_connections": sum(http_outcomes.values()),
+                "attack_outcomes": dict(sorted(http_outcomes.items())),
+                "got_through": len(got_through),
+                "server_errors": sum(n for k, n in http_outcomes.items() if k.endswith(":500")),
+                # machine-wide: other programs' full accept queues count too
+                "listen_overflows": None
+                if overflows_before is None or overflows_after is None
+                else overflows_after - overflows_before,
+                "alive_at_end": ui_alive,
+                "exit_status": ui_exit,
+                "tracebacks": _tracebacks(ui.stderr_path()),
+                "rss_kb": {
+                    "start": ui_start[0]["rss_kb"] if ui_start else None,
+                    "end": ui_end[0]["rss_kb"],
+                    "peak": ui_peak,
+                },
+                "fds": {"start": ui_start[1] if ui_start else None, "end": ui_end[1]},
+            }
         d.stop_cleanly()
         records = d.records()
         verify = subprocess.run(
@@ -151,26 +305,82 @@ def soak(config: Path, minutes: float, clients: int, probe_ms: int) -> dict[str,
         for r in records:
             if r.get("what") == "reset_refused":
                 refused.update(r["refused"])
-        lat = percentiles(latencies)
-        return {
-            "minutes": minutes,
-            "attackers": clients,
-            "probes": len(latencies) + sum(1 for m in misses if not m.startswith("answered")),
+        resets = [r for r in records if r.get("event") == "reset"]
+        control = {
+            "sent": len(latencies) + sum(1 for m in misses if not m.startswith("answered")),
             "answered": len(latencies),
             "answers": dict(answers),
             "missed": len(misses),
             "misses": misses[:10],
-            "latency_ms": {k: None if v is None else round(v * 1000, 2) for k, v in lat.items()},
+            "latency_ms": _ms(latencies),
+        }
+        result: dict[str, Any] = {
+            "minutes": minutes,
+            "max_resets": max_resets,
+            "attackers": clients,
+            "probes": control["sent"],
+            "answered": control["answered"],
+            "answers": control["answers"],
+            "missed": control["missed"],
+            "misses": control["misses"],
+            "latency_ms": control["latency_ms"],
             "attack_connections": sum(outcomes.values()),
             "attack_outcomes": dict(sorted(outcomes.items())),
             "refused_summarised": dict(refused),
-            "resets_recorded": sum(1 for r in records if r.get("event") == "reset"),
+            "resets_recorded": len(resets),
             "control_failed": sum(1 for r in records if r.get("what") == "control_failed"),
             "rss_kb": {"start": start_mem["rss_kb"], "end": end_mem["rss_kb"], "peak": peak_rss},
             "fds": {"start": start_fds, "end": end_fds},
             "longest_ping_gap_s": None if ping_gap is None else round(ping_gap, 3),
+            "daemon_alive_at_end": daemon_alive,
+            "daemon_tracebacks": _tracebacks(d.stderr_path),
             "log_verifies": verify.returncode == 0,
         }
+        if http_part is not None:
+            # every reset the daemon took from the UI is a record naming it; only the
+            # probe sends resets that can pass the UI's checks (httpsoak's docstring)
+            http_part["resets_expected"] = sum(
+                http_part["answers"].get(k, 0) for k in ("accepted", "still_violated")
+            )
+            http_part["resets_recorded"] = sum(1 for r in resets if r.get("via") == "ui")
+            result["http"] = http_part
+        result["channels"] = {
+            name: {
+                "sent": c["sent"],
+                "answered": c["answered"],
+                "p50_ms": c["latency_ms"]["p50"],
+                "p99_ms": c["latency_ms"]["p99"],
+                "max_ms": c["latency_ms"]["max"],
+                "misses": c["missed"],
+            }
+            for name, c in (("control", control), ("http", http_part))
+            if c is not None
+        }
+        return result
+
+
+def passed(result: dict[str, Any]) -> bool:
+    """Every probe answered in time, both processes alive and quiet, the log intact."""
+    ok = (
+        result["missed"] == 0
+        and result["log_verifies"]
+        and not result["control_failed"]
+        and result["daemon_alive_at_end"]
+        and not result["daemon_tracebacks"]
+    )
+    h = result.get("http")
+    if h is not None:
+        ok = ok and (
+            h["missed"] == 0
+            and h["answered"] > 0
+            and not h["got_through"]
+            and not h["server_errors"]
+            and h["alive_at_end"]
+            and h["exit_status"] == 0
+            and not h["tracebacks"]
+            and h["resets_recorded"] == h["resets_expected"]
+        )
+    return ok
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -179,11 +389,38 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--minutes", type=float, default=10.0)
     p.add_argument("--clients", type=int, default=16, help="attacking threads (default 16)")
     p.add_argument("--probe-ms", type=int, default=250, help="operator reset period")
+    p.add_argument(
+        "--ui",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also soak the ui's HTTP port and reset through it (default on)",
+    )
+    p.add_argument(
+        "--http-clients", type=int, default=16, help="attacking HTTP threads (default 16)"
+    )
+    p.add_argument(
+        "--max-resets",
+        type=int,
+        default=None,
+        help="control.max_resets of the soak's daemon (default: the config's; at 1 per "
+        "second most operator resets are answered 'rate limited')",
+    )
     args = p.parse_args(argv)
-    result = soak(args.config, args.minutes, args.clients, args.probe_ms)
+    try:
+        result = soak(
+            args.config,
+            args.minutes,
+            args.clients,
+            args.probe_ms,
+            args.ui,
+            args.http_clients,
+            args.max_resets,
+        )
+    except (BenchError, UserError) as e:
+        print(f"soak: {e}", file=sys.stderr)
+        return 1
     print(json.dumps(result, indent=2))
-    ok = result["missed"] == 0 and result["log_verifies"] and not result["control_failed"]
-    return 0 if ok else 1
+    return 0 if passed(result) else 1
 
 
 if __name__ == "__main__":
