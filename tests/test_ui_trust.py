@@ -645,3 +645,24 @@ def test_the_page_checks_types_itself_and_makes_no_element_of_data(tmp_path: Pat
             assert console == [], console
         finally:
             pw.stop()
+
+
+def test_a_burst_of_connections_waits_in_the_listen_queue_not_for_tcps_retry() -> None:
+    """With http.server's default queue of 5, connections past it are dropped by the
+    kernel and retried by TCP after 1 s: an operator's reset during a burst (the soak,
+    supervisor/tools/bench/control.py) was answered late.  The server here accepts
+    nothing, so every connection must complete in the listen queue alone."""
+    from supervisor.tools.ui.server import UiServer
+
+    server = UiServer(("127.0.0.1", 0), Hub(lambda d: {}), None, lambda: None)
+    clients: list[socket.socket] = []
+    try:
+        for _ in range(100):
+            c = socket.socket()
+            c.settimeout(0.5)
+            clients.append(c)
+            c.connect(server.server_address)  # a dropped SYN is retried after 1 s: timeout
+    finally:
+        for c in clients:
+            c.close()
+        server.server_close()

@@ -147,6 +147,9 @@ def reset_body(data: bytes) -> str | None:
 
 class UiServer(ThreadingHTTPServer):
     daemon_threads = True  # an open event stream never holds up the exit
+    # socketserver's default listen queue is 5: in a burst of connections the kernel
+    # drops the rest and TCP retries them after 1 s, an operator's reset among them.
+    request_queue_size = 128
 
     def __init__(
         self,
