@@ -122,7 +122,7 @@ def _daemon_internals(
         and r.get("stage") == "violation"
     ]
     internal = [float(r["latency_ms"]) for r in mitigations[warmup:]]
-    sizes = [len(json.dumps(r, separators=(",", ":"))) + 1 for r in violations]
+    sizes = [len(r["_line"].encode()) + 1 for r in violations]  # bytes written, newline too
     mine = [r for r in violations if r.get("requirement") == LATENCY_REQUIREMENT]
     # A trial starts from a holding state when the tick before its violation
     # was the nominal state the driver published (classifier 0, halt false).

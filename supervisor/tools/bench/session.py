@@ -169,7 +169,7 @@ class Daemon(Helper):
         return cpu
 
     def records(self) -> list[dict[str, Any]]:
-        return records_since(self.log, 0)[0]
+        return records_since(self.log, 0, raw=True)[0]  # with _line: each record as stored
 
     def stop_record(self) -> dict[str, Any]:
         for r in reversed(self.records()):
