@@ -352,7 +352,8 @@ def _ensure_started(m: Machine) -> dict[str, str]:
 
 
 def _cursor(m: Machine) -> str:
-    out = m.ok("journalctl", "-u", UNIT, "-n", "0", "--show-cursor", "--no-pager", timeout=30)
+    # The whole journal's last entry: the unit may have none yet.
+    out = m.ok("journalctl", "-n", "1", "--show-cursor", "--no-pager", timeout=30)
     match = re.search(r"-- cursor: (\S+)", out)
     assert match, out
     return match.group(1)
