@@ -15,6 +15,7 @@ Debian mirror; skipped otherwise, except where ``SAFETY_SUPERVISOR_REQUIRE_SYSTE
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -416,6 +417,55 @@ def test_reload_good_and_bad_config(machine: Machine) -> None:
         (m.root / CONFIG.lstrip("/")).write_text(original)
     assert m.show("MainPID")["MainPID"] == pid
     assert "Traceback" not in m.journal(cursor)
+
+
+def test_a_violation_reaches_the_journal_with_its_fields(machine: Machine) -> None:
+    """``inject`` (a deployed system's self-test) breaks one requirement over DDS
+    on the container's loopback; the record is in the journal with its fields
+    (docs/reference/log.md) and the same JSON line as the log."""
+    m = machine
+    _ensure_started(m)
+    req = "state_req000"
+    log = "/var/log/safety-supervisor/violations.jsonl"
+    env = {
+        "HOME": "/root",
+        "ROS_HOME": "/tmp/ros",
+        "ROS_LOG_DIR": "/tmp/ros/log",
+        # As the unit's daemon: UDP only (shared memory does not cross users).
+        "FASTDDS_BUILTIN_TRANSPORTS": "UDPv4",
+    }
+    out = m.ok(
+        "/opt/safety-supervisor/venv/bin/safety-supervisor",
+        "inject",
+        CONFIG,
+        req,
+        "--log",
+        log,
+        timeout=180,
+        env=env,
+    )
+    assert req in out, out
+    entries: list[dict[str, str]] = []
+
+    def journalled() -> bool:
+        r = m.run(
+            "journalctl", "-u", UNIT, "EVENT=violation", f"REQUIREMENT={req}", "-o", "json",
+            "--no-pager", timeout=30,
+        )  # fmt: skip
+        entries[:] = [json.loads(line) for line in r.stdout.splitlines() if line.strip()]
+        return bool(entries)
+
+    _poll("the violation in the journal", 30, journalled)
+    e = entries[-1]
+    record = json.loads(e["SAFETY_SUPERVISOR_RECORD"])
+    assert record["event"] == "violation" and record["requirement"] == req, record
+    assert e["PRIORITY"] == "4", e  # warning (docs/reference/log.md)
+    assert e["SEQ"] == str(record["seq"]), e
+    assert e["COMPONENT"] == "sRobot", e
+    assert e["CONFIG_SHA256"] == record["config_sha256"], e
+    assert e["SYSLOG_IDENTIFIER"] == "safety-supervisor", e
+    # The same line as in the log file, which is what engineers replay.
+    assert e["SAFETY_SUPERVISOR_RECORD"] in m.ok("cat", log).splitlines()
 
 
 def test_security_exposure_at_most_2(machine: Machine) -> None:
