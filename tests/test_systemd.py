@@ -468,6 +468,58 @@ def test_a_violation_reaches_the_journal_with_its_fields(machine: Machine) -> No
     assert e["SAFETY_SUPERVISOR_RECORD"] in m.ok("cat", log).splitlines()
 
 
+def test_the_ui_unit_serves_the_operator_page(machine: Machine) -> None:
+    m = machine
+    _ensure_started(m)
+    ui = "safety-supervisor-ui.service"
+    r = m.run("systemctl", "start", ui, timeout=60)
+    assert r.returncode == 0, r.stderr
+    fetch = (
+        "import urllib.request as u; r = u.urlopen('http://127.0.0.1:8321/', timeout=5); "
+        "print(r.status, r.headers.get_content_type())"
+    )
+    got: list[str] = []
+
+    def serving() -> bool:
+        st = m.ok("systemctl", "show", ui, "-p", "ActiveState", "--value").strip()
+        assert st in ("active", "activating"), m.run("journalctl", "-u", ui, "--no-pager").stdout
+        r = m.run("python3", "-c", fetch, timeout=30)
+        got[:] = [r.stdout.strip()]
+        return r.returncode == 0
+
+    try:
+        _poll("the operator page on 127.0.0.1:8321", 60, serving)
+        assert got == ["200 text/html"], got
+    finally:
+        m.run("systemctl", "stop", ui, timeout=60)
+
+
+def test_logrotate_reopens_and_the_chain_verifies(machine: Machine) -> None:
+    """The shipped snippet rotates (create, SIGUSR1 to the daemon only) and the
+    hash chain verifies across the two files (docs/reference/log.md)."""
+    m = machine
+    pid = _ensure_started(m)["MainPID"]
+    log = "/var/log/safety-supervisor/violations.jsonl"
+    r = m.run("logrotate", "-f", "/etc/logrotate.d/safety-supervisor", timeout=60)
+    assert r.returncode == 0, r.stderr
+
+    def reopened() -> bool:
+        r = m.run("cat", log)
+        return r.returncode == 0 and r.stdout.strip() != ""
+
+    _poll("the daemon's first record in the new log", 30, reopened)
+    assert m.show("MainPID")["MainPID"] == pid  # reopened, not restarted
+    out = m.ok(
+        "/opt/safety-supervisor/venv/bin/safety-supervisor",
+        "logs",
+        "--verify",
+        log + ".1",
+        log,
+        timeout=60,
+    )
+    assert "Traceback" not in out
+
+
 def test_security_exposure_at_most_2(machine: Machine) -> None:
     out = machine.ok("systemd-analyze", "security", "--no-pager", UNIT)
     match = re.search(r"Overall exposure level for \S+: (\d+(?:\.\d+)?)", out)
