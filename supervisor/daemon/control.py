@@ -481,25 +481,43 @@ class ControlServer:
                 hint="stop it, or give this one its own control.socket",
             ) from e
         sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        call = "bind"
         try:
             sock.bind(self.path)
             st = os.stat(self.path)
             self._inode = (st.st_dev, st.st_ino)
             if self.gid is not None:
+                call = "chown"
                 os.chown(self.path, -1, self.gid)
+            call = "chmod"
             os.chmod(self.path, 0o660 if self.gid is not None else 0o600)
+            call = "listen"
             sock.listen(BACKLOG)
         except OSError as e:
             sock.close()
-            hint = None
-            if self.gid is not None and e.errno in (errno.EPERM, errno.EINVAL):
-                hint = (
-                    f"the daemon's user must be a member of group {self.group} "
-                    f"(the unit's SupplementaryGroups={self.group})"
-                )
-            raise fail(f"control socket {self.path}: {e.strerror or e}", hint) from None
+            raise fail(
+                f"control socket {self.path}: {call}: {e.strerror or e}",
+                self._hint(call, e.errno),
+            ) from None
         sock.setblocking(False)
         self._sock = sock
+
+    def _hint(self, call: str, err: int | None) -> str | None:
+        """Why ``call`` was refused.  chown of one's own file to a group one is
+        in needs no privilege, so EPERM then comes from a sandbox (a seccomp
+        filter such as SystemCallFilter=~@privileged, which holds @chown), not
+        from the group (docs/reference/ros-interfaces.md, systemd)."""
+        if call != "chown" or self.gid is None or err not in (errno.EPERM, errno.EINVAL):
+            return None
+        if self.gid in os.getgroups() or self.gid == os.getegid():
+            return (
+                f"this process is in group {self.group}, so a sandbox refused chown: "
+                "the unit's SystemCallFilter= must allow @chown"
+            )
+        return (
+            f"the daemon's user must be a member of group {self.group} "
+            f"(the unit's SupplementaryGroups={self.group})"
+        )
 
 
 class _InUse(Exception):
