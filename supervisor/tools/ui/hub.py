@@ -89,21 +89,27 @@ class Hub:
     def receive_status(self, data: bytes | str, publisher: Callable[[], str]) -> bool:
         """A status document as it came off the topic: shown if it passes the
         schema, else counted and said; ``publisher()`` names who sent it."""
-        try:
-            doc = parse_status(data)
-        except Untrusted as e:
-            self.on_invalid(publisher(), f"status: {e}")
-            return False
-        self.on_status(doc)
-        return True
+        return self._receive(data, publisher, parse_status, self.on_status, "status")
 
     def receive_violation(self, data: bytes | str, publisher: Callable[[], str]) -> bool:
+        return self._receive(
+            data, publisher, parse_violation, self.on_violation, "violation record"
+        )
+
+    def _receive(
+        self,
+        data: bytes | str,
+        publisher: Callable[[], str],
+        parse: Callable[[bytes | str], dict[str, Any]],
+        use: Callable[[dict[str, Any]], None],
+        what: str,
+    ) -> bool:
         try:
-            record = parse_violation(data)
+            doc = parse(data)
         except Untrusted as e:
-            self.on_invalid(publisher(), f"violation record: {e}")
+            self.on_invalid(publisher(), f"{what}: {e}")
             return False
-        self.on_violation(record)
+        use(doc)
         return True
 
     def on_invalid(self, publisher: str, why: str) -> None:
