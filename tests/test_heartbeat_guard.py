@@ -97,18 +97,23 @@ def test_the_guard_stops_the_base_when_the_supervisor_dies(tmp_path: Path, robot
     robot_node.create_subscription(
         Twist, STOP_TOPIC, lambda m: stops.append((time.monotonic(), m)), 100
     )
-    d = Daemon(tmp_path, variant(tmp_path))
     guard = Guard(tmp_path)
+    d: Daemon | None = None
     try:
+        # stopped until the heartbeat is live; its stops reaching us also say that
+        # DDS discovery is done, so a later stop can be timed
+        spin_until(robot_node, "the guard's stops before any heartbeat", lambda: stops, 20)
+        d = Daemon(tmp_path, variant(tmp_path))
         d.wait_notify("READY=1", timeout=60)
         wait_until("the guard armed by the heartbeat", lambda: guard.said("live (counter"), 30,
-                   lambda: "\n".join(guard.lines()) + d.explain())  # fmt: skip
-        # stopped until then: its stops reached us (it is discovered, so a later
-        # stop can be timed)
-        spin_until(robot_node, "the guard's stops before it was armed", lambda: stops, 10)
-        drain = time.monotonic() + 0.5
-        while time.monotonic() < drain:
-            spin_once(robot_node)
+                   lambda: "\n".join(guard.lines()) + (d.explain() if d else ""))  # fmt: skip
+        # the stops sent before it armed arrive (queued while the daemon started)
+        for _ in range(20):
+            before, drain = len(stops), time.monotonic() + 0.5
+            while time.monotonic() < drain:
+                spin_once(robot_node)
+            if len(stops) == before:
+                break
         # heartbeat flowing: no stop
         stops.clear()
         quiet_until = time.monotonic() + 3.0
@@ -174,4 +179,5 @@ def test_the_guard_stops_the_base_when_the_supervisor_dies(tmp_path: Path, robot
         assert guard.said("leaving: stop published"), guard.lines()
     finally:
         guard.close()
-        d.close()
+        if d is not None:
+            d.close()
