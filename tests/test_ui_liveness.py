@@ -44,11 +44,14 @@ def assert_not_live(page: Any, what: str) -> float:
     shown = time.monotonic()
     first = quiet_seconds(page)
     assert first is not None, (what, page.inner_text("header"))
+    uptime = page.inner_text("#uptime")
     deadline = time.monotonic() + 5
     while (n := quiet_seconds(page)) is not None and n <= first:
         assert time.monotonic() < deadline, f"{what}: the age stays at {n} s"
         page.wait_for_timeout(100)
     assert n is not None and n > first, (what, page.inner_text("header"))
+    # a dead supervisor's uptime does not go on: it is the last document's
+    assert page.inner_text("#uptime") == uptime, (what, uptime, page.inner_text("#uptime"))
     assert page.inner_text("#conn").strip() != "live", (what, page.inner_text("header"))
     assert page.get_attribute("body", "data-live") == "0", what
     assert not page.evaluate(f"() => {GREEN_SHOWN}"), f"{what}: something is still green"

@@ -361,7 +361,7 @@ function renderOpView() {
   $("opview").innerHTML = s;
 }
 
-// Between updates: input ages and uptime tick, and a quiet daemon is said.
+// Between updates: input ages and uptime tick, and a quiet daemon is said (not live).
 function tick() {
   const t = now();
   const since = M.status ? (t - M.statusAt) / 1000 : (M.diagAt == null ? 0 : (t - M.diagAt) / 1000);
@@ -369,11 +369,11 @@ function tick() {
     if (el.dataset.age === "") continue;
     el.textContent = fmtAge(Number(el.dataset.age) + since);
   }
-  const up = $("uptime");
-  if (up && M.status) up.textContent = fmtDur((num(M.status.uptime_s) || 0) + since);
   // live: the stream is open and a document came within the bound
   const heard = M.status != null || M.diagAt != null;
   const quiet = heard && since > quietAfter();
+  const up = $("uptime");  // a supervisor not heard from has no uptime beyond its last document
+  if (up && M.status) up.textContent = fmtDur((num(M.status.uptime_s) || 0) + (quiet ? 0 : since));
   const live = M.connected && heard && !quiet;
   $("quiet").hidden = !quiet;
   $("quiet").textContent = quiet ? `no status for ${Math.floor(since)} s` : "";
