@@ -32,6 +32,7 @@ PACKAGE_DATA = [
     "supervisor/data/examples/srobot-from-fret.yaml",
     "supervisor/data/examples/srobot-fret-export.json",
     "supervisor/data/examples/srobot-ogma-variables.txt",
+    "supervisor/data/examples/heartbeat_guard.py",
     "supervisor/data/systemd/safety-supervisor.service",
     "supervisor/data/logrotate/safety-supervisor",
 ]

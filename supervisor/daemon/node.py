@@ -298,6 +298,8 @@ class SupervisorNode:
         )
         # Whether operators can reset: the socket thread's health and counts.
         doc["control"] = self.control.health() if self.control is not None else None
+        # A page tells a dead supervisor from a slow one by this (ros-interfaces.md, Status).
+        doc["status_period_s"] = self.session.config.ros.status_ms / 1000
         msg = _msg("std_msgs/msg/String")()
         msg.data = json.dumps(doc)
         try:

@@ -32,7 +32,7 @@ NAME_RE = re.compile(r"[A-Za-z0-9_.-]{1,64}")  # also the robot's path: /robot/<
 NS_RE = re.compile(r"/|(/[A-Za-z_][A-Za-z0-9_]*)+")
 MAX_DOMAIN = 232  # the largest ROS_DOMAIN_ID (docs.ros.org, "The ROS_DOMAIN_ID")
 LOST_PERIODS = 3  # status periods without a document: lost
-LOST_DEFAULT_S = 3.0  # until two documents gave the period
+LOST_DEFAULT_S = 3.0  # until a document announced the period, or two gave it
 LOST_MIN_S = 1.0  # a short ros.status_ms must not make a busy machine flap
 STATUS_SUFFIX = STATUS_TOPIC  # "/safety_supervisor/status" ends every daemon's status topic
 
@@ -287,8 +287,11 @@ class Fleet:
 
     def _seen(self, robot: Robot, doc: dict[str, Any]) -> None:
         now = _utc_seconds(doc.get("now"))
+        announced = doc.get("status_period_s")  # checked: a number or None (schema.py)
         with robot.lock:
-            if now is not None and robot.last_now is not None and now > robot.last_now:
+            if announced:
+                robot.period_s = announced
+            elif now is not None and robot.last_now is not None and now > robot.last_now:
                 robot.period_s = now - robot.last_now
             robot.last_now = now
             robot.status_at = self._clock()

@@ -40,8 +40,12 @@ code { font-size: 12px; word-break: break-word; }
 .state-unknown { background: #eee; color: #555; }
 .stale { color: #b71c1c; font-weight: 600; }
 .ok { color: #1b5e20; } .fail { color: #b71c1c; font-weight: 600; }
-#quiet { background: #ffcdd2; color: #b71c1c; padding: 2px 8px; border-radius: 4px; display: none; }
+#quiet { background: #ffcdd2; color: #b71c1c; padding: 2px 8px; border-radius: 4px; }
 #conn.off { color: #ffab91; }
+/* Not live: what is shown is the last document, not the robot now; nothing is green. */
+body.notlive header { background: #7f1d1d; }
+body.notlive .state-holding, body.notlive .state-live { background: #eee; color: #555; }
+body.notlive .ok { color: #555; }
 #feed { list-style: none; padding: 0; margin: 0; max-height: 420px; overflow-y: auto; }
 #feed li { border-bottom: 1px solid #eee; padding: 2px 0; }
 #feed .k { display: inline-block; min-width: 76px; font-weight: 600; }
@@ -60,13 +64,13 @@ svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
 #trust-note { color: #777; font-size: 12px; margin: 6px 12px 0; }
 </style>
 </head>
-<body>
+<body data-live="0">
 <header>
   <h1>safety-supervisor</h1>
   <a id="fleet-link" href="__FLEET__" style="color:#fff">fleet</a>
   <span id="component" class="muted"></span>
   <span id="supervisor"></span>
-  <span id="quiet"></span>
+  <span id="quiet" hidden></span>
   <span id="conn" class="off">connecting</span>
 </header>
 <div id="trust">
@@ -118,7 +122,12 @@ ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE.</p>
 <script nonce="__NONCE__">
 "use strict";
 const SPARK_S = 30;          // seconds of values a sparkline shows
-const QUIET_S = 2.5;         // no status document for this long: the daemon is quiet
+// No status document for LIVE_PERIODS of the period the documents announce
+// (status_period_s, the daemon's ros.status_ms), at least LIVE_MIN_S: not live.  A
+// document without it (or /diagnostics alone) gets QUIET_DEFAULT_S, as the fleet does
+// (fleet.py; docs/reference/commands.md, ui).  Measured on this browser's clock, so a
+// broken stream is noticed as well as a dead daemon.
+const LIVE_PERIODS = 3, LIVE_MIN_S = 1.0, QUIET_DEFAULT_S = 3.0;
 const FEED_MAX = 200;
 const TOKEN_KEY = "safety-supervisor-ui-token";
 const BASE = "__BASE__";     // this robot's paths in the fleet ("" for the one robot)
@@ -234,10 +243,13 @@ function inputs() {
   }));
 }
 
+function quietAfter() {
+  const p = M.status ? num(M.status.status_period_s) : null;
+  return p ? Math.max(LIVE_PERIODS * p, LIVE_MIN_S) : QUIET_DEFAULT_S;
+}
+
 function render() {
   const st = M.status;
-  $("conn").textContent = M.connected ? "live" : "reconnecting";
-  $("conn").className = M.connected ? "" : "off";
   $("component").textContent = st ? String(st.component ?? "") : "";
   $("supervisor").textContent = st ? String(st.supervisor ?? "") : (M.diagAt ? "(from /diagnostics)" : "");
   renderTrust(); renderHealth(); renderRequirements(); renderInputs(); renderFeed(); renderOpView(); tick();
@@ -349,7 +361,7 @@ function renderOpView() {
   $("opview").innerHTML = s;
 }
 
-// Between updates: input ages and uptime tick, and a quiet daemon is said.
+// Between updates: input ages and uptime tick, and a quiet daemon is said (not live).
 function tick() {
   const t = now();
   const since = M.status ? (t - M.statusAt) / 1000 : (M.diagAt == null ? 0 : (t - M.diagAt) / 1000);
@@ -357,14 +369,18 @@ function tick() {
     if (el.dataset.age === "") continue;
     el.textContent = fmtAge(Number(el.dataset.age) + since);
   }
-  const up = $("uptime");
-  if (up && M.status) up.textContent = fmtDur((num(M.status.uptime_s) || 0) + since);
-  const quiet = $("quiet");
-  if (M.status && since > QUIET_S) {
-    quiet.style.display = ""; quiet.textContent = `no status for ${Math.floor(since)} s`;
-  } else {
-    quiet.style.display = "none";
-  }
+  // live: the stream is open and a document came within the bound
+  const heard = M.status != null || M.diagAt != null;
+  const quiet = heard && since > quietAfter();
+  const up = $("uptime");  // a supervisor not heard from has no uptime beyond its last document
+  if (up && M.status) up.textContent = fmtDur((num(M.status.uptime_s) || 0) + (quiet ? 0 : since));
+  const live = M.connected && heard && !quiet;
+  $("quiet").hidden = !quiet;
+  $("quiet").textContent = quiet ? `no status for ${Math.floor(since)} s` : "";
+  $("conn").textContent = !M.connected ? "reconnecting" : live ? "live" : quiet ? "not live" : "waiting for status";
+  $("conn").className = live ? "" : "off";
+  document.body.dataset.live = live ? "1" : "0";
+  document.body.classList.toggle("notlive", !live);
 }
 setInterval(tick, 200);
 

@@ -257,6 +257,7 @@ STATUS = record(
         "inputs": listof(INPUT, MAX_ITEMS),
         "events": listof(EVENT, MAX_EVENTS),
         "events_dropped": integer(),
+        "status_period_s": number(optional=True),
     },
     required=("schema", "supervisor"),
 )
