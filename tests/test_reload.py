@@ -121,6 +121,72 @@ def test_a_reload_is_answered_after_a_resets_deadline(
     assert time.monotonic() - t0 >= delay * 0.9
 
 
+CLIENT = """
+import socket, sys
+s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+s.settimeout(10)
+s.connect(sys.argv[1])
+s.sendall(sys.argv[2].encode() + b"\\n")
+data = b""
+while not data.endswith(b"\\n"):
+    chunk = s.recv(65536)
+    if not chunk:
+        break
+    data += chunk
+sys.stdout.write(data.decode())
+"""
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="runs a client as another user (needs root)")
+def test_an_operator_may_reset_but_not_reload() -> None:
+    """A member of the operators' group (here nobody in nogroup) is let in by the
+    socket's mode and may reset; only the daemon's user and root may reload."""
+    d = Path(tempfile.mkdtemp(prefix="ctl-"))
+    d.chmod(0o711)
+    srv = open_control(ControlConfig(socket=str(d / "c.sock"), group="nogroup", file="c.yaml"))
+    woken, stop = threading.Event(), threading.Event()
+
+    def loop() -> None:
+        while not stop.is_set():
+            woken.wait(0.05)
+            woken.clear()
+            for req in srv.take():
+                if req.refused:
+                    req.answer({"ok": False, "refused": req.refused, "message": req.detail})
+                else:
+                    req.answer({"ok": True, "message": f"{req.command} done"})
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    srv.start(woken.set)
+    try:
+
+        def as_nobody(command: str) -> dict[str, Any]:
+            r = subprocess.run(
+                ["/usr/bin/python3", "-c", CLIENT, srv.path, json.dumps({"command": command})],
+                capture_output=True,
+                text=True,
+                timeout=30,
+                user=65534,
+                group=65534,
+                extra_groups=[],
+            )
+            assert r.returncode == 0, r.stderr
+            doc = json.loads(r.stdout)
+            assert isinstance(doc, dict), doc
+            return doc
+
+        assert as_nobody("reset") == {"ok": True, "message": "reset done"}
+        refused = as_nobody("reload")
+        assert refused["refused"] == "permission" and "reload" in refused["message"], refused
+        assert _ask(srv.path, b'{"command": "reload"}\n')["ok"] is True  # root may
+    finally:
+        srv.close()
+        stop.set()
+        thread.join(5)
+        shutil.rmtree(d, ignore_errors=True)
+
+
 @pytest.mark.parametrize("command", ["reload", "reset"])
 @pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "soon"])
 def test_a_bad_timeout_is_a_usage_error(command: str, value: str) -> None:
