@@ -2,9 +2,10 @@
 
 The unit is checked by systemd's own tools (``systemd-analyze verify`` and
 ``security``), and its command lines are run here, outside systemd: ExecStart
-with NOTIFY_SOCKET bound by the test, ExecStartPre/ExecReload's ``check`` on
-the shipped config.  Paths are substituted by the installer's own renderer, so
-what is tested is what ``install-service`` writes.
+with NOTIFY_SOCKET bound by the test, ExecStartPre's ``check`` on the shipped
+config (ExecReload's ``reload`` runs under systemd in tests/test_systemd.py).
+Paths are substituted by the installer's own renderer, so what is tested is
+what ``install-service`` writes.
 """
 
 from __future__ import annotations
