@@ -30,6 +30,8 @@ from supervisor.tools.install import add_parser as add_install_parser
 from supervisor.tools.install import cmd_install_service
 from supervisor.tools.logs import add_parser as add_logs_parser
 from supervisor.tools.logs import cmd_logs
+from supervisor.tools.reload import add_parser as add_reload_parser
+from supervisor.tools.reload import cmd_reload
 from supervisor.tools.replay.command import add_parser as add_replay_parser
 from supervisor.tools.replay.command import cmd_replay
 from supervisor.tools.report.command import add_parser as add_report_parser
@@ -265,6 +267,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "logs": cmd_logs,
     "run": cmd_run,
     "reset": cmd_reset,
+    "reload": cmd_reload,
     "ui": cmd_ui,
     "install-service": cmd_install_service,
     "demo": cmd_demo,
@@ -328,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_logs_parser(sub)
     add_reset_parser(sub)
+    add_reload_parser(sub)
     add_ui_parser(sub)
     add_install_parser(sub)
     add_demo_parser(sub)

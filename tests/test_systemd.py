@@ -15,6 +15,7 @@ Debian mirror; skipped otherwise, except where ``SAFETY_SUPERVISOR_REQUIRE_SYSTE
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -47,6 +48,7 @@ PACKAGES = (
 UNIT = "safety-supervisor.service"
 CONTROL_SOCKET = "/run/safety-supervisor/control.sock"
 CONFIG = "/etc/safety-supervisor/supervisor.yaml"
+VIOLATION_LOG = "/var/log/safety-supervisor/violations.jsonl"
 NOT_SOURCE = shutil.ignore_patterns(
     ".git", "__pycache__", "*.egg-info", "build", "dist", ".*_cache", ".venv", "tests"
 )
@@ -398,25 +400,76 @@ def test_watchdog_restarts_a_stopped_daemon(machine: Machine) -> None:
     print(f"\nSIGSTOP to back in service (watchdog kill, restart, READY): {took:.2f} s")
 
 
+def _last_reload(m: Machine) -> dict[str, object]:
+    lines = m.ok("cat", VIOLATION_LOG).splitlines()
+    records = [json.loads(line) for line in lines if line.endswith("}")]
+    reloads = [r for r in records if r.get("what") == "reload"]
+    assert reloads, records[-5:]
+    return reloads[-1]
+
+
 def test_reload_good_and_bad_config(machine: Machine) -> None:
+    """``systemctl reload`` returns once the daemon has the new config in force
+    (ExecReload waits for its answer), and fails while the old one stays in
+    force for a config that fails check.  Each is checked once, right after
+    ``systemctl`` returns: the outcome is there, not on its way."""
     m = machine
     before = _ensure_started(m)
     pid = before["MainPID"]
     cursor = _cursor(m)
-    r = m.run("systemctl", "reload", UNIT, timeout=120)
-    assert r.returncode == 0, r.stderr
-    assert m.show("MainPID", "ActiveState")["MainPID"] == pid
     original = m.ok("cat", CONFIG)
+    host_config = m.root / CONFIG.lstrip("/")
     try:
-        m.ok("sh", "-c", f"printf 'requirements: [\\n' >> {CONFIG}")
+        edited = original + f"# reloaded by the systemd tier {uuid.uuid4().hex}\n"
+        host_config.write_text(edited)
+        new = hashlib.sha256(edited.encode()).hexdigest()
+        t0 = time.monotonic()
         r = m.run("systemctl", "reload", UNIT, timeout=120)
-        assert r.returncode != 0, "a config that fails check must fail the reload"
-        st = m.show("MainPID", "ActiveState", "SubState")
+        took_good = time.monotonic() - t0
+        assert r.returncode == 0, f"{r.stderr}\n{m.journal(cursor)[-3000:]}"
+        rec = _last_reload(m)
+        assert rec["ok"] is True and rec["config_sha256"] == new, rec
+        assert rec["via"] == "control_socket", rec
+        st = m.show("MainPID", "ActiveState", "SubState", "StatusText")
         assert (st["MainPID"], st["ActiveState"], st["SubState"]) == (pid, "active", "running")
+        assert st["StatusText"].startswith("reloaded:"), st
+
+        m.ok("sh", "-c", f"printf 'requirements: [\\n' >> {CONFIG}")
+        t0 = time.monotonic()
+        r = m.run("systemctl", "reload", UNIT, timeout=120)
+        took_bad = time.monotonic() - t0
+        assert r.returncode != 0, "a config that fails check must fail the reload"
+        rec = _last_reload(m)
+        assert rec["ok"] is False and f"{CONFIG}:" in str(rec["why"]), rec
+        assert rec["config_sha256"] == new, rec  # the previous config is in force
+        st = m.show("MainPID", "ActiveState", "SubState", "StatusText")
+        assert (st["MainPID"], st["ActiveState"], st["SubState"]) == (pid, "active", "running")
+        assert st["StatusText"].startswith("reload rejected:"), st
     finally:
-        (m.root / CONFIG.lstrip("/")).write_text(original)
+        host_config.write_text(original)
+    # ExecReload's one line and the daemon's reload records reach the journal
+    # (journald takes them in on its own time: polled).
+    refusal = "reload rejected, still running the previous config: " + CONFIG
+    _poll("ExecReload's refusal in the journal", 30, lambda: refusal in m.journal(cursor))
+    priorities: list[str] = []
+
+    def journalled() -> bool:
+        # Selected by the new config's hash, which both records carry, not by
+        # --after-cursor: journalctl 252 with a field match after a cursor
+        # missed the first of the two entries.
+        r = m.run("journalctl", "-u", UNIT, "WHAT=reload", "-o", "json", "--no-pager", timeout=30)
+        entries = [json.loads(x) for x in r.stdout.splitlines() if x.strip()]
+        priorities[:] = [e["PRIORITY"] for e in entries if e.get("CONFIG_SHA256") == new]
+        return len(priorities) >= 2
+
+    _poll("both reload records in the journal", 30, journalled)
+    assert priorities[-2:] == ["6", "3"], priorities  # info, then err (docs/reference/log.md)
     assert m.show("MainPID")["MainPID"] == pid
     assert "Traceback" not in m.journal(cursor)
+    print(
+        f"\nsystemctl reload: {took_good:.2f} s (good config, in force on return), "
+        f"{took_bad:.2f} s (broken config, refused)"
+    )
 
 
 def test_a_violation_reaches_the_journal_with_its_fields(machine: Machine) -> None:

@@ -39,12 +39,15 @@ from monitors.untrusted import Untrusted, load_json, printable
 from supervisor.config.model import ControlConfig
 from supervisor.names import OPERATORS_GROUP, daemon_control_socket
 
-COMMANDS = ("reset",)
+COMMANDS = ("reset", "reload")
 FIELDS = ("command", "requirement", "via", "client")
 MAX_FIELD = 200  # characters of requirement, via and client
 MAX_REQUEST = 4096  # bytes of one request line
 CLIENT_DEADLINE_S = 2.0  # from connect to the request line: a silent or slow client is dropped
 ANSWER_TIMEOUT_S = 5.0  # the loop answers within one iteration; the watchdog covers a hang
+# A reload is answered when the new config is in force or refused: validation
+# (analyses within their time budget) and the compile take seconds, not minutes.
+RELOAD_ANSWER_TIMEOUT_S = 300.0
 LINGER_S = 1.0  # after the answer: discard what the client still sends, until its EOF
 MAX_DISCARD = 1 << 20  # bytes discarded after a request line before the connection ends
 MAX_CLIENTS = 256  # connections served at once; the oldest without a request makes room
@@ -74,7 +77,7 @@ class Caller:
 class ControlRequest:
     """One request on its way from the socket thread to the loop and back."""
 
-    command: str
+    command: str  # "reset" or "reload"
     caller: Caller
     refused: str | None = None  # "permission" or "bad_request": the loop only reports it
     requirement: str | None = None  # reset one requirement; None: every one
@@ -375,6 +378,13 @@ class ControlServer:
             req.detail = f"uid {req.caller.uid} may not control the supervisor: " + (
                 f"not in group {self.group}" if self.group else "not its user or root"
             )
+        elif req.refused is None and req.command == "reload" and not _itself(req.caller):
+            # Operators reset; the config is the service's (systemctl reload runs
+            # ExecReload as the unit's user), so only that user and root reload.
+            req.refused = "permission"
+            req.detail = (
+                f"uid {req.caller.uid} may not reload the supervisor: only its user or root"
+            )
         req._client = client
         req._on_answer = self._on_answer
         with self._lock:
@@ -430,6 +440,8 @@ class ControlServer:
         command = doc.get("command")
         if command not in COMMANDS:
             return bad(f"unknown command {_shown(command)}; known: {', '.join(COMMANDS)}")
+        if command == "reload" and doc.get("requirement") is not None:
+            return bad("'requirement' belongs to reset; reload reloads the whole config")
         extra = {k: doc.get(k) for k in FIELDS if k != "command"}
         for key, value in extra.items():
             if value is not None and not (
@@ -441,7 +453,7 @@ class ControlServer:
     def _authorised(self, c: Caller) -> bool:
         """The same rule the socket file's mode expresses, checked on the peer's
         credentials: the kernel's check is on the file, this one on the caller."""
-        if c.uid in (0, os.geteuid()):
+        if _itself(c):
             return True
         if self.gid is None:
             return False
@@ -524,6 +536,11 @@ class _InUse(Exception):
     pass
 
 
+def _itself(c: Caller) -> bool:
+    """The caller is root or the daemon's own user."""
+    return c.uid in (0, os.geteuid())
+
+
 def _clear_stale(path: str) -> None:
     """Remove a socket left by a supervisor that died; refuse a live one or a non-socket."""
     try:
@@ -573,6 +590,7 @@ class _Client:
         self.fd = sock.fileno()
         self.caller = caller
         self.deadline = deadline
+        self.wait = ANSWER_TIMEOUT_S  # for the loop's answer, once the request is read
         self.state = "reading"  # -> waiting -> writing -> lingering
         self.events = selectors.EVENT_READ  # what the selector watches for it
         self.eof = False  # the client closed its side
@@ -639,7 +657,8 @@ class _Client:
             req = ControlRequest("?", self.caller, refused="bad_request", detail=why)
         self.buf = bytearray()
         self.state = "waiting"
-        self.deadline = time.monotonic() + ANSWER_TIMEOUT_S
+        self.wait = RELOAD_ANSWER_TIMEOUT_S if req.command == "reload" else ANSWER_TIMEOUT_S
+        self.deadline = time.monotonic() + self.wait
         srv._submit(self, req)
 
     def on_answer(self, srv: ControlServer, req: ControlRequest) -> None:
@@ -652,7 +671,7 @@ class _Client:
             why = f"no complete request line within {CLIENT_DEADLINE_S:g} s{got}"
             self._request(srv, None, why)
         elif self.state == "waiting":
-            self.reply(srv, _busy(f"no answer within {ANSWER_TIMEOUT_S:g} s"))
+            self.reply(srv, _busy(f"no answer within {self.wait:g} s"))
         else:  # writing or lingering: the client does not read or does not close
             srv._drop(self)
 

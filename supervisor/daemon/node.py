@@ -61,7 +61,7 @@ from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config, Variable
 from supervisor.daemon.clock import WallClock
-from supervisor.daemon.control import ControlServer, Refusals, ResetGate
+from supervisor.daemon.control import ControlRequest, ControlServer, Refusals, ResetGate
 from supervisor.daemon.core import Core
 from supervisor.daemon.diagnostics import diagnostic_array, input_status, requirement_status
 from supervisor.daemon.loss import OwnWrites, RecordingPublisher, SequenceStreams
@@ -140,6 +140,7 @@ class SupervisorNode:
         watchdog_s: float | None = None,
         control: ControlServer | None = None,
         recorder: Recorder | None = None,
+        reload: Callable[[], Session] | None = None,
     ) -> None:
         self.session = session
         self.log = log
@@ -156,6 +157,12 @@ class SupervisorNode:
         self._reload_request: Callable[[], Session] | None = None
         self._reload_thread: threading.Thread | None = None
         self._reload_result: Session | Exception | None = None
+        # The control socket's reload: how to prepare a session (run's, as for
+        # SIGHUP), the requests the next reload answers, and those the running one does.
+        self._reload_prepare = reload
+        self._reload_waiting: list[ControlRequest] = []
+        self._reload_answering: list[ControlRequest] = []
+        self._reload_started = 0  # monotonic ns of the running reload's RELOADING=1
         self._reopen_requests = 0  # SIGUSR1s received; counted, so none is lost
         self._reopens_done = 0
         self._retired: list[Any] = []  # subscriptions replaced by a QoS change
@@ -711,6 +718,9 @@ class SupervisorNode:
                     self._refusals.add(req.refused, _who(req.caller.record()))
                     req.answer({"ok": False, "refused": req.refused, "message": req.detail})
                     continue
+                if req.command == "reload":
+                    self._control_reload(req)
+                    continue
                 ok, message, refused = self.operator_reset(
                     via=req.via or "control_socket",
                     caller=req.caller.record(),
@@ -733,6 +743,19 @@ class SupervisorNode:
             counts = ", ".join(f"{n} {why}" for why, n in summary["refused"].items())
             warn(f"operator reset refused: {counts}")
             self.log.supervisor("reset_refused", **summary)
+
+    def _control_reload(self, req: ControlRequest) -> None:
+        """A reload asked for on the control socket: answered when the new config
+        is in force or refused (:meth:`_reload_step`), as ``systemctl reload``
+        needs.  A reload already running read the config before this request:
+        the request waits for the next one, which reads the file anew."""
+        if self._reload_prepare is None:
+            req.answer(
+                {"ok": False, "refused": "bad_request", "message": "reload is not available"}
+            )
+            return
+        self._reload_waiting.append(req)
+        self.request_reload(self._reload_prepare)
 
     def operator_reset(
         self,
@@ -886,6 +909,8 @@ class SupervisorNode:
             prepare, self._reload_request = self._reload_request, None
             # An old logrotate snippet sends SIGHUP: follow a rotated path all the same.
             self.log.reopen(only_if_moved=True)
+            self._reload_answering, self._reload_waiting = self._reload_waiting, []
+            self._reload_started = time.monotonic_ns()
             self.notifier.reloading(status="reloading configuration")
 
             def work() -> None:
@@ -900,15 +925,42 @@ class SupervisorNode:
         if self._reload_thread is not None and not self._reload_thread.is_alive():
             self._reload_thread = None
             result, self._reload_result = self._reload_result, None
+            requests, self._reload_answering = self._reload_answering, []
+            how = self._reload_how(requests)
             if isinstance(result, Session):
-                self._swap(result)
+                self._swap(result, how)
+                sha = result.config.sha256
+                n = len(result.requirements)
+                reply: dict[str, Any] = {
+                    "ok": True,
+                    "message": f"reloaded: monitoring {n} requirements, config sha256 {sha}",
+                    "config_sha256": sha,
+                }
             else:
-                why = str(result)
+                why = " ".join(str(result).splitlines())  # one line, wherever it came from
                 warn(f"reload rejected, still running the previous config: {why}")
-                self.log.supervisor("reload", ok=False, why=why)
+                self.log.supervisor("reload", ok=False, why=why, **how)
                 self.notifier.ready(status=f"reload rejected: {why} | {self.status_line()}")
+                reply = {
+                    "ok": False,
+                    "refused": "config",
+                    "message": f"reload rejected, still running the previous config: {why}",
+                    "config_sha256": self.session.config.sha256,
+                }
+            # After the record and READY=1: whoever waits sees the outcome everywhere.
+            for req in requests:
+                req.answer(reply)
 
-    def _swap(self, new: Session) -> None:
+    def _reload_how(self, requests: list[ControlRequest]) -> dict[str, Any]:
+        """The reload record's ``via`` (``signal`` or ``control_socket``), the
+        callers who asked on the socket, and how long the reload took."""
+        took = round((time.monotonic_ns() - self._reload_started) / 1e6, 3)
+        if not requests:
+            return {"via": "signal", "duration_ms": took}
+        callers = [r.caller.record() for r in requests]
+        return {"via": "control_socket", "callers": callers, "duration_ms": took}
+
+    def _swap(self, new: Session, how: dict[str, Any]) -> None:
         old = self.session
         rt_old, rt_new = old.runtime, new.runtime
         rt_new.adopt(rt_old)
@@ -935,7 +987,10 @@ class SupervisorNode:
             inputs=len(new.config.inputs),
             policy=new.config.step.policy,
             tick=new.runtime.tick,  # the first tick judged by the new monitor
+            **how,
         )
+        if new.config.ros.status_ms:  # the status topic names the new config at once
+            self._publish_status(time.monotonic_ns())
         self.notifier.ready(status=f"reloaded: monitoring {n} requirements | {self.status_line()}")
 
 

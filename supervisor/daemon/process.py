@@ -3,7 +3,9 @@
 Start-up order matters to systemd: the config is checked and the monitor
 compiled and loaded, subscriptions are created, and only then ``READY=1``.
 SIGTERM/SIGINT: ``STOPPING=1`` and a clean exit within 2 s.  SIGHUP: the
-config is reloaded; a config that fails the same checks as
+config is reloaded (``RELOADING=1``, then ``READY=1`` once the new config is
+in force or refused; ``safety-supervisor reload`` asks the same on the control
+socket and waits for the outcome); a config that fails the same checks as
 ``safety-supervisor check`` is rejected, the reason is logged and the running
 monitor continues untouched.  SIGUSR1: the violation log is reopened
 (logrotate), nothing else.  No signal is lost: one that arrives before the
@@ -214,6 +216,7 @@ def run_daemon(
             watchdog_s=watchdog_interval(),
             control=control,
             recorder=recorder,
+            reload=reload_session,  # `safety-supervisor reload` on the control socket
         )
         stack.callback(node.close)
         if stop_requested.is_set():

@@ -538,8 +538,9 @@ def make_plan(args: argparse.Namespace) -> Plan:
         f"the token in {TOKEN_FILE} (sudo cat it once per operator)."
     )
     next_steps.append(
-        f"After editing the config: systemctl reload {UNIT_NAME} (runs check first; a "
-        "config that fails check leaves the running monitor in place)."
+        f"After editing the config: systemctl reload {UNIT_NAME} (returns once the new "
+        "config is in force; a config that fails check is refused with its reason and the "
+        "running monitor stays in place)."
     )
     if not (shutil.which("cc") or shutil.which("gcc")):
         notes.append("no C compiler found: the daemon compiles its monitor at start; install gcc")

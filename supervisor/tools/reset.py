@@ -17,6 +17,7 @@ import contextlib
 import errno
 import grp
 import json
+import math
 import os
 import pwd
 import socket
@@ -30,6 +31,7 @@ from supervisor.names import client_control_socket
 
 MAX_ANSWER = 65536
 CONNECT_RETRY_S = 0.02
+MAX_TIMEOUT_S = 86400.0  # a day: beyond it, a typo
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -43,7 +45,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "if it exists, else the one `run` uses for this user and ROS_DOMAIN_ID)",
     )
     r.add_argument(
-        "--timeout", type=float, default=10.0, help="seconds to wait for the answer (default 10)"
+        "--timeout",
+        type=seconds_arg,
+        default=10.0,
+        help="seconds to wait for the answer (default 10)",
     )
     r.add_argument(
         "--requirement",
@@ -51,6 +56,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="reset this requirement only (default: every requirement)",
     )
+
+
+def seconds_arg(text: str) -> float:
+    """A ``--timeout``: a positive, finite number of seconds (argparse's usage error
+    otherwise, never the socket module's ValueError)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not math.isfinite(value) or value <= 0 or value > MAX_TIMEOUT_S:
+        raise argparse.ArgumentTypeError(
+            f"must be more than 0 and at most {MAX_TIMEOUT_S:g} seconds, not {text!r}"
+        )
+    return value
 
 
 def cmd_reset(args: argparse.Namespace) -> int:
