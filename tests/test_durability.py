@@ -1,0 +1,143 @@
+"""logging.durability (docs/reference/log.md): when the violation record is fsynced
+relative to the halt.
+
+- the key is checked where the config enters, one line with its position;
+- the writer: under ``after_publish`` a record made on the loop's thread is written
+  at once and fsynced at ``flush()``; under ``before_action`` before it returns
+  (the syscalls of a real child process, seen by strace);
+- the daemon under strace, with a real subscriber seeing the halt: the halt's DDS
+  send comes between the record's ``write`` and its ``fsync`` with
+  ``after_publish``, after the ``fsync`` with ``before_action``;
+- a daemon SIGKILLed right after the halt is seen: the record is in the file and
+  the hash chain verifies.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rosutil import ROOT, SROBOT
+
+needs_strace = pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "supervisor", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def with_durability(tmp_path: Path, value: str) -> tuple[Path, int]:
+    """srobot.yaml with ``logging.durability: value``; the key's line."""
+    text = SROBOT.read_text().replace("  recent: 10\n", f"  recent: 10\n  durability: {value}\n")
+    config = tmp_path / "c.yaml"
+    config.write_text(text)
+    return config, text.splitlines().index(f"  durability: {value}") + 1
+
+
+# ------------------------------------------------------------------ the config key
+
+
+@pytest.mark.parametrize("value", ["after_fsync", "'yes'", "1", "[before_action]", "''"])
+def test_a_bad_durability_is_one_line_at_its_key(tmp_path: Path, value: str) -> None:
+    config, line = with_durability(tmp_path, value)
+    r = run_cli("check", str(config))
+    assert r.returncode == 1, r
+    assert f"{config}:{line}: logging.durability must be one of after_publish, before_action" in (
+        r.stderr
+    )
+    assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("value", ["after_publish", "before_action"])
+def test_each_durability_is_accepted(tmp_path: Path, value: str) -> None:
+    from supervisor.config import load_config
+
+    config, _ = with_durability(tmp_path, value)
+    assert load_config(config).log_durability == value
+
+
+def test_the_default_durability_is_after_publish() -> None:
+    from supervisor.config import load_config
+
+    assert "durability" not in SROBOT.read_text()
+    assert load_config(SROBOT).log_durability == "after_publish"
+
+
+# ------------------------------------------------------------------ the writer's syscalls
+
+
+def _calls(trace: Path) -> list[tuple[int, str]]:
+    """(thread id, call) of each line of an ``strace -f -o`` file, in order; a call
+    strace had to split (``<unfinished ...>`` / ``<... resumed>``) counts where it
+    started."""
+    out = []
+    for ln in trace.read_text().splitlines():
+        m = re.match(r"(\d+)\s+(?:\d\d:\d\d:\d\d\.\d+\s+)?(.*)", ln)
+        if m and not m.group(2).startswith("<..."):
+            out.append((int(m.group(1)), m.group(2)))
+    return out
+
+
+@needs_strace
+@pytest.mark.parametrize("durability", ["after_publish", "before_action"])
+def test_the_writer_fsyncs_after_the_actions_or_before_them(
+    tmp_path: Path, durability: str
+) -> None:
+    """The daemon's loop in miniature: a violation on ``defer_thread``, the action
+    (here a marker write), then ``flush()``."""
+    path = tmp_path / "v.log"
+    child = textwrap.dedent(f"""
+        import os, threading
+        from mitigations.violationlog.writer import ViolationLog
+        log = ViolationLog({str(path)!r}, "sRobot", "00", echo=False,
+                           durability={durability!r})
+        log.defer_thread = threading.get_ident()
+        log.violation("R1", text="t", formula="f", tick=7, inputs={{"x": 1}})
+        os.write(1, b"THE-HALT\\n")
+        log.flush()
+        os.write(1, b"FLUSHED\\n")
+        log.close()
+    """)
+    trace = tmp_path / "strace.txt"
+    argv = ["strace", "-f", "-e", "trace=write,fsync,fdatasync", "-s", "120", "-o", str(trace)]
+    r = subprocess.run(
+        [*argv, sys.executable, "-c", child],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    if r.returncode != 0 and "ptrace" in r.stderr:
+        pytest.skip(f"strace cannot trace here: {r.stderr.strip()}")
+    assert r.returncode == 0, r.stderr
+    calls = [c for _, c in _calls(trace)]
+
+    def index(pred: Any) -> int:
+        return next(i for i, c in enumerate(calls) if pred(c))
+
+    write = index(lambda c: '"event\\":\\"violation' in c)
+    fd = calls[write].split("(")[1].split(",")[0]
+    halt = index(lambda c: "THE-HALT" in c)
+    flushed = index(lambda c: "FLUSHED" in c)
+    first_fsync = index(lambda c: c.startswith(f"fsync({fd})"))
+    assert write < halt < flushed
+    if durability == "after_publish":
+        assert halt < first_fsync < flushed, calls
+    else:
+        assert write < first_fsync < halt, calls
