@@ -14,7 +14,6 @@ relative to the halt.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
@@ -26,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-
 from rosutil import ROOT, SROBOT
 
 needs_strace = pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
@@ -141,3 +139,122 @@ def test_the_writer_fsyncs_after_the_actions_or_before_them(
         assert halt < first_fsync < flushed, calls
     else:
         assert write < first_fsync < halt, calls
+
+
+# ------------------------------------------------------------------ the daemon
+
+
+REQ103 = (
+    "on_violation: [record]\n"
+    "    policy: {debounce_steps: 1, cooldown_ms: 1000, reset: after_mitigation}\n"
+    "  - id: state_req201",
+    "on_violation: [stop_robot]\n"
+    "    policy: {debounce_steps: 1, cooldown_ms: 1000, reset: after_mitigation}\n"
+    "  - id: state_req201",
+)
+TRACED = "write,fsync,fdatasync,sendto,sendmsg,futex"
+
+
+def _halt_daemon(tmp_path: Path, durability: str | None, strace: Path | None = None) -> Any:
+    """The sRobot daemon whose state_req103 publishes the halt (every other
+    requirement only records), optionally under ``strace -f``."""
+    from rosutil import Daemon, variant
+
+    edits = [REQ103]
+    if durability is not None:
+        edits.append(("  recent: 10\n", f"  recent: 10\n  durability: {durability}\n"))
+    config = variant(tmp_path, *edits)
+
+    class Traced(Daemon):
+        def spawn(self, tmp: Path, argv: list[str], env: dict[str, str], *, cwd: Path) -> None:
+            if strace is not None:
+                argv = ["strace", "-f", "-tt", "-yy", "-s", "64", "-e", f"trace={TRACED}",
+                        "-o", str(strace), *argv]  # fmt: skip
+            super().spawn(tmp, argv, env, cwd=cwd)
+
+    d = Traced(tmp_path, config)
+    d.wait_notify("READY=1", timeout=60)
+    return d
+
+
+def _daemon_pid(d: Any) -> int:
+    """The daemon's own pid, in the group of its child process (under strace, the
+    group holds strace too)."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+            pgid = os.getpgid(int(entry.name))
+        except (OSError, ProcessLookupError):
+            continue
+        if (
+            pgid == d.proc.pid
+            and b"supervisor" in argv
+            and b"run" in argv
+            and b"strace" not in argv[0]
+        ):
+            return int(entry.name)
+    raise AssertionError(f"no daemon process in group {d.proc.pid}")
+
+
+def _see_the_halt(tmp_path: Path, robot_node: Any, d: Any) -> dict[str, Any]:
+    """Violate state_req103 until a real subscriber receives the halt (True on
+    /sRobotHalt); the violation record."""
+    from rosutil import Robot, spin_until
+    from std_msgs.msg import Bool
+
+    halts: list[bool] = []
+    robot_node.create_subscription(Bool, "/sRobotHalt", lambda m: halts.append(m.data), 10)
+    robot = Robot(robot_node)
+    v = robot.violate(
+        d, lambda r: r["event"] == "violation" and r["requirement"] == "state_req103", "violation"
+    )
+    spin_until(robot_node, "the halt", lambda: True in halts, 10)
+    return v
+
+
+def _is_dds_send(call: str) -> bool:
+    """A DDS sample leaving the process: a UDP datagram, or the wake-up of a reader
+    in another process through Fast DDS's shared-memory transport (a futex shared
+    between processes: Python's and the C library's own locks are private)."""
+    if call.startswith(("sendto(", "sendmsg(")):
+        return "<UDP" in call.split(",", 1)[0]
+    return call.startswith("futex(") and ", FUTEX_WAKE, " in call
+
+
+@pytest.mark.ros
+@needs_strace
+@pytest.mark.parametrize("durability", ["after_publish", "before_action"])
+def test_the_daemon_sends_the_halt_before_or_after_the_fsync(
+    tmp_path: Path, robot_node: Any, durability: str
+) -> None:
+    trace = tmp_path / "strace.txt"
+    d = _halt_daemon(tmp_path, None if durability == "after_publish" else durability, trace)
+    try:
+        v = _see_the_halt(tmp_path, robot_node, d)
+        os.kill(_daemon_pid(d), signal.SIGTERM)
+        d.wait_notify("STOPPING=1", timeout=20)
+        assert d.proc.wait(timeout=30) == 0, d.explain()
+    finally:
+        d.close()
+    calls = _calls(trace)
+    log = str(d.log)
+    # the violation record's write (its seq is unique in the line's first bytes)
+    at = next(
+        i
+        for i, (_, c) in enumerate(calls)
+        if c.startswith("write(") and log in c and '\\"event\\":\\"violation' in c
+    )
+    loop = calls[at][0]  # the daemon's monitoring thread
+    after = [(i, c) for i, (tid, c) in enumerate(calls) if i > at and tid == loop]
+    fsync = next(i for i, c in after if c.startswith("fsync(") and log in c)
+    send = next(i for i, c in after if _is_dds_send(c))
+    mitigation = next(i for i, c in after if '\\"event\\":\\"mitigation' in c)
+    shown = "\n".join(c for _, c in calls[at : max(fsync, send, mitigation) + 1])
+    assert send < mitigation, shown  # the halt is out before its record is made
+    if durability == "after_publish":
+        assert send < fsync, shown
+    else:
+        assert fsync < send, shown
+    assert v["requirement"] == "state_req103"
