@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from rosutil import ROOT, SROBOT
+from rosutil import ROOT, SROBOT, wait_until
 
 needs_strace = pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
 
@@ -155,9 +155,12 @@ REQ103 = (
 TRACED = "write,fsync,fdatasync,sendto,sendmsg,futex"
 
 
-def _halt_daemon(tmp_path: Path, durability: str | None, strace: Path | None = None) -> Any:
+def _halt_daemon(
+    tmp_path: Path, durability: str | None, strace: Path | None = None, inject: str = ""
+) -> Any:
     """The sRobot daemon whose state_req103 publishes the halt (every other
-    requirement only records), optionally under ``strace -f``."""
+    requirement only records), optionally under ``strace -f`` (``inject``: its
+    ``-e inject=`` fault)."""
     from rosutil import Daemon, variant
 
     edits = [REQ103]
@@ -169,6 +172,7 @@ def _halt_daemon(tmp_path: Path, durability: str | None, strace: Path | None = N
         def spawn(self, tmp: Path, argv: list[str], env: dict[str, str], *, cwd: Path) -> None:
             if strace is not None:
                 argv = ["strace", "-f", "-tt", "-yy", "-s", "64", "-e", f"trace={TRACED}",
+                        *(["-e", f"inject={inject}"] if inject else []),
                         "-o", str(strace), *argv]  # fmt: skip
             super().spawn(tmp, argv, env, cwd=cwd)
 
@@ -196,6 +200,14 @@ def _daemon_pid(d: Any) -> int:
         ):
             return int(entry.name)
     raise AssertionError(f"no daemon process in group {d.proc.pid}")
+
+
+def _state(pid: int) -> str:
+    """A process's state letter (Z: killed, not reaped yet), "" when it is gone."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return ""
 
 
 def _see_the_halt(tmp_path: Path, robot_node: Any, d: Any) -> dict[str, Any]:
@@ -258,3 +270,34 @@ def test_the_daemon_sends_the_halt_before_or_after_the_fsync(
     else:
         assert fsync < send, shown
     assert v["requirement"] == "state_req103"
+
+
+@pytest.mark.ros
+@needs_strace
+def test_a_daemon_killed_after_the_halt_leaves_the_record_and_an_intact_chain(
+    tmp_path: Path, robot_node: Any
+) -> None:
+    """The record's fsync is held back (strace delays every fsync by 3 s), so the
+    daemon is SIGKILLed after the halt and before the record reached the disk: what
+    survives is the page cache's copy, as after any crash of the process."""
+    trace = tmp_path / "strace.txt"
+    d = _halt_daemon(tmp_path, None, trace, inject="fsync:delay_enter=3000000")
+    try:
+        v = _see_the_halt(tmp_path, robot_node, d)
+        pid = _daemon_pid(d)
+        os.kill(pid, signal.SIGKILL)
+        # The kill takes effect when strace's delay ends, and then the fsync is
+        # skipped (a fatal signal is pending at the syscall's entry).
+        wait_until("the daemon's end", lambda: _state(pid) in ("Z", "X", ""), 30)
+        d.proc.wait(timeout=30)  # strace, once it has written its last lines
+    finally:
+        d.close()
+    # Only the log's writer fsyncs; a completed one (whole, or resumed) would mean
+    # the kill came after the record was on disk.
+    done = [ln for ln in trace.read_text().splitlines() if re.search(r"fsync.*\) = 0\b", ln)]
+    assert not done, f"an fsync returned before the kill: {done}"
+    lines = d.log.read_bytes().splitlines()
+    assert any(b'"event":"violation"' in ln and f'"seq":{v["seq"]}'.encode() in ln for ln in lines)
+    r = run_cli("logs", "--verify", str(d.log))
+    assert r.returncode == 0, r
+    assert "chain intact" in r.stdout, r.stdout
