@@ -99,6 +99,10 @@ def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> 
     out["breakdown"] = breakdown(plan, work / "breakdown", trials)
     # the same after 20 ms of idling before each violation, as in the daemon between trials
     out["breakdown_idle"] = breakdown(plan, work / "breakdown-idle", min(trials, 300), 20.0)
+    say(f"latency: the daemon's stages, durability after_publish, {trials} violations")
+    out["breakdown_after_publish"] = breakdown(
+        plan, work / "breakdown-after-publish", trials, durability="after_publish"
+    )
     out["thesis_mean_ms"] = THESIS_MEAN_MS
     out["tessla_mean_ms"] = TESSLA_MEAN_MS
     return out

@@ -582,17 +582,18 @@ def _format_loss(row: dict[str, Any]) -> str:
     )
 
 
-def _breakdown_markdown(lat: dict[str, Any]) -> list[str]:
-    """The daemon's stages as a table, and the latency goal against the floor."""
-    b = lat.get("breakdown")
+def _breakdown_markdown(lat: dict[str, Any], key: str = "breakdown") -> list[str]:
+    """The daemon's stages as a table (``key``: which breakdown)."""
+    b = lat.get(key)
     if not b:
         return []
-    idle = lat.get("breakdown_idle") or {}
+    idle = lat.get(f"{key}_idle") or {}
     cold = idle.get("stages_us", {})
     head = f"after {idle['idle_ms']:g} ms idle p50 µs" if idle else "after idle"
     out = [
         "",
-        f"The daemon's stages in one process, {b['trials']} violations back to back"
+        f"The daemon's stages in one process, durability {b.get('durability', 'before_action')}"
+        f", {b['trials']} violations back to back"
         + (f" and {idle['trials']} after {idle['idle_ms']:g} ms idle each" if idle else "")
         + ":",
         "",
@@ -611,17 +612,26 @@ def _breakdown_markdown(lat: dict[str, Any]) -> list[str]:
         f"| total | {_f(t['p50'], '.1f')} | {_f(t['p99'], '.1f')} | {_f(t['max'], '.1f')} "
         f"| {_f(c, '.1f') if c is not None else ''} | |"
     )
+    if "after_halt_us" in b:
+        a = b["after_halt_us"]
+        out.append(
+            f"| (after the halt) | {_f(a['p50'], '.1f')} | {_f(a['p99'], '.1f')} "
+            f"| {_f(a['max'], '.1f')} | | {a['what']} |"
+        )
+    if key == "breakdown":
+        out += _breakdown_markdown(lat, "breakdown_after_publish")
     return out
 
 
-def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
-    """The daemon's stages, and the goal: p50 within 1.3x of echo + fsync."""
-    b = lat.get("breakdown")
+def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any], key: str = "breakdown") -> list[str]:
+    """The daemon's stages (``key``: which breakdown)."""
+    b = lat.get(key)
     if not b:
         return []
-    idle = lat.get("breakdown_idle")
+    idle = lat.get(f"{key}_idle")
     lines = [
-        f"  the daemon's stages, in one process ({b['trials']} violations back to back"
+        f"  the daemon's stages, durability {b.get('durability', 'before_action')}, in one "
+        f"process ({b['trials']} violations back to back"
         + (f"; after {idle['idle_ms']:g} ms idle: {idle['trials']} more" if idle else "")
         + "), µs:"
     ]
@@ -638,6 +648,14 @@ def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
         f"    {'total':<11} p50 {_f(t['p50'], '.1f'):>7}  p99 {_f(t['p99'], '.1f'):>7}  "
         f"max {_f(t['max'], '.1f'):>8}{after}"
     )
+    if "after_halt_us" in b:
+        a = b["after_halt_us"]
+        lines.append(
+            f"    {'(after)':<11} p50 {_f(a['p50'], '.1f'):>7}  p99 {_f(a['p99'], '.1f'):>7}  "
+            f"max {_f(a['max'], '.1f'):>8}  {a['what']}"
+        )
+    if key == "breakdown":
+        lines += _format_breakdown(lat, fs, "breakdown_after_publish")
     return lines
 
 
