@@ -301,3 +301,38 @@ def test_a_daemon_killed_after_the_halt_leaves_the_record_and_an_intact_chain(
     r = run_cli("logs", "--verify", str(d.log))
     assert r.returncode == 0, r
     assert "chain intact" in r.stdout, r.stdout
+
+
+# ------------------------------------------------------------------ replay
+
+
+def test_replay_writes_the_daemons_order_under_either_durability(tmp_path: Path) -> None:
+    """Replay runs the daemon's core and writer: each violation's record comes before
+    its (dry-run) mitigation records, and the order does not depend on when the
+    fsync comes."""
+    from test_replay import CONFIG, messages, write_bag
+
+    from mitigations.violationlog.reader import iter_records
+
+    bag = write_bag(tmp_path / "bag", messages(7, 3000))
+    text = CONFIG.format(policy="on_message", trigger="", limit=2.0)
+    drop = ("ts", "_ts", "prev_sha256", "seq", "line_sha256", "config_sha256", "config")
+    runs = []
+    for mode in ("after_publish", "before_action"):
+        (tmp_path / mode).mkdir()
+        cfg = tmp_path / mode / "c.yaml"
+        cfg.write_text(text + f"logging: {{durability: {mode}}}\n")
+        out = tmp_path / mode / "v.jsonl"
+        r = run_cli("replay", str(cfg), str(bag), "-o", str(out))
+        assert r.returncode in (0, 1) and out.exists(), r.stderr  # 1: violations found
+        runs.append([{k: v for k, v in x.items() if k not in drop} for x in iter_records(str(out))])
+    assert runs[0] == runs[1]
+    seen: set[str] = set()
+    acted = 0
+    for x in runs[0]:
+        if x["event"] == "violation":
+            seen.add(x["requirement"])
+        elif x["event"] == "mitigation" and x.get("stage") == "violation":
+            assert x["requirement"] in seen, x  # its violation's record came first
+            acted += 1
+    assert acted
