@@ -141,6 +141,50 @@ def test_the_writer_fsyncs_after_the_actions_or_before_them(
         assert write < first_fsync < halt, calls
 
 
+def test_a_pending_fsync_is_done_before_the_durability_changes_or_the_file_does(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A reload may switch to before_action, logrotate may move the file, between a
+    record's write and the loop's flush(): neither leaves that record unsynced.
+    (The fsync call is counted at the writer's seam; the real order is shown by the
+    strace tests here.)"""
+    import threading
+
+    import mitigations.violationlog.writer as writer
+    from mitigations.violationlog.writer import ViolationLog
+
+    synced: list[int] = []
+    real = writer.os.fsync
+    monkeypatch.setattr(writer.os, "fsync", lambda fd: (synced.append(fd), real(fd))[1])
+    path = tmp_path / "v.log"
+    log = ViolationLog(path, "sRobot", "00", echo=False)
+    assert log.durability == "after_publish"
+    log.defer_thread = threading.get_ident()
+
+    def violation() -> None:
+        assert log.violation("R1", text="t", formula="f", tick=1, inputs={"x": 1})
+
+    violation()
+    assert synced == []  # written, its fsync waits for flush()
+    log.durability = "before_action"
+    assert len(synced) == 1
+    violation()
+    assert len(synced) == 2  # before_action: before the call returns
+    with pytest.raises(ValueError, match="after_publish, before_action"):
+        log.durability = "later"
+    log.durability = "after_publish"
+    violation()
+    assert len(synced) == 2
+    path.rename(tmp_path / "v.log.1")
+    assert log.reopen()
+    assert len(synced) == 3  # the old file's pending record, before it is left
+    log.flush()
+    assert len(synced) == 4  # the new file's link record (log_reopened)
+    log.close()
+    r = run_cli("logs", "--verify", str(tmp_path / "v.log.1"), str(path))
+    assert r.returncode == 0, r
+
+
 # ------------------------------------------------------------------ the daemon
 
 
