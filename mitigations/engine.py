@@ -72,8 +72,9 @@ class Engine:
                     stage=request.stage,
                 )
             elif getattr(action, "inline", False):
-                # A publish takes microseconds: done here, right after the fsynced
-                # violation record, instead of paying a thread handoff before the halt.
+                # A publish takes microseconds: done here, right after the violation
+                # record is written (and fsynced, under before_action), instead of
+                # paying a thread handoff before the halt.
                 self._run(name, request)
             else:
                 self._queues[name].put(request)

@@ -79,7 +79,10 @@ def test_bench_short_run() -> None:
     assert loss["gaps"] == row["daemon_counted_lost"]
 
     lat = r["latency"]
-    for who in ("echo", "daemon"):
+    # both logging.durability orders, side by side (docs/reference/log.md#durability)
+    assert lat["daemon"]["durability"] == "after_publish"
+    assert lat["daemon_before_action"]["durability"] == "before_action"
+    for who in ("echo", "daemon", "daemon_before_action"):
         st = lat[who]
         assert st["n"] + st["missed"] == 20, (who, st)
         assert st["n"] > 0
@@ -87,6 +90,7 @@ def test_bench_short_run() -> None:
     d = lat["daemon"]
     assert d["violation_records"] >= lat["warmup"] + d["n"]  # every halt had its record first
     _percentiles_sane(d["detect_to_publish_ms"])
+    _percentiles_sane(lat["daemon_before_action"]["detect_to_publish_ms"])
     _percentiles_sane(lat["fsync"])
     assert lat["thesis_mean_ms"] == 33.0 and lat["tessla_mean_ms"] == 15.0
 

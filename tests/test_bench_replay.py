@@ -167,5 +167,6 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     # the daemon's stages, as the text report has them
     stages = r["latency"]["breakdown"]["stages_us"]
     assert "| stage | p50 µs |" in md and "x the floor (goal: at most 1.3x)" in md
+    assert "after_publish: halt p50" in md and "| safety-supervisor (before_action) |" in md
     for name, st in stages.items():
         assert f"| {name} | {st['p50']:.1f} |" in md, name

@@ -4,7 +4,8 @@ Default QoS is reliable + transient_local (depth 1): a controller that starts,
 or restarts, after the violation still receives the latched halt.  The message
 is built once, at start (``check`` has already validated type and fields), so
 publishing costs one rclpy call, made inline on the monitoring loop right after the
-violation record is on disk (``inline``: no thread handoff before the halt).
+violation record is written (``inline``: no thread handoff before the halt; whether
+the record's fsync comes before is ``logging.durability``, docs/reference/log.md).
 """
 
 from __future__ import annotations

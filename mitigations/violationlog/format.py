@@ -57,6 +57,12 @@ HEADER = ("ts", "event", "component", "config_sha256", "prev_sha256", "seq")
 EMPTY_SHA256 = hashlib.sha256(b"").hexdigest()
 ZERO_SHA256 = "0" * 64
 EVENTS = ("violation", "mitigation", "reset", "supervisor")
+# logging.durability (docs/reference/log.md): when a durable record is fsynced relative
+# to the actions of the same turn of the daemon's loop.  after_publish: written
+# (page cache) before the actions, fsynced after the inline ones are out;
+# before_action: fsynced before any action.
+DURABILITIES = ("after_publish", "before_action")
+DURABILITY = "after_publish"
 RETRY_BUFFER = 1000  # records kept in memory while the log cannot be written (default)
 
 _LINE_HASH_RE = re.compile(rb',"line_sha256":"([0-9a-f]{64})"\}\n\Z')

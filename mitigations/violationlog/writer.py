@@ -8,8 +8,14 @@ verifies them.
 Writing: the file is opened ``O_WRONLY|O_APPEND|O_CREAT`` (mode 0640); each
 line is rendered completely and written with one ``os.write`` under a lock,
 so threads never interleave partial lines.  ``violation`` and ``mitigation``
-return only after ``os.fsync``: the contract requires a violation to be on
-disk before its mitigations run.  Only opening the log raises (``UserError``).
+records are fsynced; when is ``durability`` (``logging.durability``,
+docs/reference/log.md): ``before_action`` fsyncs before returning, so a violation
+is on disk before its mitigations run; ``after_publish`` (the default) returns
+once the line is written (in the page cache: a crash of the daemon does not lose
+it) when it is made on ``defer_thread`` (the daemon's loop), and :meth:`flush`,
+which the loop calls after the turn's actions are out, fsyncs it.  Records made
+on any other thread are fsynced before returning in either mode.  Only opening
+the log raises (``UserError``).
 
 A failure to write (a full disk) never raises and never waits: the record
 gets its ``seq`` and its time as usual, is echoed to stderr (the journal) as
@@ -46,6 +52,8 @@ import structlog
 from structlog.typing import EventDict, WrappedLogger
 
 from mitigations.violationlog.format import (
+    DURABILITIES,
+    DURABILITY,
     EMPTY_SHA256,
     HEADER,
     RETRY_BUFFER,
@@ -142,11 +150,13 @@ class ViolationLog:
         retry_buffer: int = RETRY_BUFFER,
         retry_interval_s: float = RETRY_INTERVAL_S,
         fsync: bool = True,
+        durability: str = DURABILITY,
     ) -> None:
         """``echo``: True for stderr (looked up at write time), a stream, or False.
         ``retry_buffer``: records kept in memory while the file cannot be written (>= 1).
         ``fsync``: False for a log written from a recording (``replay``): nothing is at
-        stake while it is written, so it is synced once, at close."""
+        stake while it is written, so it is synced once, at close.
+        ``durability``: one of ``DURABILITIES`` (see the module's docstring)."""
         self._path = Path(path)
         self._config_sha256 = config_sha256
         self._echo = echo
@@ -189,12 +199,15 @@ class ViolationLog:
         self._echoes: list[_Entry] = []  # records made under the lock, echoed after
         self._tail = b""
         self._sync_each = fsync
+        self._durability = _checked_durability(durability)
+        self._sync_due = False  # durable records written on defer_thread, not fsynced yet
         # Each record as rendered (its chain hash not yet filled in), for a copy
         # elsewhere: the daemon's recording (docs/reference/log.md).
         self.tee: Callable[[str], None] | None = None
-        # Records emitted on this thread are teed and echoed only at flush(): the
-        # daemon's loop sets it, so that a violation's halt follows its fsync without
-        # waiting for the journal and the copies (docs/reference/log.md).
+        # Records emitted on this thread are teed and echoed only at flush(), and under
+        # after_publish fsynced there: the daemon's loop sets it, so that a violation's
+        # halt follows its write without waiting for the disk, the journal and the
+        # copies (docs/reference/log.md).
         self.defer_thread: int | None = None
         self._deferred: list[tuple[str, _Entry | None, str, dict[str, Any]]] = []
         self._fd = self._open()
@@ -231,6 +244,18 @@ class ViolationLog:
             self._cap = max(1, int(value))
 
     @property
+    def durability(self) -> str:
+        return self._durability
+
+    @durability.setter
+    def durability(self, value: str) -> None:
+        checked = _checked_durability(value)
+        with self._lock:  # a reload may change it: nothing written stays unsynced
+            if self._sync_due:
+                self._fsync()
+            self._durability = checked
+
+    @property
     def config_sha256(self) -> str:
         return self._config_sha256
 
@@ -254,7 +279,8 @@ class ViolationLog:
         policy_state: Mapping[str, Any] | None = None,
         **extra: Any,
     ) -> bool:
-        """Write and fsync; returns True when the record is on disk."""
+        """Write and fsync (``durability`` says when); True when the record is
+        written, and fsynced unless that is deferred to :meth:`flush`."""
         fields = dict(
             requirement=requirement,
             text=text,
@@ -322,6 +348,8 @@ class ViolationLog:
                 )
                 self._flush_messages()
                 return False
+            if self._sync_due:  # the old file's last records, before leaving it
+                self._fsync()
             self._terminate_old(old_fd)
             old_prev, rotated = self._prev, True
             try:
@@ -516,7 +544,14 @@ class ViolationLog:
         return ok
 
     def flush(self) -> None:
-        """Tee and echo the records held back on ``defer_thread`` (call it there)."""
+        """Fsync what ``after_publish`` left unsynced, then tee and echo the records
+        held back on ``defer_thread`` (call it there, after the turn's actions)."""
+        if self._sync_due:
+            with self._lock:
+                if self._sync_due and self._fd is not None:
+                    self._fsync()
+            if self._messages:
+                self._flush_messages()
         if not self._deferred:
             return
         deferred, self._deferred = self._deferred, []
@@ -620,13 +655,14 @@ class ViolationLog:
                 break
             self._queue_lost()
         if wrote_durable and self._sync_each:
-            try:
-                os.fsync(self._fd)  # type: ignore[arg-type]
-            except OSError as e:
-                synced = False
-                self._messages.append(
-                    f"violation log: {self._path}: written but not fsynced: {e.strerror}"
-                )
+            if (
+                self._durability == "after_publish"
+                and self.defer_thread is not None
+                and threading.get_ident() == self.defer_thread
+            ):
+                self._sync_due = True  # flush() fsyncs it, after the actions are out
+            else:
+                synced = self._fsync()
         self._unsynced = not synced
         if self._outage and not self._queue and not self._lost:
             self._outage = False
@@ -635,6 +671,18 @@ class ViolationLog:
                 "were written late"
             )
             self._late = 0
+
+    def _fsync(self) -> bool:
+        """Fsync the file (under the lock); False, and a report, when it fails."""
+        self._sync_due = False
+        try:
+            os.fsync(self._fd)  # type: ignore[arg-type]
+        except OSError as e:
+            self._messages.append(
+                f"violation log: {self._path}: written but not fsynced: {e.strerror}"
+            )
+            return False
+        return True
 
     def _start_retrier(self) -> None:
         if self._retrier is not None or self._closed.is_set():
@@ -731,6 +779,14 @@ class ViolationLog:
             sys.stderr.flush()
         except (OSError, ValueError):
             pass
+
+
+def _checked_durability(value: str) -> str:
+    # The config loader validates logging.durability with its line; this guards
+    # the other callers (tools, tests).
+    if value not in DURABILITIES:
+        raise ValueError(f"durability must be one of {', '.join(DURABILITIES)}, not {value!r}")
+    return value
 
 
 def _add_seq(ranges: list[list[int]], seq: int) -> None:

@@ -27,7 +27,7 @@ from supervisor.config.requirements import check_on_violation, load_requirements
 from supervisor.config.ros import load_ros
 from supervisor.config.step import check_trigger, load_step
 from supervisor.config.variables import load_variables
-from supervisor.config.violation_log import load_violation_log
+from supervisor.config.violation_log import load_durability, load_violation_log
 from supervisor.config.yamlload import load_yaml
 
 TOP_KEYS = {
@@ -90,6 +90,7 @@ def load_config(path: str | Path) -> Config:
     requirements = load_requirements(doc, path, notes)
     mitigations = load_mitigations(doc)
     log_path, recent, log_retry_buffer = load_violation_log(doc)
+    log_durability = load_durability(doc)
     on_stale = load_on_stale(doc, mitigations)
     check_on_violation(requirements, mitigations)
     for r in requirements:
@@ -112,6 +113,7 @@ def load_config(path: str | Path) -> Config:
         log_path=log_path,
         recent=recent,
         log_retry_buffer=log_retry_buffer,
+        log_durability=log_durability,
         on_stale=on_stale,
         analysis=dict(analysis),
         ros=ros,

@@ -132,6 +132,7 @@ class Config:
     functions: dict[str, Function] = field(default_factory=dict)
     limits: Limits = field(default_factory=Limits)
     log_retry_buffer: int = 1000  # logging.retry_buffer
+    log_durability: str = "after_publish"  # logging.durability
     record: RecordConfig | None = None  # record: (None: no section; run --record may still record)
     # "file:line: note: ..." lines the loader found worth saying (an import leaving
     # requirements out); check prints them with its other notes.

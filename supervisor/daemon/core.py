@@ -233,8 +233,10 @@ class Core:
             "stale": rt.stale_inputs(),
             "policy_state": policy_state,
         }
-        # On disk (fsynced) before any action of this step is submitted: a record
-        # of every violation exists even if an action hangs the machine.
+        # Written before any action of this step is submitted: a record of every
+        # violation exists even if an action hangs the machine.  The log's
+        # durability decides whether it is also fsynced first (before_action) or
+        # once the inline actions are out (after_publish; docs/reference/log.md).
         self.log.violation(**record)
         self.violations += 1
         if self._published is not None:

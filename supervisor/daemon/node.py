@@ -18,9 +18,11 @@ wait timeout from the earliest deadline, so the monitor, its policies and the
 runtime are only ever touched by this one thread.
 
 Violations: the policy decides (debounce, cooldown, latch, reset, escalation,
-confirmation); a ``violation`` record is written and fsynced in the loop
-thread before its actions are handed to the engine's workers, so a slow action
-never delays the next step.  A monitor reset happens between two steps: no
+confirmation); a ``violation`` record is written in the loop thread before its
+actions are handed to the engine's workers, so a slow action never delays the
+next step; it is fsynced before the actions (``logging.durability:
+before_action``) or at the loop's ``log.flush()`` once the inline publish is out
+(``after_publish``, docs/reference/log.md).  A monitor reset happens between two steps: no
 tick is lost.
 
 Reload (SIGHUP): the new config is checked and compiled on a helper thread
@@ -401,7 +403,8 @@ class SupervisorNode:
     def _serve(self) -> None:
         ctx = self.node.context
         # This loop's records are echoed and teed at flush(), after each message's
-        # actions: the halt follows the fsync directly (docs/reference/log.md).
+        # actions, and under after_publish fsynced there: the halt follows the
+        # record's write directly (docs/reference/log.md).
         self.log.defer_thread = threading.get_ident()
         by_ptr: dict[int, _Sub] = {}
         with contextlib.ExitStack() as stack:
@@ -494,7 +497,7 @@ class SupervisorNode:
             self.core.fields(values, t)
         if self._unpublished:
             self._publish_reports()
-        self.log.flush()  # a violation's echo and copies, after its actions are out
+        self.log.flush()  # a violation's fsync, echo and copies, after its actions are out
         return True
 
     def _read(self, s: _Sub, msg: Any, t: int) -> list[tuple[str, Any]]:
@@ -972,6 +975,7 @@ class SupervisorNode:
         self.core.swap(new)  # kept policies go on where they were: latches stay
         self.log.config_sha256 = new.config.sha256
         self.log.retry_buffer = new.config.log_retry_buffer
+        self.log.durability = new.config.log_durability
         self.reloads += 1
         self._rebuild = True
         threading.Thread(target=old_engine.close, name="old-engine", daemon=True).start()

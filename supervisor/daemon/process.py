@@ -192,7 +192,13 @@ def run_daemon(
                 tempfile.TemporaryDirectory(prefix="safety-supervisor-ros-log-")
             )
         log = stack.enter_context(
-            ViolationLog(path, cfg.component, cfg.sha256, retry_buffer=cfg.log_retry_buffer)
+            ViolationLog(
+                path,
+                cfg.component,
+                cfg.sha256,
+                retry_buffer=cfg.log_retry_buffer,
+                durability=cfg.log_durability,
+            )
         )
         logs.append(log)
         log.supervisor("start", config=str(config), pid=os.getpid())

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import os
 import statistics
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -29,12 +30,25 @@ STAGES = (
     ("to_publish", "from the fsync's end to the halt publish (log bookkeeping, engine)"),
     ("publish", "rclpy publish of the halt"),
 )
+# logging.durability after_publish (the default, docs/reference/log.md#durability):
+# the halt follows the record's write, the fsync comes after it, off the halt's path.
+STAGES_AFTER_PUBLISH = (
+    ("step", "the values set, the C monitor stepped, the policies decided"),
+    ("render", "the violation record built, rendered as JSON, hash-chained and written"),
+    ("to_publish", "from the write's end to the halt publish (log bookkeeping, engine)"),
+    ("publish", "rclpy publish of the halt"),
+)
+AFTER_HALT = ("then_fsync", "after the halt: its mitigation record, then the fsync's end")
 
 
-def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict[str, Any]:
+def breakdown(
+    plan: Plan, work: Path, trials: int, idle_ms: float = 0.0, durability: str = "before_action"
+) -> dict[str, Any]:
     """Per stage, the median and p99 in µs over ``trials`` violations; ``idle_ms``:
     the process sleeps that long before each violation, as the daemon waits for
-    messages between two violations (its caches and the CPU go cold meanwhile)."""
+    messages between two violations (its caches and the CPU go cold meanwhile);
+    ``durability``: logging.durability, with the daemon's loop's flush() after each
+    message under after_publish."""
     import rclpy
     from rclpy.context import Context
 
@@ -51,12 +65,18 @@ def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=True)
     session = prepare_session(config, work / "build")
     cfg = session.config
-    log = ViolationLog(work / "violations.jsonl", cfg.component, cfg.sha256, echo=False)
+    log = ViolationLog(
+        work / "violations.jsonl", cfg.component, cfg.sha256, echo=False, durability=durability
+    )
+    after = durability == "after_publish"
+    if after:
+        log.defer_thread = threading.get_ident()  # as the daemon's loop (node.py)
+    stages = STAGES_AFTER_PUBLISH if after else STAGES
     ctx = Context()
     rclpy.init(context=ctx, domain_id=_private_domain())
     node = rclpy.create_node("bench_breakdown", context=ctx)
     marks: dict[str, int] = {}
-    samples: dict[str, list[float]] = {name: [] for name, _ in STAGES}
+    samples: dict[str, list[float]] = {name: [] for name, _ in (*stages, AFTER_HALT)}
 
     def mark(name: str) -> None:
         # the first time only: the mitigation record's own fsync comes after the halt
@@ -88,7 +108,9 @@ def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict
     real_fsync = writer.os.fsync
     core = Core(session, log, engine.submit)
     real_violation = log.violation
-    log.violation = around(real_violation, "recorded_start", None)  # type: ignore[method-assign]
+    log.violation = around(  # type: ignore[method-assign]
+        real_violation, "recorded_start", "recorded_end"
+    )
     try:
         writer.os.fsync = around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]
         values = [(name, plan.nominal[name]) for name in plan.nominal]
@@ -99,18 +121,26 @@ def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict
         for i in range(trials + warmup):
             t += 1_000_000
             core.fields(values, t)  # nominal: the policy re-arms
+            log.flush()
             t += 1_000_000
             if idle_ms:
                 time.sleep(idle_ms / 1e3)
             marks.clear()
             mark("start")
             core.fields(bad, t)
+            log.flush()  # the loop's, after the message: under after_publish, the fsync
             if "publish_end" not in marks or i < warmup:
                 continue
-            order = ["start", "recorded_start", "fsync_start", "fsync_end"]
-            order += ["publish_start", "publish_end"]
+            if after:
+                order = ["start", "recorded_start", "recorded_end", "publish_start"]
+                order += ["publish_end", "fsync_end"]
+                chain = (*stages, AFTER_HALT)
+            else:
+                order = ["start", "recorded_start", "fsync_start", "fsync_end"]
+                order += ["publish_start", "publish_end"]
+                chain = stages
             stamps = [marks[k] for k in order]
-            for (name, _), a, b in zip(STAGES, stamps, stamps[1:], strict=False):
+            for (name, _), a, b in zip(chain, stamps, stamps[1:], strict=False):
                 samples[name].append((b - a) / 1e3)
     finally:
         writer.os.fsync = real_fsync  # type: ignore[attr-defined]
@@ -121,12 +151,15 @@ def breakdown(plan: Plan, work: Path, trials: int, idle_ms: float = 0.0) -> dict
         if session.cleanup is not None:
             session.cleanup()
     out: dict[str, Any] = {"trials": len(samples["step"]), "idle_ms": idle_ms, "stages_us": {}}
+    out["durability"] = durability
     total = []
-    for name, what in STAGES:
+    for name, what in stages:
         v = sorted(samples[name])
         out["stages_us"][name] = {"what": what, **_stats(v)}
-    for parts in zip(*(samples[n] for n, _ in STAGES), strict=True):
-        total.append(sum(parts))
+    for parts in zip(*(samples[n] for n, _ in stages), strict=True):
+        total.append(sum(parts))  # detection to the halt: the stages after it left out
+    if after:
+        out["after_halt_us"] = {"what": AFTER_HALT[1], **_stats(sorted(samples[AFTER_HALT[0]]))}
     out["total_us"] = _stats(sorted(total))
     return out
 

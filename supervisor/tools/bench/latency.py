@@ -23,6 +23,8 @@ from supervisor.tools.bench.plan import (
 )
 from supervisor.tools.bench.session import Session
 
+# (result key, logging.durability) of the daemon's latency runs
+DURABILITY_RUNS = (("daemon", "after_publish"), ("daemon_before_action", "before_action"))
 THESIS_MEAN_MS = 33.0  # thesis: OGMA/Copilot node, violation -> halt, average
 TESSLA_MEAN_MS = 15.0  # thesis: TeSSLa-ROS-Bridge, average
 
@@ -67,30 +69,40 @@ def latency(s: Session, plan: Plan, trials: int, say: Callable[[str], None]) -> 
         echo.kill()
     out["echo"] = _latency_stats(result)
 
-    say(f"latency: daemon, {trials} trials")
-    dwork = work / "daemon"
-    dwork.mkdir()
-    config = plan.write_config(dwork / "config.yaml", dwork / "violations.jsonl", latency=True)
-    daemon = s.daemon(config, dwork)
-    try:
-        daemon.wait_ready(60)
-        log_args = ["--log", str(daemon.log), "--requirement", LATENCY_REQUIREMENT]
-        driver = s.child("driver", "driver", *driver_args, *log_args, workdir=dwork)
+    # Both orders of logging.durability in one run, side by side
+    # (docs/reference/log.md#durability): "daemon" is the default, after_publish.
+    for key, durability in DURABILITY_RUNS:
+        say(f"latency: daemon, durability {durability}, {trials} trials")
+        dwork = work / key
+        dwork.mkdir()
+        config = plan.write_config(
+            dwork / "config.yaml", dwork / "violations.jsonl", latency=True, durability=durability
+        )
+        daemon = s.daemon(config, dwork)
         try:
-            result = driver.wait_event("result", budget, (daemon, driver))
+            daemon.wait_ready(60)
+            log_args = ["--log", str(daemon.log), "--requirement", LATENCY_REQUIREMENT]
+            driver = s.child("driver", "driver", *driver_args, *log_args, workdir=dwork)
+            try:
+                result = driver.wait_event("result", budget, (daemon, driver))
+            finally:
+                driver.kill()
+            daemon.stop_cleanly()
+            records = daemon.records()
         finally:
-            driver.kill()
-        daemon.stop_cleanly()
-        records = daemon.records()
-    finally:
-        daemon.kill()
-    out["daemon"] = _latency_stats(result)
-    out["daemon"].update(_daemon_internals(records, warmup, result))
+            daemon.kill()
+        out[key] = _latency_stats(result)
+        out[key].update(_daemon_internals(records, warmup, result))
+        out[key]["durability"] = durability
     out["fsync"] = _fsync_times(s.tmp, out["daemon"].get("violation_record_bytes") or 2048)
     say(f"latency: the daemon's stages in one process, {trials} violations")
     out["breakdown"] = breakdown(plan, work / "breakdown", trials)
     # the same after 20 ms of idling before each violation, as in the daemon between trials
     out["breakdown_idle"] = breakdown(plan, work / "breakdown-idle", min(trials, 300), 20.0)
+    say(f"latency: the daemon's stages, durability after_publish, {trials} violations")
+    out["breakdown_after_publish"] = breakdown(
+        plan, work / "breakdown-after-publish", trials, durability="after_publish"
+    )
     out["thesis_mean_ms"] = THESIS_MEAN_MS
     out["tessla_mean_ms"] = TESSLA_MEAN_MS
     return out

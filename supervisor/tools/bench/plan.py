@@ -77,11 +77,14 @@ class Plan:
         assert isinstance(s, PublishSettings)  # checked by latency_problem()
         return s.topic, s.msg
 
-    def write_config(self, out: Path, log: Path, *, latency: bool) -> Path:
+    def write_config(
+        self, out: Path, log: Path, *, latency: bool, durability: str | None = None
+    ) -> Path:
         """A copy of the config for the daemon: inputs reliable with depth 1000 (the
         baselines' QoS), no on_stale (a stale halt would add messages nobody sent),
         the log in our temp dir, the ROS reset service on for the driver's handshake;
-        for latency, state_req103 acts at every violation."""
+        for latency, state_req103 acts at every violation; ``durability``:
+        logging.durability (None: the config's own)."""
         import yaml
 
         doc = yaml.safe_load(self.path.read_text())
@@ -94,6 +97,8 @@ class Plan:
                 spec["qos"], spec["depth"] = "reliable", DEPTH
         doc.pop("on_stale", None)
         doc.setdefault("logging", {})["violations"] = str(log)
+        if durability is not None:
+            doc["logging"]["durability"] = durability
         # The driver's handshake is a call of the ROS reset service, several per
         # trial: turn the service on and lift the operator-reset rate limit
         # (docs/reference/ros-interfaces.md); the socket stays in our temp dir.

@@ -471,18 +471,24 @@ def format_markdown(r: dict[str, Any]) -> str:
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
         ]
         d = lat["daemon"]
-        for label, st in (
-            ("bare rclpy echo", lat["echo"]),
-            ("safety-supervisor", d),
+        before = lat.get("daemon_before_action")
+        rows = [("bare rclpy echo", lat["echo"]), ("safety-supervisor (after_publish)", d)]
+        if before is not None:
+            rows.append(("safety-supervisor (before_action)", before))
+        rows += [
             ("daemon: trigger -> violation record", d["trigger_to_record_ms"]),
             ("daemon: detection -> halt published", d["detect_to_publish_ms"]),
-            (f"fsync of {lat['fsync']['bytes']} bytes", lat["fsync"]),
-        ):
+        ]
+        if before is not None:
+            rows.append(("before_action: detection -> halt", before["detect_to_publish_ms"]))
+        rows.append((f"fsync of {lat['fsync']['bytes']} bytes", lat["fsync"]))
+        for label, st in rows:
             out.append(
                 f"| {label} | {st.get('n', '')} | {_f(st['p50'], '.3f')} | {_f(st['p90'], '.3f')} "
                 f"| {_f(st['p99'], '.3f')} | {_f(st['max'], '.3f')} | {_f(st['mean'], '.3f')} "
                 f"| {st.get('missed', '')} |"
             )
+        out += ["", *_durability_goals(lat)]
         out += _breakdown_markdown(lat)
     if "replay" in r:
         rep = r["replay"]
@@ -576,17 +582,18 @@ def _format_loss(row: dict[str, Any]) -> str:
     )
 
 
-def _breakdown_markdown(lat: dict[str, Any]) -> list[str]:
-    """The daemon's stages as a table, and the latency goal against the floor."""
-    b = lat.get("breakdown")
+def _breakdown_markdown(lat: dict[str, Any], key: str = "breakdown") -> list[str]:
+    """The daemon's stages as a table (``key``: which breakdown)."""
+    b = lat.get(key)
     if not b:
         return []
-    idle = lat.get("breakdown_idle") or {}
+    idle = lat.get(f"{key}_idle") or {}
     cold = idle.get("stages_us", {})
     head = f"after {idle['idle_ms']:g} ms idle p50 µs" if idle else "after idle"
     out = [
         "",
-        f"The daemon's stages in one process, {b['trials']} violations back to back"
+        f"The daemon's stages in one process, durability {b.get('durability', 'before_action')}"
+        f", {b['trials']} violations back to back"
         + (f" and {idle['trials']} after {idle['idle_ms']:g} ms idle each" if idle else "")
         + ":",
         "",
@@ -605,25 +612,26 @@ def _breakdown_markdown(lat: dict[str, Any]) -> list[str]:
         f"| total | {_f(t['p50'], '.1f')} | {_f(t['p99'], '.1f')} | {_f(t['max'], '.1f')} "
         f"| {_f(c, '.1f') if c is not None else ''} | |"
     )
-    echo, daemon, fs = lat["echo"]["p50"], lat["daemon"]["p50"], lat["fsync"]["p50"]
-    if echo is not None and daemon is not None and fs is not None:
-        floor = echo + fs
-        out += [
-            "",
-            f"Floor (echo p50 + fsync p50) {floor:.3f} ms; daemon p50 {daemon:.3f} ms = "
-            f"{daemon / floor:.2f}x the floor (goal: at most 1.3x).",
-        ]
+    if "after_halt_us" in b:
+        a = b["after_halt_us"]
+        out.append(
+            f"| (after the halt) | {_f(a['p50'], '.1f')} | {_f(a['p99'], '.1f')} "
+            f"| {_f(a['max'], '.1f')} | | {a['what']} |"
+        )
+    if key == "breakdown":
+        out += _breakdown_markdown(lat, "breakdown_after_publish")
     return out
 
 
-def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
-    """The daemon's stages, and the goal: p50 within 1.3x of echo + fsync."""
-    b = lat.get("breakdown")
+def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any], key: str = "breakdown") -> list[str]:
+    """The daemon's stages (``key``: which breakdown)."""
+    b = lat.get(key)
     if not b:
         return []
-    idle = lat.get("breakdown_idle")
+    idle = lat.get(f"{key}_idle")
     lines = [
-        f"  the daemon's stages, in one process ({b['trials']} violations back to back"
+        f"  the daemon's stages, durability {b.get('durability', 'before_action')}, in one "
+        f"process ({b['trials']} violations back to back"
         + (f"; after {idle['idle_ms']:g} ms idle: {idle['trials']} more" if idle else "")
         + "), µs:"
     ]
@@ -640,12 +648,37 @@ def _format_breakdown(lat: dict[str, Any], fs: dict[str, Any]) -> list[str]:
         f"    {'total':<11} p50 {_f(t['p50'], '.1f'):>7}  p99 {_f(t['p99'], '.1f'):>7}  "
         f"max {_f(t['max'], '.1f'):>8}{after}"
     )
-    echo, daemon = lat["echo"]["p50"], lat["daemon"]["p50"]
-    if echo is not None and daemon is not None and fs["p50"] is not None:
-        floor = echo + fs["p50"]
+    if "after_halt_us" in b:
+        a = b["after_halt_us"]
         lines.append(
-            f"  floor (echo p50 + fsync p50) {floor:.3f} ms; daemon p50 {daemon:.3f} ms = "
-            f"{daemon / floor:.2f}x the floor (goal: at most 1.3x)"
+            f"    {'(after)':<11} p50 {_f(a['p50'], '.1f'):>7}  p99 {_f(a['p99'], '.1f'):>7}  "
+            f"max {_f(a['max'], '.1f'):>8}  {a['what']}"
+        )
+    if key == "breakdown":
+        lines += _format_breakdown(lat, fs, "breakdown_after_publish")
+    return lines
+
+
+def _ratio(a: float | None, b: float | None) -> str:
+    return "n/a" if a is None or b is None or b <= 0 else f"{a / b:.2f}x"
+
+
+def _durability_goals(lat: dict[str, Any]) -> list[str]:
+    """The halt-latency goals of each logging.durability (docs/reference/log.md):
+    after_publish against the DDS echo alone, before_action against echo + fsync."""
+    echo, d, fs = lat["echo"], lat["daemon"], lat["fsync"]
+    lines = [
+        f"after_publish: halt p50 {_f(d['p50'], '.3f')} ms = {_ratio(d['p50'], echo['p50'])} "
+        f"the echo p50 (goal: at most 1.3x); p99 {_f(d['p99'], '.3f')} ms = "
+        f"{_ratio(d['p99'], echo['p99'])} the echo p99 (goal: at most 1.5x)"
+    ]
+    before = lat.get("daemon_before_action")
+    if before is not None and echo["p50"] is not None and fs["p50"] is not None:
+        floor = echo["p50"] + fs["p50"]
+        lines.append(
+            f"before_action: floor (echo p50 + fsync p50) {floor:.3f} ms; halt p50 "
+            f"{_f(before['p50'], '.3f')} ms = {_ratio(before['p50'], floor)} the floor "
+            "(goal: at most 1.3x)"
         )
     return lines
 
@@ -657,8 +690,12 @@ def _format_latency(lat: dict[str, Any]) -> list[str]:
         f"  {'responder':<22} {'n':>5} {'p50 ms':>7} {'p90 ms':>7} {'p99 ms':>7} {'max ms':>7} "
         f"{'mean ms':>7} {'missed':>6}",
     ]
-    for label, key in (("bare rclpy echo", "echo"), ("safety-supervisor", "daemon")):
-        st = lat[key]
+    runs = [("bare rclpy echo", "echo"), ("supervisor after_publish", "daemon")]
+    runs += [("supervisor before_action", "daemon_before_action")]
+    for label, key in runs:
+        st = lat.get(key)
+        if st is None:  # a result from before the durability runs
+            continue
         lines.append(
             f"  {label:<22} {st['n']:>5} {_f(st['p50'], '.3f'):>7} {_f(st['p90'], '.3f'):>7} "
             f"{_f(st['p99'], '.3f'):>7} {_f(st['max'], '.3f'):>7} {_f(st['mean'], '.3f'):>7} "
@@ -680,6 +717,7 @@ def _format_latency(lat: dict[str, Any]) -> list[str]:
         f"p50 {_f(fs['p50'], '.3f')} ms, p99 {_f(fs['p99'], '.3f')} ms, "
         f"max {_f(fs['max'], '.3f')} ms"
     )
+    lines += ["  " + g for g in _durability_goals(lat)]
     lines += _format_breakdown(lat, fs)
     if (
         d["other_violations"]

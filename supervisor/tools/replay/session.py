@@ -69,7 +69,14 @@ def run_one(
         out = None
         if output is not None:
             output.parent.mkdir(parents=True, exist_ok=True)
-            out = ViolationLog(output, cfg.component, cfg.sha256, echo=False, fsync=False)
+            out = ViolationLog(
+                output,
+                cfg.component,
+                cfg.sha256,
+                echo=False,
+                fsync=False,
+                durability=cfg.log_durability,
+            )
             out.supervisor(
                 "replay", config=str(config), recordings=[str(p) for p in paths], dry_run=True
             )
