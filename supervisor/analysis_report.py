@@ -8,6 +8,7 @@ reference interpreter's verdict per requirement), and what to change.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -27,6 +28,7 @@ from monitors.verify.analysis import (
     analyse,
 )
 from monitors.verify.interpret import Value
+from supervisor.cache import Cache
 from supervisor.config import Config
 from supervisor.pipeline import Project, project_for
 
@@ -161,9 +163,14 @@ class Validation:
     project: Project
     analysis: Analysis | None
     skipped: str | None
-    # The analyses' errors when they ran in a child process (run, reload): only
-    # the findings come back, not the solver.
+    # The analyses' errors when they ran in a child process (run, reload) or come
+    # from the start-up cache: only the findings, not the solver.
     child_errors: list[Finding] | None = None
+    # The start-up cache (supervisor/cache.py) and this project's key in it; the
+    # analyses' printed report when it came from the cache.
+    cache: Cache | None = None
+    key: str | None = None
+    report: str | None = None
 
     @property
     def errors(self) -> list[Finding]:
@@ -194,13 +201,94 @@ class Validation:
 def validate(path: str | Path, k: int | None = None) -> Validation:
     """The one validation of a config, for ``check``, ``run`` and reload alike (the
     daemon through :class:`Aside`)."""
-    project = project_for(path)
+    return validate_project(project_for(path), k)
+
+
+def validate_project(
+    project: Project,
+    k: int | None = None,
+    startup: tuple[Cache | None, str | None] | None = None,
+) -> Validation:
+    """:func:`validate` of a loaded project: the analyses' findings from the start-up
+    cache when it holds them, else the analyses (whose complete results are stored)."""
     if not project.ok:
         return Validation(project, None, "the config has errors")
+    cache, key = startup if startup is not None else startup_key(project, k)
+    if not analysis_settings(project.config)[2]:
+        return Validation(project, None, "analysis.enabled is false", cache=cache, key=key)
+    cached = cached_findings(project, cache, key)
+    if cached is not None:
+        return cached
     analysis = analyse_project(project, k)
-    if analysis is None:
-        return Validation(project, None, "analysis.enabled is false")
-    return Validation(project, analysis, _partial(analysis.findings))
+    assert analysis is not None  # enabled, as judged above
+    checked = Validation(project, analysis, _partial(analysis.findings), cache=cache, key=key)
+    if cache is not None and key is not None and checked.skipped is None:
+        # Only a complete analysis: one the time budget cut short may finish next time.
+        found = [_finding_json(f) for f in analysis.findings]
+        doc = {"report": format_analysis(analysis), "findings": found}
+        cache.put(key, FINDINGS, json.dumps(doc).encode())
+    return checked
+
+
+# ------------------------------------------------------------------ start-up cache
+
+FINDINGS = "findings.json"
+_FINDING_KEYS = ("kind", "severity", "requirements", "message", "fix")
+
+
+def _finding_json(f: Finding) -> dict[str, Any]:
+    return {key: getattr(f, key) for key in _FINDING_KEYS}
+
+
+def startup_key(project: Project, k: int | None) -> tuple[Cache | None, str | None]:
+    """The start-up cache and the project's key in it: the config file's hash, the
+    monitor's C, the compiler, cffi and Python (build_identity), everything the
+    analyses read, their settings and this package's version.  (None, None)
+    without a cache (no ``STATE_DIRECTORY``)."""
+    cache = Cache.open()
+    if cache is None:
+        return None, None
+    from importlib.metadata import version
+
+    from monitors.backends.build import build_identity
+    from monitors.backends.c99 import generate
+
+    cfg = project.config
+    spec = project.spec()
+    reqs, roles = project_requirements(project)
+    limits = (cfg.limits.analysis_budget_s, cfg.limits.analysis_memory_mb)
+    h = hashlib.sha256()
+    for part in (
+        "safety-supervisor start-up cache 1",
+        version("safety-supervisor"),
+        cfg.sha256,
+        *generate(spec),
+        build_identity(spec, reset=True, reset_each=True),
+        repr(reqs),
+        repr(roles),
+        repr((analysis_settings(cfg), k, limits)),
+    ):
+        h.update(part.encode() + b"\0")
+    return cache, h.hexdigest()
+
+
+def cached_findings(project: Project, cache: Cache | None, key: str | None) -> Validation | None:
+    """The validation from the analyses' cached findings, or None on a miss."""
+    if cache is None or key is None:
+        return None
+    data = cache.read(key, FINDINGS)
+    if data is None:
+        return None
+    try:
+        doc = json.loads(data)
+        findings = [
+            Finding(**{**f, "requirements": tuple(f["requirements"])}) for f in doc["findings"]
+        ]
+        report = str(doc["report"])
+    except (ValueError, KeyError, TypeError):
+        return None  # ours and intact, yet not what this version writes: analyse again
+    errors = [f for f in findings if f.severity == "error"]
+    return Validation(project, None, None, errors, cache=cache, key=key, report=report)
 
 
 def _partial(findings: list[Finding]) -> str | None:
@@ -240,12 +328,20 @@ class Aside:
         self.project = project_for(path)
         self._proc: subprocess.Popen[bytes] | None = None
         self._done: Validation | None = None
+        self.cache: Cache | None = None
+        self.key: str | None = None
         if not self.project.ok:
             self._done = Validation(self.project, None, "the config has errors")
-        elif not analysis_settings(self.project.config)[2]:
+            return
+        self.cache, self.key = startup_key(self.project, k)
+        if not analysis_settings(self.project.config)[2]:
             self._done = Validation(self.project, None, "analysis.enabled is false")
+        elif (hit := cached_findings(self.project, self.cache, self.key)) is not None:
+            self._done = hit
         elif _unrolling_cells(self.project, k) <= IN_PROCESS_CELLS:
-            self._done = validate(path, k)  # small: not worth a process start
+            self._done = validate_project(
+                self.project, k, (self.cache, self.key)
+            )  # small: not worth a process start
             if self._done.analysis is not None:
                 self._done.analysis.find_examples = None  # nothing asks the solver again
         else:
