@@ -278,9 +278,15 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from supervisor.analysis_report import k_arg
+def k_arg(text: str) -> int:
+    """``--k``: the analyses' module is imported only when the option is used, so
+    ``--help`` stays light (docs/BENCHMARKS.md, "Start-up")."""
+    from supervisor.analysis_report import k_arg as parse
 
+    return parse(text)
+
+
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="safety-supervisor",
         description="Runtime-verification safety supervisor for ROS 2 robots.",
