@@ -25,7 +25,6 @@ from monitors.verify.analysis import (
     Req,
     VarInfo,
     activation,
-    analyse,
 )
 from monitors.verify.interpret import Value
 from supervisor.cache import Cache
@@ -140,6 +139,8 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
     cfg_k, timeout, enabled = analysis_settings(project.config)
     if not enabled:
         return None
+    from monitors.verify.analysis import analyse  # z3: only when the analyses run
+
     reqs, roles = project_requirements(project)
     limits = project.config.limits
     return analyse(
@@ -201,19 +202,22 @@ class Validation:
 def validate(path: str | Path, k: int | None = None) -> Validation:
     """The one validation of a config, for ``check``, ``run`` and reload alike (the
     daemon through :class:`Aside`)."""
-    return validate_project(project_for(path), k)
+    cache = open_cache()
+    return validate_project(project_for(path), k, cache)
 
 
 def validate_project(
     project: Project,
     k: int | None = None,
-    startup: tuple[Cache | None, str | None] | None = None,
+    cache: Cache | None = None,
+    key: str | None = None,
 ) -> Validation:
     """:func:`validate` of a loaded project: the analyses' findings from the start-up
     cache when it holds them, else the analyses (whose complete results are stored)."""
     if not project.ok:
         return Validation(project, None, "the config has errors")
-    cache, key = startup if startup is not None else startup_key(project, k)
+    if key is None:
+        cache, key = startup_key(project, k, cache)
     if not analysis_settings(project.config)[2]:
         return Validation(project, None, "analysis.enabled is false", cache=cache, key=key)
     cached = cached_findings(project, cache, key)
@@ -240,12 +244,24 @@ def _finding_json(f: Finding) -> dict[str, Any]:
     return {key: getattr(f, key) for key in _FINDING_KEYS}
 
 
-def startup_key(project: Project, k: int | None) -> tuple[Cache | None, str | None]:
-    """The start-up cache and the project's key in it: the config file's hash, the
-    monitor's C, the compiler, cffi and Python (build_identity), everything the
-    analyses read, their settings and this package's version.  (None, None)
-    without a cache (no ``STATE_DIRECTORY``)."""
+def open_cache() -> Cache | None:
+    """The start-up cache (None without one); the parsers keep their tables in it
+    too, so open it before the config is read."""
     cache = Cache.open()
+    if cache is not None:
+        from monitors.ir.formula import use_parser_cache
+
+        use_parser_cache(cache.root)
+    return cache
+
+
+def startup_key(
+    project: Project, k: int | None, cache: Cache | None
+) -> tuple[Cache | None, str | None]:
+    """``cache`` and the project's key in it: the config file's hash, the monitor's
+    C, the compiler, cffi and Python (build_identity), everything the analyses
+    read, their settings and this package's version.  (None, None) without a
+    cache (no ``STATE_DIRECTORY``)."""
     if cache is None:
         return None, None
     from importlib.metadata import version
@@ -325,6 +341,7 @@ class Aside:
 
         from supervisor.children import child_env, start
 
+        cache = open_cache()
         self.project = project_for(path)
         self._proc: subprocess.Popen[bytes] | None = None
         self._done: Validation | None = None
@@ -333,15 +350,14 @@ class Aside:
         if not self.project.ok:
             self._done = Validation(self.project, None, "the config has errors")
             return
-        self.cache, self.key = startup_key(self.project, k)
+        self.cache, self.key = startup_key(self.project, k, cache)
         if not analysis_settings(self.project.config)[2]:
             self._done = Validation(self.project, None, "analysis.enabled is false")
         elif (hit := cached_findings(self.project, self.cache, self.key)) is not None:
             self._done = hit
         elif _unrolling_cells(self.project, k) <= IN_PROCESS_CELLS:
-            self._done = validate_project(
-                self.project, k, (self.cache, self.key)
-            )  # small: not worth a process start
+            # Small: not worth a process start.
+            self._done = validate_project(self.project, k, self.cache, self.key)
             if self._done.analysis is not None:
                 self._done.analysis.find_examples = None  # nothing asks the solver again
         else:

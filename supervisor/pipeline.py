@@ -14,7 +14,6 @@ import random
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from mitigations.actions.ssh import preflight
 from mitigations.rosmsg import build_message, message_class
 from mitigations.settings import PublishSettings, SshSettings
 from monitors.backends.build import build_library
@@ -297,6 +296,8 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
                     "robot's state; prefer a command topic the robot echoes on its own topic"
                 )
         if isinstance(s, SshSettings):
+            from mitigations.actions.ssh import preflight  # paramiko: only for ssh mitigations
+
             for problem in preflight(s):
                 warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
     return errors, warnings

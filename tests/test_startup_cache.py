@@ -134,12 +134,12 @@ def test_cffi_and_python_abi_are_in_the_key(
 ) -> None:
     # No second cffi or Python on this machine: the key is computed in-process
     # with the one component swapped, everything else real.
-    from supervisor.analysis_report import startup_key
+    from supervisor.analysis_report import open_cache, startup_key
     from supervisor.pipeline import project_for
 
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     project = project_for(SROBOT)
-    _, before = startup_key(project, None)
+    _, before = startup_key(project, None, open_cache())
     if part == "cffi":
         from importlib import metadata
 
@@ -149,7 +149,7 @@ def test_cffi_and_python_abi_are_in_the_key(
         )
     else:
         monkeypatch.setattr(sys.implementation, "cache_tag", "cpython-0", raising=False)
-    _, after = startup_key(project, None)
+    _, after = startup_key(project, None, open_cache())
     assert before is not None and after is not None and before != after
 
 
