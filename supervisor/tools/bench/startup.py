@@ -64,6 +64,7 @@ def run_startup(
 ) -> dict[str, Any]:
     """Every figure of ``bench --startup``; see the module's description."""
     say = progress or (lambda _text: None)
+    config = config.resolve()  # the daemon runs in a directory of its own
     cli = _cli()
     out: dict[str, Any] = {"config": str(config), "runs": runs, "goals_s": GOALS_S}
     with session(domain_id) as s:
