@@ -229,3 +229,23 @@ def test_without_a_state_directory_nothing_is_cached(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stdout + r.stderr
     assert s.compiles() > 0
     assert not (s.state / "cache").exists()
+
+
+def test_the_parsers_tables_are_kept_and_damaged_ones_rebuilt(site: Site) -> None:
+    tables = sorted((site.state / "cache").glob("lark-*.tables"))
+    assert len(tables) == 2  # FRETISH and FRET's formula text
+    for t in tables:
+        t.write_bytes(t.read_bytes()[:100])
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stderr.strip() == "", r.stderr  # lark checks them and builds them again
+    assert all(t.stat().st_size > 1000 for t in tables)
+
+
+def test_parser_tables_others_can_write_are_not_loaded(site: Site) -> None:
+    (table, *_) = sorted((site.state / "cache").glob("lark-*.tables"))
+    table.write_bytes(b"not lark's")
+    table.chmod(0o666)
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert table.read_bytes() == b"not lark's"  # neither read nor replaced
