@@ -8,6 +8,7 @@ reference interpreter's verdict per requirement), and what to change.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -24,9 +25,9 @@ from monitors.verify.analysis import (
     Req,
     VarInfo,
     activation,
-    analyse,
 )
 from monitors.verify.interpret import Value
+from supervisor.cache import Cache
 from supervisor.config import Config
 from supervisor.pipeline import Project, project_for
 
@@ -138,6 +139,8 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
     cfg_k, timeout, enabled = analysis_settings(project.config)
     if not enabled:
         return None
+    from monitors.verify.analysis import analyse  # z3: only when the analyses run
+
     reqs, roles = project_requirements(project)
     limits = project.config.limits
     return analyse(
@@ -161,9 +164,14 @@ class Validation:
     project: Project
     analysis: Analysis | None
     skipped: str | None
-    # The analyses' errors when they ran in a child process (run, reload): only
-    # the findings come back, not the solver.
+    # The analyses' errors when they ran in a child process (run, reload) or come
+    # from the start-up cache: only the findings, not the solver.
     child_errors: list[Finding] | None = None
+    # The start-up cache (supervisor/cache.py) and this project's key in it; the
+    # analyses' printed report when it came from the cache.
+    cache: Cache | None = None
+    key: str | None = None
+    report: str | None = None
 
     @property
     def errors(self) -> list[Finding]:
@@ -194,13 +202,109 @@ class Validation:
 def validate(path: str | Path, k: int | None = None) -> Validation:
     """The one validation of a config, for ``check``, ``run`` and reload alike (the
     daemon through :class:`Aside`)."""
-    project = project_for(path)
+    cache = open_cache()
+    return validate_project(project_for(path), k, cache)
+
+
+def validate_project(
+    project: Project,
+    k: int | None = None,
+    cache: Cache | None = None,
+    key: str | None = None,
+) -> Validation:
+    """:func:`validate` of a loaded project: the analyses' findings from the start-up
+    cache when it holds them, else the analyses (whose complete results are stored)."""
     if not project.ok:
         return Validation(project, None, "the config has errors")
+    if key is None:
+        cache, key = startup_key(project, k, cache)
+    if not analysis_settings(project.config)[2]:
+        return Validation(project, None, "analysis.enabled is false", cache=cache, key=key)
+    cached = cached_findings(project, cache, key)
+    if cached is not None:
+        return cached
     analysis = analyse_project(project, k)
-    if analysis is None:
-        return Validation(project, None, "analysis.enabled is false")
-    return Validation(project, analysis, _partial(analysis.findings))
+    assert analysis is not None  # enabled, as judged above
+    checked = Validation(project, analysis, _partial(analysis.findings), cache=cache, key=key)
+    if cache is not None and key is not None and checked.skipped is None:
+        # Only a complete analysis: one the time budget cut short may finish next time.
+        found = [_finding_json(f) for f in analysis.findings]
+        doc = {"report": format_analysis(analysis), "findings": found}
+        cache.put(key, FINDINGS, json.dumps(doc).encode())
+    return checked
+
+
+# ------------------------------------------------------------------ start-up cache
+
+FINDINGS = "findings.json"
+_FINDING_KEYS = ("kind", "severity", "requirements", "message", "fix")
+
+
+def _finding_json(f: Finding) -> dict[str, Any]:
+    return {key: getattr(f, key) for key in _FINDING_KEYS}
+
+
+def open_cache() -> Cache | None:
+    """The start-up cache (None without one); the parsers keep their tables in it
+    too, so open it before the config is read."""
+    cache = Cache.open()
+    if cache is not None:
+        from monitors.ir.formula import use_parser_cache
+
+        use_parser_cache(cache.root)
+    return cache
+
+
+def startup_key(
+    project: Project, k: int | None, cache: Cache | None
+) -> tuple[Cache | None, str | None]:
+    """``cache`` and the project's key in it: the config file's hash, the monitor's
+    C, the compiler, cffi and Python (build_identity), everything the analyses
+    read, their settings and this package's version.  (None, None) without a
+    cache (no ``STATE_DIRECTORY``)."""
+    if cache is None:
+        return None, None
+    from importlib.metadata import version
+
+    from monitors.backends.build import build_identity
+    from monitors.backends.c99 import generate
+
+    cfg = project.config
+    spec = project.spec()
+    reqs, roles = project_requirements(project)
+    limits = (cfg.limits.analysis_budget_s, cfg.limits.analysis_memory_mb)
+    h = hashlib.sha256()
+    for part in (
+        "safety-supervisor start-up cache 1",
+        version("safety-supervisor"),
+        cfg.sha256,
+        *generate(spec),
+        build_identity(spec, reset=True, reset_each=True),
+        repr(reqs),
+        repr(roles),
+        repr((analysis_settings(cfg), k, limits)),
+    ):
+        h.update(part.encode() + b"\0")
+    return cache, h.hexdigest()
+
+
+def cached_findings(project: Project, cache: Cache | None, key: str | None) -> Validation | None:
+    """The validation from the analyses' cached findings, or None on a miss."""
+    if cache is None or key is None:
+        return None
+    data = cache.read(key, FINDINGS)
+    if data is None:
+        return None
+    try:
+        doc = json.loads(data)
+        findings = [
+            Finding(**{**f, "requirements": tuple(f["requirements"])}) for f in doc["findings"]
+        ]
+        report = str(doc["report"])
+    except (ValueError, KeyError, TypeError):
+        return None  # ours and intact, yet not what this version writes: analyse again
+    errors = [f for f in findings if f.severity == "error"]
+    return Validation(project, None, None, errors, cache=cache, key=key, report=report)
 
 
 def _partial(findings: list[Finding]) -> str | None:
@@ -237,15 +341,23 @@ class Aside:
 
         from supervisor.children import child_env, start
 
+        cache = open_cache()
         self.project = project_for(path)
         self._proc: subprocess.Popen[bytes] | None = None
         self._done: Validation | None = None
+        self.cache: Cache | None = None
+        self.key: str | None = None
         if not self.project.ok:
             self._done = Validation(self.project, None, "the config has errors")
-        elif not analysis_settings(self.project.config)[2]:
+            return
+        self.cache, self.key = startup_key(self.project, k, cache)
+        if not analysis_settings(self.project.config)[2]:
             self._done = Validation(self.project, None, "analysis.enabled is false")
+        elif (hit := cached_findings(self.project, self.cache, self.key)) is not None:
+            self._done = hit
         elif _unrolling_cells(self.project, k) <= IN_PROCESS_CELLS:
-            self._done = validate(path, k)  # small: not worth a process start
+            # Small: not worth a process start.
+            self._done = validate_project(self.project, k, self.cache, self.key)
             if self._done.analysis is not None:
                 self._done.analysis.find_examples = None  # nothing asks the solver again
         else:

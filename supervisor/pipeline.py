@@ -7,13 +7,13 @@ can print one status line each instead of stopping at the first.
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import json
 import random
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from mitigations.actions.ssh import preflight
 from mitigations.rosmsg import build_message, message_class
 from mitigations.settings import PublishSettings, SshSettings
 from monitors.backends.build import build_library
@@ -29,6 +29,7 @@ from monitors.ir.functions import expand_functions, user_calls
 from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_name, expand_defines
 from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
+from supervisor.cache import Cache
 from supervisor.config import Config, RequirementEntry, Variable, load_config
 from supervisor.config.ros import reset_service_warning
 from supervisor.inputs.readers import check_input
@@ -295,6 +296,8 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
                     "robot's state; prefer a command topic the robot echoes on its own topic"
                 )
         if isinstance(s, SshSettings):
+            from mitigations.actions.ssh import preflight  # paramiko: only for ssh mitigations
+
             for problem in preflight(s):
                 warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
     return errors, warnings
@@ -340,6 +343,37 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
 
 def project_for(path: str | Path, *, ros: bool = True) -> Project:
     return build_project(load_config(path), ros=ros)
+
+
+def monitor_library(
+    spec: MonitorSpec, build_dir: Path, cache: Cache | None = None, key: str | None = None
+) -> Path:
+    """The native library of ``spec``: from the start-up cache under ``key`` when it
+    holds it, else built in ``build_dir`` and stored there (supervisor/cache.py).
+    Returns the library's path; the caller loads it."""
+    if cache is not None and key is not None:
+        found = cache.read(key, "monitor.json")
+        try:
+            name = json.loads(found)["library"] if found is not None else None
+        except (ValueError, KeyError, TypeError):
+            name = None
+        if isinstance(name, str) and name.startswith("_ssmon_"):
+            with contextlib.suppress(ValueError):  # a name the cache does not hold
+                lib = cache.get(key, name)
+                if lib is not None:
+                    return lib
+    c_path, _ = write_c(spec, build_dir)
+    lib = build_library(spec, [c_path], build_dir, build_dir, reset=True, reset_each=True)
+    if cache is not None and key is not None:
+        stored = cache.put(key, lib.name, lib.read_bytes())
+        # The name last: an entry without it is a miss, never half a library.
+        if stored is not None and cache.put(key, "monitor.json", _library_json(lib.name)):
+            return stored
+    return lib
+
+
+def _library_json(name: str) -> bytes:
+    return json.dumps({"library": name}).encode()
 
 
 def compile_project(project: Project, out_dir: Path, *, backend: str = "native") -> dict:

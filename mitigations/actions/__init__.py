@@ -11,9 +11,6 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from mitigations.actions.base import Action
-from mitigations.actions.command import CommandAction
-from mitigations.actions.log import RecordAction
-from mitigations.actions.ssh import SshAction
 from mitigations.settings import (
     CommandSettings,
     LogSettings,
@@ -46,10 +43,18 @@ def build_action(
         action = PublishAction(node, name, s, publishers.get(key))
         publishers[key] = action
         return action
+    # Each kind loads when a mitigation of it is built (paramiko only for ssh):
+    # the CLI, check and the daemon core import this package without them.
     if isinstance(s, SshSettings):
+        from mitigations.actions.ssh import SshAction
+
         return SshAction(name, s)
     if isinstance(s, CommandSettings):
+        from mitigations.actions.command import CommandAction
+
         return CommandAction(name, s)
     if isinstance(s, LogSettings):
+        from mitigations.actions.log import RecordAction
+
         return RecordAction(name, s)
     raise TypeError(f"mitigation '{name}': no action for {type(s).__name__}")

@@ -57,8 +57,6 @@ import sysconfig
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
-from cffi import FFI
-
 from monitors.backends.c99 import reset_each_name
 from monitors.errors import UserError
 from monitors.ir.spec import MonitorSpec, c_name
@@ -223,6 +221,33 @@ def _compiler() -> str:
     return os.environ.get("CC") or shutil.which("cc") or "gcc"
 
 
+def build_identity(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
+    """Everything besides the monitor's own C that decides the library built for
+    ``spec``: the compiler (resolved path and ``--version``), the flags, the host
+    shim, cffi's version and the Python ABI.  The start-up cache keys on it
+    (supervisor/cache.py), so a new compiler, cffi or Python rebuilds."""
+    import sys
+    from importlib.metadata import version
+
+    cc = _compiler()
+    path = shutil.which(cc) or cc
+    try:
+        r = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=30)
+        cc_version = (r.stdout.splitlines() or [f"exit {r.returncode}"])[0]
+    except (OSError, subprocess.SubprocessError) as e:
+        cc_version = f"unavailable: {e}"
+    parts = [
+        f"cc={cc} {os.path.realpath(path)} {cc_version}",
+        f"cflags={_CFLAGS} ldflags={_LDFLAGS}",
+        f"cffi={version('cffi')}",
+        f"python={sys.implementation.cache_tag} {EXTENSION_SUFFIXES[0]} {sys.version}",
+        f"include={sysconfig.get_paths()['include']}",
+        host_source(spec, reset=reset, reset_each=reset_each),
+        _cdef(reset, reset_each),
+    ]
+    return "\n".join(parts)
+
+
 def _first_error(stderr: str) -> tuple[str, str | None, int | None, int | None]:
     """The compiler's first error line, split into (message, file, line, col)."""
     lines = stderr.splitlines()
@@ -281,6 +306,8 @@ def build_library(
     work = out_dir / f"{module}.{os.getpid()}.build"  # concurrent builders never share files
     work.mkdir(exist_ok=True)
     (work / "ss_host.c").write_text(host)
+    from cffi import FFI  # only to build: a cached library needs no cffi module
+
     ffi = FFI()
     ffi.cdef(cdef)
     ffi.set_source(module, "#include <stddef.h>\n#include <stdint.h>\n" + cdef)

@@ -543,11 +543,48 @@ def _lark_problem() -> UserError | None:
     )
 
 
+# Building the LALR tables is most of a start's parsing (0.3-1 s); the application
+# may keep them in a directory only it can write (its start-up cache,
+# supervisor/cache.py), where lark checks them against the grammar on load.
+_parser_cache_dir: Path | None = None
+
+
+def use_parser_cache(directory: Path | None) -> None:
+    """Keep the parsers' tables in ``directory`` (a directory of this user's that
+    nobody else can write), or nowhere (None)."""
+    global _parser_cache_dir
+    _parser_cache_dir = directory
+
+
+def _cache_file(grammar: str, options: dict[str, object]) -> str | None:
+    if _parser_cache_dir is None:
+        return None
+    import hashlib
+    import os
+    import stat
+
+    import lark
+
+    text = f"{lark.__version__}\0{grammar}\0{sorted(options.items())!r}"
+    path = _parser_cache_dir / f"lark-{hashlib.sha256(text.encode()).hexdigest()[:24]}.tables"
+    try:
+        st = path.lstat()
+    except FileNotFoundError:
+        return str(path)
+    except OSError:
+        return None
+    ours = stat.S_ISREG(st.st_mode) and st.st_uid == os.geteuid()
+    return str(path) if ours and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH) else None
+
+
 def expression_parser(grammar: str, **options: object) -> Lark:
     """An LALR parser of ``grammar``, which may ``%import expressions (...)``."""
     problem = _lark_problem()
     if problem is not None:
         raise problem
+    cache_file = _cache_file(grammar, options)
+    if cache_file is not None:
+        options = {**options, "cache": cache_file}
     return Lark(
         grammar,
         parser="lalr",

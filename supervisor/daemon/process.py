@@ -31,7 +31,7 @@ import rclpy
 from rclpy.context import Context
 
 from mitigations.violationlog.writer import ViolationLog
-from monitors.backends.load import compile_spec
+from monitors.backends.load import load_monitor
 from monitors.errors import UserError
 from supervisor.analysis_report import Aside
 from supervisor.config import Config
@@ -40,6 +40,7 @@ from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
 from supervisor.daemon.session import Session, build_session
+from supervisor.pipeline import monitor_library
 
 if TYPE_CHECKING:  # rosbags loads only when recording is on
     from supervisor.daemon.recorder import Recorder
@@ -74,7 +75,9 @@ def prepare_session(
     build_root.mkdir(parents=True, exist_ok=True)
     build = Path(tempfile.mkdtemp(prefix="monitor-", dir=build_root))
     try:
-        monitor = compile_spec(project.spec(), build)
+        # From the start-up cache when check or an earlier start built it (supervisor/cache.py).
+        spec = project.spec()
+        monitor = load_monitor(monitor_library(spec, build, aside.cache, aside.key), spec)
         checked = aside.result()
         err = checked.first_error()
         if err is not None:

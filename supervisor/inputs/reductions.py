@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
-
 from mitigations.rosmsg import INT_TYPES, REAL_TYPES
 from monitors.errors import UserError
 
@@ -48,6 +46,8 @@ def reduce_values(values: Any, how: str, bounds: tuple[float, float] | None = No
         return any(flags) if how == "any" else all(flags)
     if len(values) and isinstance(values[0], bytes):  # rclpy's byte/octet: b'\x02'
         values = [x[0] for x in values]
+    import numpy as np  # on first use: the CLI and check do not load it (docs/BENCHMARKS.md)
+
     arr = np.asarray(values)
     integral = arr.dtype.kind in "iu" or (arr.size == 0 and how not in ("mean",))
     if arr.dtype.kind == "f":

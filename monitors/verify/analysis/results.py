@@ -6,7 +6,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from monitors.verify.analysis.requirements import Req, VarInfo
-from monitors.verify.bmc import OutOfTime
 from monitors.verify.interpret import Value
 
 Trace = list[dict[str, Value]]
@@ -70,6 +69,8 @@ class Analysis:
         violating it, both re-checked with the interpreter."""
         if self.find_examples is None:
             return None, None
+        from monitors.verify.bmc import OutOfTime  # z3: loaded by whoever set find_examples
+
         try:
             return self.find_examples(rid)
         except OutOfTime:

@@ -14,13 +14,18 @@ from monitors.verify.analysis.context import Context, TooLarge
 from monitors.verify.analysis.examples import examples
 from monitors.verify.analysis.realizability import realizability
 from monitors.verify.analysis.redundancy import redundancy
-from monitors.verify.analysis.requirements import Req, VarInfo, default_k, range_formula
+from monitors.verify.analysis.requirements import (
+    DEFAULT_TIMEOUT_S,
+    Req,
+    VarInfo,
+    default_k,
+    range_formula,
+)
 from monitors.verify.analysis.results import SEVERITIES, Analysis, Finding
 from monitors.verify.analysis.solvers import is_memout
 from monitors.verify.analysis.vacuity import vacuity
 from monitors.verify.bmc import OutOfTime, encoding_cells
 
-DEFAULT_TIMEOUT_S = 10.0
 # The analyses in the order they run (and are reported as skipped).
 ANALYSES = ("consistency", "realizability", "vacuity", "redundancy")
 # Terms the encoder builds per second (measured: 100k-300k on one core of a laptop,

@@ -66,8 +66,6 @@ from typing import Any
 
 from supervisor import data
 from supervisor.tools.bench.errors import BenchError
-from supervisor.tools.bench.experiments import run
-from supervisor.tools.bench.report import format_markdown, format_results
 
 DEFAULT_CONFIG = data.example("srobot.yaml")
 DEFAULT_RATES = "5000,10000,12500,15000,17500,20000"
@@ -289,6 +287,18 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--domain-id", type=int, default=None, help="default: random in 215..232")
     p.add_argument("--json", action="store_true", help="one JSON document instead of tables")
+    p.add_argument(
+        "--startup",
+        action="store_true",
+        help="only the start-up times: --help, check and run to READY=1, cold and warm cache",
+    )
+    p.add_argument(
+        "--startup-runs",
+        type=_positive(int),
+        default=5,
+        metavar="N",
+        help="runs of each start-up figure (default 5)",
+    )
 
 
 def add_parser(sub: Any) -> None:
@@ -314,13 +324,21 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
+    # The experiments load only when a bench runs: `--help` stays light.
+    from supervisor.tools.bench.experiments import run
+    from supervisor.tools.bench.startup import format_startup, run_startup
+
     resolve(args)
     restore = None
     if threading.current_thread() is threading.main_thread():
         # SIGTERM unwinds like Ctrl-C, so the finally blocks kill the children.
         restore = signal.signal(signal.SIGTERM, _raise_interrupt)
+    progress = None if args.json else _progress
     try:
-        results = run(args, progress=None if args.json else _progress)
+        if args.startup:
+            results = run_startup(Path(args.config), args.startup_runs, args.domain_id, progress)
+        else:
+            results = run(args, progress=progress)
     except BenchError as e:
         print(f"safety-supervisor bench: {e}", file=sys.stderr, flush=True)
         return 1
@@ -332,11 +350,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, restore)
     if args.json:
         print(json.dumps(results, indent=2), flush=True)
+    elif args.startup:
+        print(format_startup(results), flush=True)
     else:
+        from supervisor.tools.bench.report import format_results
+
         print(format_results(results), flush=True)
     if args.out is not None:
         try:
-            written = write_out(args.out, results)
+            written = (
+                write_startup(args.out, results) if args.startup else write_out(args.out, results)
+            )
         except OSError as e:
             print(f"safety-supervisor bench: --out {args.out}: {e}", file=sys.stderr, flush=True)
             return 1
@@ -346,11 +370,21 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def write_out(out: Path, results: dict[str, Any]) -> list[Path]:
     """``bench.json`` (every figure) and ``bench.md`` (the tables) in ``out``."""
+    from supervisor.tools.bench.report import format_markdown
+
     out.mkdir(parents=True, exist_ok=True)
     js, md = out / "bench.json", out / "bench.md"
     js.write_text(json.dumps(results, indent=2) + "\n")
     md.write_text(format_markdown(results))
     return [js, md]
+
+
+def write_startup(out: Path, results: dict[str, Any]) -> list[Path]:
+    """``startup.json`` in ``out``: the figures of ``--startup``."""
+    out.mkdir(parents=True, exist_ok=True)
+    js = out / "startup.json"
+    js.write_text(json.dumps(results, indent=2) + "\n")
+    return [js]
 
 
 def _raise_interrupt(_signum: int, _frame: Any) -> None:

@@ -1,0 +1,81 @@
+"""What a start pays for: importing the CLI, the daemon core or running ``check``
+from the start-up cache loads no action kind, paramiko, z3 or numpy until a
+mitigation, an analysis or a reduction uses them (docs/BENCHMARKS.md, "Start-up").
+
+Each case runs in a fresh interpreter, so nothing an earlier test imported counts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+HEAVY = (
+    "paramiko",
+    "z3",
+    "numpy",
+    "mitigations.actions.ssh",
+    "mitigations.actions.command",
+    "mitigations.actions.log",
+)
+# A config whose check needs none of them: std_msgs types, a publish action.
+CONFIG = """\
+component: sw
+step: {policy: periodic, period_ms: 100}
+variables:
+  p: {type: bool, topic: /p, msg: std_msgs/msg/Bool}
+  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}
+requirements:
+  - id: r1
+    text: upon x > 3 sw shall within 1 second satisfy p
+    on_violation: [halt]
+mitigations:
+  halt: {publish: {topic: /halt, msg: std_msgs/msg/Bool, value: {data: true}}}
+"""
+
+
+def loaded(
+    code: str, env: dict[str, str] | None = None, names: tuple[str, ...] = HEAVY
+) -> list[str]:
+    """The modules of ``names`` that ``code`` leaves loaded in a fresh interpreter."""
+    found = f"sorted(m for m in sys.modules if m in {names!r})"
+    probe = f"import json, sys\n{code}\nprint(json.dumps({found}))"
+    base = {k: v for k, v in os.environ.items() if k != "STATE_DIRECTORY"}
+    r = subprocess.run(
+        [sys.executable, "-c", probe],
+        capture_output=True,
+        text=True,
+        env={**base, **(env or {})},
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def test_the_cli_and_its_help_load_none_of_them() -> None:
+    code = "import supervisor.cli\nsupervisor.cli.build_parser().format_help()"
+    # --help needs neither ROS, the analyses' module nor the config parser either.
+    assert loaded(code, names=(*HEAVY, "rclpy", "supervisor.analysis_report", "lark")) == []
+
+
+def test_the_daemon_core_loads_none_of_them() -> None:
+    assert loaded("import supervisor.daemon.process") == []
+
+
+def test_check_from_the_cache_loads_none_of_them(tmp_path: Path) -> None:
+    config = tmp_path / "supervisor.yaml"
+    config.write_text(CONFIG)
+    state = tmp_path / "state"
+    state.mkdir()
+    env = {"STATE_DIRECTORY": str(state)}
+    code = (
+        "import supervisor.cli\n"
+        f"rc = supervisor.cli.main(['check', {str(config)!r}])\n"
+        "assert rc == 0, rc\n"
+    )
+    first = loaded(code, env)
+    assert "z3" in first  # the cold check analyses: the probe sees z3 when it is there
+    assert loaded(code, env) == []
