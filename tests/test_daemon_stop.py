@@ -8,6 +8,7 @@ need no spinning, the DDS discovery threads keep them current.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import time
@@ -22,7 +23,7 @@ pytest.importorskip("rclpy")
 
 from rosutil import ROOT, S0, Daemon, Robot, variant, wait_until  # noqa: E402
 
-from supervisor.names import HEARTBEAT_TOPIC, NODE_NAME  # noqa: E402
+from supervisor.names import HEARTBEAT_TOPIC  # noqa: E402
 from supervisor.tools.children import Child, ros_env  # noqa: E402
 
 CYCLES = 20
@@ -30,6 +31,13 @@ CYCLES = 20
 # one that does not stays until its lease expires (20 s with Fast DDS's defaults).
 GONE_S = 3.0
 STOP_S = 10.0  # a sanity deadline for SIGTERM to exit; the unit allows more
+# The daemon's node under a name of this test run: another run's daemon that
+# drew the same random ROS_DOMAIN_ID must not count as a ghost.
+NODE = f"safety_supervisor_stop_{os.getpid()}"
+
+
+def _config(tmp: Path) -> Path:
+    return variant(tmp, ("component: sRobot", f"component: sRobot\nros:\n  node_name: {NODE}"))
 
 
 @pytest.fixture
@@ -51,7 +59,7 @@ def flood(tmp_path: Path) -> Iterator[Child]:
 
 def _daemons(observer: Any) -> int:
     """How many nodes named as the daemon the observer's graph holds."""
-    return sum(1 for name, _ in observer.get_node_names_and_namespaces() if name == NODE_NAME)
+    return sum(1 for name, _ in observer.get_node_names_and_namespaces() if name == NODE)
 
 
 def _receiving(d: Daemon) -> None:
@@ -82,7 +90,7 @@ def _stop(d: Daemon) -> float:
 def test_stop_loop_under_flood_no_crash_no_ghost(
     tmp_path: Path, flood: Child, robot_node: Any
 ) -> None:
-    config = variant(tmp_path)
+    config = _config(tmp_path)
     stops: list[float] = []
     gone: list[float] = []
     for i in range(CYCLES):
@@ -114,7 +122,7 @@ def test_restarted_daemon_beside_its_predecessor(
 ) -> None:
     """B starts right after A stopped: B is the only daemon in the graph and the only
     subscriber of each input topic, not A's ghost beside it."""
-    config = variant(tmp_path)
+    config = _config(tmp_path)
     robot = Robot(robot_node)  # this process's publishers see whose readers match
     topics = [p.topic_name for p in robot.pubs.values()]
 
@@ -122,14 +130,14 @@ def test_restarted_daemon_beside_its_predecessor(
         return [
             bytes(e.endpoint_gid)
             for e in robot_node.get_subscriptions_info_by_topic(topic)
-            if e.node_name == NODE_NAME
+            if e.node_name == NODE
         ]
 
     def writers(topic: str) -> list[bytes]:
         return [
             bytes(e.endpoint_gid)
             for e in robot_node.get_publishers_info_by_topic(topic)
-            if e.node_name == NODE_NAME
+            if e.node_name == NODE
         ]
 
     (tmp_path / "a").mkdir()
