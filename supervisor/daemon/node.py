@@ -220,8 +220,12 @@ class SupervisorNode:
         self._control_seen = (cfg.control.socket, cfg.control.group)
         self._control_down = False  # its thread failed more than CONTROL_RESTARTS times
         self._wake = self.node.create_guard_condition(_never)
+        # Other threads (control socket, reload) wake the loop only through _poke,
+        # which close() shuts before the node is destroyed.
+        self._wake_lock = threading.Lock()
+        self._wake_open = True
         if control is not None:
-            control.start(self._wake.trigger)
+            control.start(self._poke)
         # Kept across reloads: what a publisher latched stays latched.
         self._publish_actions: dict[PublisherKey, PublishAction] = {}
         self.engine = self._make_engine(cfg)
@@ -358,8 +362,16 @@ class SupervisorNode:
         """Reopen the violation log (logrotate); safe from a signal handler."""
         self._reopen_requests += 1
 
+    def _poke(self) -> None:
+        """Wake the loop from another thread; a no-op once :meth:`close` began."""
+        with self._wake_lock:
+            if self._wake_open:
+                self._wake.trigger()
+
     def close(self) -> None:
         """After :meth:`run`: stop the action workers, destroy the node."""
+        with self._wake_lock:  # from here no thread but this one enters rcl
+            self._wake_open = False
         if self.recorder is not None:
             if self.core.now is not None:  # replay judges up to here, as the loop did
                 self._marker("stop", self.core.now, {})
@@ -378,11 +390,24 @@ class SupervisorNode:
         busy = self.engine.close(timeout=1.0)
         if busy:
             warn(f"mitigations still running at exit: {', '.join(busy)}")
-        # The node is not destroyed: rclpy's native node destruction crashed (SIGSEGV,
-        # no other thread alive) in about 1 of 60 stops under load; the process exits
-        # right after without tearing anything down (docs/reference/faults.md, "Stop").
         if self.session.cleanup is not None:
             self.session.cleanup()
+        self._destroy()
+
+    def _destroy(self) -> None:
+        """Destroy the node, so that its DDS participant says goodbye and other nodes
+        see the daemon leave at once, not when its lease expires (20 s; see
+        docs/reference/faults.md, "Stop").  Only from :meth:`close`: no other thread
+        enters rcl any more (the control socket's is joined, the reload thread's wake
+        is shut, the engine's workers run no ROS action) and the loop's wait set is
+        destroyed (:meth:`_serve`).  The inputs' readers go first, so a robot's flood
+        stops arriving; rclpy then destroys the rest and the participant."""
+        for s in self._subs:
+            self.node.destroy_subscription(s.sub)
+        for old in self._retired:
+            self.node.destroy_subscription(old)
+        self._subs, self._retired = [], []
+        self.node.destroy_node()
 
     # ------------------------------------------------------------ receive loop
 
@@ -421,6 +446,8 @@ class SupervisorNode:
             wait_set = _rclpy.WaitSet(
                 len(self._subs), 1, 0, 0, 0 if srv is None else 1, 0, ctx.handle
             )
+            # Finalised before the handles it holds are released, on every way out.
+            stack.callback(wait_set.destroy_when_not_in_use)
             # The step trigger is taken last in each round (see _receive).
             trigger = self.session.config.step.trigger
             order = {
@@ -921,7 +948,7 @@ class SupervisorNode:
                     self._reload_result = prepare()
                 except Exception as e:  # noqa: BLE001 - reported by the loop
                     self._reload_result = e
-                self._wake.trigger()
+                self._poke()
 
             self._reload_thread = threading.Thread(target=work, name="reload", daemon=True)
             self._reload_thread.start()

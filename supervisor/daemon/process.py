@@ -247,9 +247,10 @@ def run_daemon(
             inputs=node.stop_stats(),
         )
     notifier.close()
-    # Everything durable is done (the stop record and the log closed, the recording
-    # and the temporary files gone): exit without the interpreter's teardown of the
-    # ROS node, whose native destruction crashed now and then (docs/reference/faults.md).
+    # Everything is done (the stop record and the log closed, the recording and the
+    # temporary files gone, the node destroyed and the context shut down): exit
+    # without the interpreter's teardown, which would finalise rclpy's remaining
+    # native objects in no particular order (docs/reference/faults.md, "Stop").
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()
