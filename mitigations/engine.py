@@ -10,7 +10,6 @@ the failure is a record, not a traceback.
 
 from __future__ import annotations
 
-import os
 import queue
 import threading
 import time
@@ -59,8 +58,7 @@ class Engine:
             self._threads.append(t)
 
     def submit(self, request: Request) -> None:
-        """Queue the request's actions; returns at once (after the inline ones)."""
-        held: list[Callable[[], None]] = []  # the inline actions' records
+        """Queue the request's actions; returns at once."""
         for name in request.actions:
             action = self.actions.get(name)
             if action is None:  # config validation makes this unreachable; never drop silently
@@ -77,17 +75,9 @@ class Engine:
                 # A publish takes microseconds: done here, right after the violation
                 # record is written (and fsynced, under before_action), instead of
                 # paying a thread handoff before the halt.
-                self._run(name, request, held)
+                self._run(name, request)
             else:
                 self._queues[name].put(request)
-        if held:
-            # The halts are out: the CPU goes first to the subscribers they woke, then
-            # to their records; on a busy machine a loop that kept it would hold a
-            # subscriber back for as long as the records take (docs/BENCHMARKS.md,
-            # "The halt before the fsync").
-            os.sched_yield()
-            for write in held:
-                write()
 
     def close(self, timeout: float = 1.0) -> list[str]:
         """Cancel retries, let running attempts end; names of workers still busy."""
@@ -106,46 +96,28 @@ class Engine:
                 return
             self._run(name, request)
 
-    def _run(
-        self, name: str, request: Request, held: list[Callable[[], None]] | None = None
-    ) -> None:
-        """``held``: the records (and the done callback) are appended to it, to be
-        written by the caller, instead of written at once; the latency is taken
-        at the attempt's end either way."""
+    def _run(self, name: str, request: Request) -> None:
         action = self.actions[name]
 
         def record(out: Outcome, request: Request = request) -> None:
             latency_ms = (time.monotonic_ns() - request.detected_ns) / 1e6
-
-            def write() -> None:
-                self.log.mitigation(
-                    request.requirement,
-                    action=name,
-                    kind=action.kind,
-                    ok=out.ok,
-                    error=out.error,
-                    attempt=out.attempt,
-                    latency_ms=round(latency_ms, 3),
-                    stage=request.stage,
-                    **({"detail": out.detail} if out.detail else {}),
-                )
-
-            if held is None:
-                write()
-            else:
-                held.append(write)
+            self.log.mitigation(
+                request.requirement,
+                action=name,
+                kind=action.kind,
+                ok=out.ok,
+                error=out.error,
+                attempt=out.attempt,
+                latency_ms=round(latency_ms, 3),
+                stage=request.stage,
+                **({"detail": out.detail} if out.detail else {}),
+            )
 
         try:
             final = action.run(self.cancel, record)
         except Exception as e:  # noqa: BLE001 - a crashing action must not kill its worker
             final = Outcome(ok=False, error=f"{type(e).__name__}: {e}")
             record(final)
-        if held is None:
-            self._done(request, name, final)
-        else:
-            held.append(lambda: self._done(request, name, final))
-
-    def _done(self, request: Request, name: str, final: Outcome) -> None:
         if self.on_done is not None:
             try:
                 self.on_done(request, name, final)
