@@ -1,6 +1,7 @@
 """The violation log writer (docs/reference/log.md).
 
-JSON lines rendered by a structlog processor chain; the format, the hash chain
+JSON lines rendered as a structlog processor chain would (:func:`_processors`;
+the common case in one encoder call, ``_ENCODE``); the format, the hash chain
 (``prev_sha256``, ``line_sha256``), ``seq``, its semantics across rotation and the
 encoding of NaN/inf are documented in :mod:`mitigations.violationlog.format`; the reader
 verifies them.
@@ -87,6 +88,7 @@ def _json_safe(_logger: WrappedLogger, _name: str, event_dict: EventDict) -> Eve
 def _processors(*, safe: bool) -> list[Any]:
     # A local chain rather than structlog.configure(): the daemon may configure
     # structlog for its own diagnostics, and must not change this file's format.
+    # safe=False is what _ENCODE does in one call (the reference its test compares).
     # ``ts`` is set by the writer: a record written late keeps the time it was made.
     if safe:
         render = structlog.processors.JSONRenderer(separators=(",", ":"), allow_nan=False)
@@ -100,6 +102,13 @@ def _processors(*, safe: bool) -> list[Any]:
 
 def _no(value: Any) -> Any:
     raise TypeError(type(value).__name__)
+
+
+# The chain of _processors(safe=False) in one call, for the records on the halt's
+# path (docs/reference/log.md#durability): the same dict in the same key order
+# through the encoder JSONRenderer builds from the same settings, so the bytes are
+# the chain's (tests/test_violationlog_render.py compares them).
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode
 
 
 def _stderr_is_journal() -> bool:
@@ -159,13 +168,11 @@ class ViolationLog:
         ``durability``: one of ``DURABILITIES`` (see the module's docstring)."""
         self._path = Path(path)
         self._config_sha256 = config_sha256
+        self._component = component
         self._echo = echo
         self._lock = threading.RLock()  # reopen() queues its link record while holding it
-        # Rendered as they are; a record JSON cannot hold as it is (a NaN, a set)
-        # again through json_safe: the walk costs most of a record's rendering.
-        self._log = structlog.BoundLogger(
-            structlog.ReturnLogger(), _processors(safe=False), {"component": component}
-        )
+        # Rendered as they are (_ENCODE); a record JSON cannot hold as it is (a NaN,
+        # a set) again through json_safe: the walk costs most of a record's rendering.
         self._log_safe = structlog.BoundLogger(
             structlog.ReturnLogger(), _processors(safe=True), {"component": component}
         )
@@ -492,11 +499,17 @@ class ViolationLog:
     def _render(self, event: str, ts: str, fields: dict[str, Any], durable: bool) -> _Entry:
         """Render with the next ``seq`` (taken only when rendering succeeds)."""
         seq = self._seq + 1
-        header = {"ts": ts, "config_sha256": self._config_sha256}
-        header |= {"prev_sha256": ZERO_SHA256, "seq": seq}
+        # The header first, then the fields (none is named like the header: _emit
+        # renames those), as _header_first orders them.
+        record = {"ts": ts, "event": event, "component": self._component}
+        record |= {"config_sha256": self._config_sha256, "prev_sha256": ZERO_SHA256}
+        record["seq"] = seq
+        record |= fields
         try:
-            text = self._log.msg(event, **header, **fields)
+            text = _ENCODE(record)
         except (ValueError, TypeError):  # NaN, infinities, sets, other mappings
+            header = {"ts": ts, "config_sha256": self._config_sha256}
+            header |= {"prev_sha256": ZERO_SHA256, "seq": seq}
             text = self._log_safe.msg(event, **header, **fields)
         rendered = text.encode("ascii")
         # The header precedes every event field, and inside a JSON string a quote
