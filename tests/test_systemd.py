@@ -573,6 +573,73 @@ def test_the_ui_unit_serves_the_operator_page(machine: Machine) -> None:
         m.run("systemctl", "stop", ui, timeout=60)
 
 
+def _resets(m: Machine) -> list[dict[str, object]]:
+    lines = m.ok("cat", VIOLATION_LOG).splitlines()
+    return [
+        r for r in map(json.loads, lines) if r.get("event") == "reset" and r["requirement"] == "*"
+    ]
+
+
+def test_an_operator_and_the_ui_reset_through_the_sandboxed_socket(machine: Machine) -> None:
+    """What a robot's operators rely on after an incident: a member of
+    ``safety-operators`` resets with the CLI, the UI unit resets with its token,
+    and anyone else is refused; each accepted reset is a record naming who asked
+    (docs/reference/ros-interfaces.md, "Control socket")."""
+    m = machine
+    _ensure_started(m)
+    cli = "/opt/safety-supervisor/venv/bin/safety-supervisor"
+    m.run("useradd", "--no-create-home", "--groups", "safety-operators", "op1", timeout=30)
+    m.run("useradd", "--no-create-home", "outsider", timeout=30)
+    before = len(_resets(m))
+
+    member = m.run("runuser", "-u", "op1", "--", cli, "reset", timeout=60)
+    assert member.returncode == 0, member.stdout + member.stderr
+    assert member.stdout.strip() == "all requirements reset", member.stdout
+    outsider = m.run("runuser", "-u", "outsider", "--", cli, "reset", timeout=60)
+    assert outsider.returncode != 0, outsider.stdout
+    assert len(outsider.stderr.strip().splitlines()) == 1, outsider.stderr
+    assert "Traceback" not in outsider.stderr, outsider.stderr
+
+    ui = "safety-supervisor-ui.service"
+    _ok(m.run("systemctl", "start", ui, timeout=60))
+    post = (
+        "import json, sys, urllib.error, urllib.request as u\n"
+        "token = sys.argv[1]\n"
+        "req = u.Request('http://127.0.0.1:8321/api/reset', data=b'{}', method='POST',\n"
+        "    headers={'Content-Type': 'application/json', 'Authorization': 'Bearer ' + token})\n"
+        "try:\n"
+        "    r = u.urlopen(req, timeout=10); print(r.status, r.read().decode())\n"
+        "except urllib.error.HTTPError as e:\n"
+        "    print(e.code, e.read().decode())\n"
+        "except OSError as e:\n"
+        "    print(0, e)\n"
+    )
+    token = m.ok("cat", "/etc/safety-supervisor/ui.token").strip()
+    answers: dict[str, str] = {}
+
+    def answered(which: str, tok: str) -> Callable[[], bool]:
+        def probe() -> bool:
+            answers[which] = m.run("python3", "-c", post, tok, timeout=30).stdout.strip()
+            # 0: the UI is not listening yet; 503: it has not seen the daemon yet.
+            return not answers[which].startswith(("0 ", "503"))
+
+        return probe
+
+    try:
+        _poll("the UI's answer to a reset with its token", 90, answered("token", token))
+        _poll("the UI's answer to a reset without it", 30, answered("wrong", "x" * 43))
+    finally:
+        m.run("systemctl", "stop", ui, timeout=60)
+    assert answers["token"].startswith("200 "), answers
+    assert answers["wrong"].startswith("401 "), answers
+
+    new = _resets(m)[before:]
+    assert [r.get("via") for r in new] == ["control_socket", "ui"], new
+    caller = new[0]["caller"]
+    assert isinstance(caller, dict), new[0]
+    assert (caller["uid"], caller["user"]) == (int(m.ok("id", "-u", "op1")), "op1"), caller
+
+
 def test_logrotate_reopens_and_the_chain_verifies(machine: Machine) -> None:
     """The shipped snippet rotates (create, SIGUSR1 to the daemon only) and the
     hash chain verifies across the two files (docs/reference/log.md)."""
