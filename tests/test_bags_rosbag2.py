@@ -104,7 +104,7 @@ def _config(tmp: Path, case: Case) -> Path:
 def _sqlite_rows(bag: Path, topic: str) -> list[tuple[int, bytes]]:
     rows: list[tuple[int, bytes]] = []
     for db in sorted(bag.glob("*.db3")):
-        con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+        con = sqlite3.connect(f"file:{db}?mode=ro&immutable=1", uri=True)
         try:
             rows += con.execute(
                 "SELECT m.timestamp, m.data FROM messages m JOIN topics t ON m.topic_id = t.id "
