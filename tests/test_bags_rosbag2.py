@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -41,6 +42,7 @@ class Case:
     requirements: dict[str, str]
     violations: dict[str, list[int]]
     args: tuple[str, ...] = field(default=())
+    reduce: dict[str, str] = field(default_factory=dict)  # variable -> reduce (only len)
 
 
 # rosbag2's cdr_test bags hold three test_msgs/msg/BasicTypes on
@@ -70,9 +72,25 @@ CASES: list[Case] = [
     for storage in ("sqlite3", "mcap")
     for name in ("cdr_test",)
 ]
+# rosbag2's talker bags: ten std_msgs/msg/String on /topic, "Hello, world! 0" to
+# "Hello, world! 9", each 15 characters ("Hello, world! " is 14, one digit). So
+# "n <= 14" fails at all ten ticks and "n = 15" at none.
+CASES += [
+    Case(
+        bag=f"{storage}/talker",
+        topic_in_bag="/topic",
+        msg="std_msgs/msg/String",
+        variables={"n": "data"},
+        reduce={"n": "len"},
+        topic="/topic",
+        requirements={"short": "n <= 14", "fifteen": "n = 15"},
+        violations={"short": list(range(10)), "fifteen": []},
+    )
+    for storage in ("sqlite3", "mcap")
+]
 # Not yet rows (replay's answer today, so a row is added where it learns the bag):
 # wrong_rmw_test declares serialization_format wrong_format (to be refused in one line),
-# talker has stub definitions, test_bag_for_seek/rewriter_b/convert_b/wbag use
+# test_bag_for_seek/rewriter_b/convert_b/wbag use
 # relative topic names, compressed and service-event bags are not decoded.
 
 
@@ -82,8 +100,9 @@ def _config(tmp: Path, case: Case) -> Path:
     inputs of every tick (the values replay decoded)."""
     lines = ["component: R", "step: {policy: on_message}", "variables:"]
     for var, fld in case.variables.items():
+        reduce = f", reduce: {case.reduce[var]}" if var in case.reduce else ""
         lines.append(
-            f"  {var}: {{type: int64, topic: {case.topic}, msg: {case.msg}, field: {fld}}}"
+            f"  {var}: {{type: int64, topic: {case.topic}, msg: {case.msg}, field: {fld}{reduce}}}"
         )
     lines.append("requirements:")
     first = next(iter(case.variables))
@@ -141,7 +160,8 @@ def independent_values(case: Case) -> list[dict[str, int]]:
     out: list[dict[str, int]] = []
     for _, data in read(bag, case.topic_in_bag):
         msg = deserialize_message(data, klass)
-        out.append({var: int(getattr(msg, fld)) for var, fld in case.variables.items()})
+        row = {var: getattr(msg, fld) for var, fld in case.variables.items()}
+        out.append({v: len(x) if case.reduce.get(v) == "len" else int(x) for v, x in row.items()})
     return out
 
 
@@ -158,7 +178,9 @@ def test_replay_matches_independent_reader(case: Case, tmp_path: Path) -> None:
     assert expected, f"{case.bag}: the independent reader found no message on {case.topic_in_bag}"
     config = _config(tmp_path, case)
     out = tmp_path / "out.jsonl"
-    proc = _replay(config, BAGS / case.bag, out, *case.args)
+    bag = tmp_path / "bag"  # a copy: the corpus stays as rosbag2 wrote it
+    shutil.copytree(BAGS / case.bag, bag)
+    proc = _replay(config, bag, out, *case.args)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     summary = json.loads(proc.stdout)
