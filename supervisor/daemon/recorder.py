@@ -329,7 +329,9 @@ class Recorder:
         offer, as the node sees them in the graph: written as the topic's
         ``offered_qos_profiles`` so that ``ros2 bag play`` keeps its reliability and
         durability. A change while a bag holds the topic starts a new bag."""
-        dicts = [offered_profile(q) for q in profiles]
+        # The graph lists publishers in no fixed order: sorted, so that only a real
+        # change starts a new bag.
+        dicts = sorted(map(offered_profile, profiles), key=lambda d: json.dumps(d, sort_keys=True))
         if self._offered.get(index) == dicts:
             return
         self._offered[index] = dicts
