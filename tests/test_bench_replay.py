@@ -69,16 +69,28 @@ def test_replay_bench_small_bags(tmp_path: Path) -> None:
     assert [c["violations"] for c in violating] == [1, 1]  # one round in 1000 ticks
     scan = next(c for c in rep["cases"] if "LaserScan" in c["case"])
     assert scan["ticks"] == 7_000  # on_message: one tick per message
+    # sqlite3 and MCAP apart: each storage's bulk cases, lowest and highest msg/s
+    for storage, n in (("mcap", 3), ("sqlite3", 2)):
+        mine = [c["rate"] for c in rep["cases"] if c["storage"] == storage and c["fast"]]
+        assert len(mine) == n and rep["by_storage"][storage] == {
+            "min": min(mine),
+            "max": max(mine),
+            "cases": n,
+        }
     assert set(rep["monitor"]) >= {"tick", "batch 10000"}
     assert all(_positive(v) for v in rep["monitor"].values())
 
     text = "\n".join(_format_replay(rep))
     for c in rep["cases"]:
         assert c["case"] in text and f"{c['rate']:.0f}" in text
+    for storage, label in (("mcap", "MCAP"), ("sqlite3", "sqlite3")):
+        low = rep["by_storage"][storage]["min"] / 1e6
+        assert f"  {label}, bulk stepping: {low:.2f}" in text
     md = format_markdown(_results(replay=rep))
     assert "## Replay throughput" in md
     for c in rep["cases"]:
         assert f"| {c['case']} |" in md and f"{c['rate']:.0f}" in md
+    assert "| MCAP, bulk stepping |" in md and "| sqlite3, bulk stepping |" in md
     assert said and all(isinstance(s, str) for s in said)
 
 

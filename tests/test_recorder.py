@@ -485,3 +485,68 @@ def test_record_section_unknown_key_suggests(tmp_path):
     with pytest.raises(UserError) as e:
         _load(tmp_path, "record: bags\n")
     assert "record must be a mapping" in str(e.value)
+
+
+def _offered(bag: Path) -> dict[str, tuple[int, list[tuple[str, str]]]]:
+    """metadata.yaml's topics: message count and (reliability, durability) offered."""
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert info["ros_distro"] == "jazzy"
+    return {
+        t["topic_metadata"]["name"]: (
+            t["message_count"],
+            [
+                (q["reliability"], q["durability"])
+                for q in t["topic_metadata"]["offered_qos_profiles"]
+            ],
+        )
+        for t in info["topics_with_message_count"]
+    }
+
+
+def test_offered_qos_goes_with_its_topic_and_a_change_starts_a_new_bag(tmp_path):
+    rclpy_qos = pytest.importorskip("rclpy.qos")
+    latched = rclpy_qos.QoSProfile(
+        depth=1,
+        reliability=rclpy_qos.ReliabilityPolicy.RELIABLE,
+        durability=rclpy_qos.DurabilityPolicy.TRANSIENT_LOCAL,
+    )
+    volatile = rclpy_qos.QoSProfile(depth=10)
+    best_effort = rclpy_qos.qos_profile_sensor_data
+    rec = Recorder(tmp_path, [("/a", INT64), ("/b", INT64), ("/c", INT64), ("/a", INT64)])
+    rec.offered_qos(0, [latched])
+    rec.offered_qos(3, [latched])  # the same topic through its second input: no change
+    rec.message(0, 1, cdr_int64(1))
+    rec.message(1, 2, cdr_int64(2))  # QoS not known yet: written with none
+    rec.offered_qos(1, [volatile, best_effort])  # two publishers: a new bag from here
+    rec.message(1, 3, cdr_int64(3))
+    rec.offered_qos(1, [best_effort, volatile])  # the graph's order varies: no change
+    rec.message(3, 4, cdr_int64(4))
+    stats = rec.close()
+    assert (stats.written, stats.lost, stats.bags) == (4, 0, 2)
+    first, second = (bag for _, bag in bag_dirs(tmp_path))
+    latching = [("reliable", "transient_local")]
+    # /c had neither QoS nor a message: listed with none, as rosbag2 lists a topic
+    none = {RECORDS_TOPIC: (0, []), "/c": (0, [])}
+    assert _offered(first) == {"/a": (1, latching), "/b": (1, []), **none}
+    both = sorted([("reliable", "volatile"), ("best_effort", "volatile")])
+    second_topics = _offered(second)
+    assert sorted(second_topics["/b"][1]) == both
+    assert second_topics == {"/a": (1, latching), "/b": (1, second_topics["/b"][1]), **none}
+    assert [m.data for _, _, _, m in rosbags_messages(first) + rosbags_messages(second)] == [
+        1,
+        2,
+        3,
+        4,
+    ]
+    # MCAP channel metadata: the same profiles, as the YAML text rosbag2's plugin reads
+    with mcap_file(second).open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    channels = {c.topic: c.metadata for c in summary.channels.values()}
+    assert (
+        sorted(
+            (q["reliability"], q["durability"])
+            for q in yaml.safe_load(channels["/b"]["offered_qos_profiles"])
+        )
+        == both
+    )

@@ -115,6 +115,7 @@ class _Sub:
     streams: SequenceStreams | None = None  # kept when the QoS changes
     vars: list[Variable] = field(default_factory=list)  # all of them, config order
     recorded: int | None = None  # the recorder's input index of this topic
+    offered: bool = False  # the recording has this topic's offered QoS from the graph
     # Recording: where each variable's field lies in the serialized message (None:
     # deserialise), and how many first messages still check that against rclpy.
     plans: list[Any] | None = None
@@ -292,6 +293,8 @@ class SupervisorNode:
                 if s.recorded is None:  # a topic a reload added: not in this recording
                     warn(f"{s.var.topic} is not recorded: it was added by a reload")
                     self.log.supervisor("record_topic_missing", topic=s.var.topic)
+                else:
+                    self._offer_qos(s, self._publishers(s))
 
     def _tee(self, line: str) -> None:
         self.status.record(line)
@@ -514,6 +517,8 @@ class SupervisorNode:
         values = None
         if raw:
             assert self.recorder is not None and s.recorded is not None
+            if not s.offered:  # its publisher is matched, so in the graph, by now
+                self._offer_qos(s, self._publishers(s))
             self.recorder.message(s.recorded, t, data)
             values = self._read_raw(s, data)
             if values is None:
@@ -875,6 +880,7 @@ class SupervisorNode:
             if s.publishers is not None and pubs and not s.publishers:
                 self.log.supervisor("input_publisher_found", input=s.name, topic=topic)
             s.publishers = len(right)
+            self._offer_qos(s, right)
             if problem != s.problem:
                 if problem is not None and (pubs or s.problem is not None):
                     warn(f"input '{s.name}': {problem}")
@@ -882,6 +888,25 @@ class SupervisorNode:
                 elif problem is None and s.problem is not None:
                     self.log.supervisor("input_problem_cleared", input=s.name, topic=topic)
                 s.problem = problem
+
+    def _publishers(self, s: _Sub) -> list[Any]:
+        """The robot's publishers of ``s``'s topic and type now (not ours)."""
+        try:
+            pubs = self.node.get_publishers_info_by_topic(s.var.topic or "")
+        except Exception:  # noqa: BLE001 - graph queries fail during shutdown
+            return []
+        me = (self.node.get_name(), self.node.get_namespace())
+        expected = graph_type_name(s.var.msg or "")
+        return [
+            p for p in pubs if p.topic_type == expected and (p.node_name, p.node_namespace) != me
+        ]
+
+    def _offer_qos(self, s: _Sub, pubs: list[Any]) -> None:
+        """The recording writes the QoS the topic's publishers offer, as rosbag2 does,
+        so that ``ros2 bag play`` of it keeps latching (docs/reference/config.md, record)."""
+        if self.recorder is not None and s.recorded is not None:
+            self.recorder.offered_qos(s.recorded, [p.qos_profile for p in pubs])
+            s.offered = s.offered or bool(pubs)
 
     def _resubscribe(self, s: _Sub, offered: list[QoSProfile]) -> None:
         qos = matching_qos(s.var.depth, offered)

@@ -21,6 +21,7 @@ import contextlib
 import errno
 import json
 import os
+import re
 import select
 import shutil
 import signal
@@ -33,12 +34,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_typestore
 
 from supervisor.daemon.recorder import (
     HEAD,
     MESSAGE_OVERHEAD,
     PER_MESSAGE,
+    QOS_INDEX,
     RECORDS_TOPIC,
     RECORDS_TYPE,
     bag_dirs,
@@ -46,10 +49,19 @@ from supervisor.daemon.recorder import (
 )
 
 if TYPE_CHECKING:
-    from rosbags.interfaces import Connection
+    from rosbags.interfaces import Connection, Qos
 
 READ_SIZE = 1 << 20
 POLL_S = 0.05
+# rosbags writes its own name as the bag's ros_distro (metadata.yaml and the MCAP
+# "rosbag2" metadata record); the daemon runs on Jazzy, whose message types it records.
+ROS_DISTRO = "jazzy"
+_ROSBAGS_DISTRO = re.compile(r"^(\s*)ros_distro: rosbags$", re.MULTILINE)
+
+
+def jazzy(metadata: str) -> str:
+    """rosbag2 metadata YAML with ``ros_distro: jazzy`` in place of rosbags' name."""
+    return _ROSBAGS_DISTRO.sub(rf"\1ros_distro: {ROS_DISTRO}", metadata)
 
 
 def unframe(buf: bytearray) -> tuple[list[tuple[list[tuple[int, int, bytes]], int]], int]:
@@ -121,6 +133,11 @@ class BagWriter:
         self.bytes = 0
         self.bags = 0
         self.dropped = 0  # the daemon's count, for metadata.yaml
+        self.controls = 0  # entries that were not messages (offered QoS)
+        # Offered QoS by (topic, type), from the daemon's graph; a change for a topic
+        # the open bag holds starts a new bag (a channel's QoS cannot change in MCAP).
+        self.qos: dict[tuple[str, str], list[Qos]] = {}
+        self.rotate_due = False
 
     def stats(self) -> dict[str, int]:
         keys = ("written", "skipped", "bytes", "bags")
@@ -152,22 +169,57 @@ class BagWriter:
             if index in self.skip:
                 self.skipped += 1
                 continue
+            if index == QOS_INDEX:
+                self.set_qos(data)
+                continue
             if index < 0:  # a log line: the JSON text, sent as UTF-8
                 text = data.decode()
                 text = text[:-1] if text.endswith("\n") else text
                 data = bytes(self.typestore.serialize_cdr(string_type(data=text), RECORDS_TYPE))
-            if self.writer is None or (
-                self.bag_bytes >= self.max_bag_bytes or wall - self.bag_start_ns >= self.max_bag_ns
+            if (
+                self.writer is None
+                or self.rotate_due
+                or self.bag_bytes >= self.max_bag_bytes
+                or wall - self.bag_start_ns >= self.max_bag_ns
             ):
                 self.rotate(wall)
             assert self.writer is not None
-            conn = self.records_conn if index < 0 else self.conns[index]
-            assert conn is not None
+            conn = self.records_conn if index < 0 else self.conns[index] or self.connect(index)
             self.writer.write(conn, wall, data)
             self.written += 1
             self.unflushed += 1
             self.bytes += len(data)
             self.bag_bytes += len(data) + MESSAGE_OVERHEAD
+
+    def set_qos(self, data: bytes) -> None:
+        """An input's offered QoS (:meth:`Recorder.offered_qos`'s entry)."""
+        self.controls += 1
+        entry = json.loads(data)
+        key = self.inputs[int(entry["input"])]
+        profiles = parse_qos(entry["profiles"])
+        if self.qos.get(key, []) == profiles:
+            return
+        self.qos[key] = profiles
+        if self.writer is None:
+            return
+        held = next((c for c in self.conns if c is not None and (c.topic, c.msgtype) == key), None)
+        if held is not None:
+            self.rotate_due = True
+        elif profiles:
+            self.connect(self.inputs.index(key))
+
+    def connect(self, index: int) -> Connection:
+        """Input ``index``'s connection in the open bag, added with its topic's offered
+        QoS as known now. Inputs on one topic (two fields of /odom) share it."""
+        assert self.writer is not None
+        key = self.inputs[index]
+        conn = self.writer.add_connection(
+            *key, typestore=self.typestore, offered_qos_profiles=self.qos.get(key, ())
+        )
+        for i, other in enumerate(self.inputs):
+            if other == key:
+                self.conns[i] = conn
+        return conn
 
     def rotate(self, wall_ns: int) -> None:
         """Closes the current bag (complete: index and metadata.yaml), begins the next
@@ -182,20 +234,21 @@ class BagWriter:
         )
         writer.open()
         self.writer = writer
-        # Every connection goes into the first chunk, so a reader of a bag cut short
-        # (no summary) knows every channel before its first message. Inputs on one
-        # topic (two fields of /odom) share its connection.
-        by_topic: dict[tuple[str, str], Connection] = {}
-        self.conns = []
-        for i, key in enumerate(self.inputs):
-            if i not in self.skip and key not in by_topic:
-                by_topic[key] = writer.add_connection(*key, typestore=self.typestore)
-            self.conns.append(by_topic.get(key))
+        # A topic's connection is added once its offered QoS is known (the daemon sends
+        # it when it subscribes) or at its first message, whichever comes first: the
+        # QoS goes into the channel record, which MCAP cannot change later. Either way
+        # the channel precedes its messages in the chunk, so a reader of a bag cut
+        # short (no summary) knows it; close_bag adds the topics that had neither.
+        self.conns = [None] * len(self.inputs)
         self.records_conn = writer.add_connection(
             RECORDS_TOPIC, RECORDS_TYPE, typestore=self.typestore
         )
+        for i, key in enumerate(self.inputs):
+            if i not in self.skip and self.conns[i] is None and self.qos.get(key):
+                self.connect(i)
         self.bag_start_ns = wall_ns
         self.bag_bytes = 0
+        self.rotate_due = False
         self.bags += 1
         for _, old in bag_dirs(self.directory)[: -self.keep]:
             shutil.rmtree(old, ignore_errors=True)
@@ -223,11 +276,25 @@ class BagWriter:
         self.last_flush = time.monotonic_ns()
 
     def close_bag(self) -> None:
+        if self.writer is not None:
+            # Every recorded topic is listed, with 0 messages if none came (as rosbag2).
+            for i in range(len(self.inputs)):
+                if i not in self.skip and self.conns[i] is None:
+                    self.connect(i)
         writer, self.writer = self.writer, None
         if writer is not None:
             if self.dropped:
                 writer.set_custom_data("safety_supervisor.dropped_messages", str(self.dropped))
+            # The metadata text goes into the MCAP file through the storage's close and
+            # into metadata.yaml after it: both get rosbag2's distro name.
+            storage: Any = writer.storage
+            close = storage.close
+            storage.close = lambda version, metadata: close(version, jazzy(metadata))
             writer.close()
+            meta = writer.metapath
+            tmp = meta.with_suffix(".yaml.tmp")
+            tmp.write_text(jazzy(meta.read_text("utf8")), "utf8")
+            tmp.replace(meta)
 
     def abort(self) -> None:
         writer, self.writer = self.writer, None
@@ -300,7 +367,7 @@ def run(settings: dict[str, Any], fd: int = 0) -> int:
         report({"stats": w.stats(), "closed": True})
         return 0
     except Exception as e:  # a write error ends the recording, reported once
-        lost = received - (w.written + w.skipped if w is not None else 0)
+        lost = received - (w.written + w.skipped + w.controls if w is not None else 0)
         if w is not None:
             w.abort()
         report({"stopped": stop_reason(e), "lost": lost})

@@ -46,6 +46,9 @@ if TYPE_CHECKING:
 
 RECORDS_TOPIC = "/safety_supervisor/records"
 RECORDS_TYPE = "std_msgs/msg/String"
+# The input index of a queue entry that carries an input's offered QoS profiles (JSON:
+# {"input": i, "profiles": [...]}) rather than a message; -1 is a log record.
+QOS_INDEX = -2
 # A bag directory: its first message's UTC time and a sequence number that goes on
 # across rotations and restarts (the next free one in the directory).
 BAG_NAME = re.compile(r"^(\d{8}T\d{6}Z)_(\d{6,})$")
@@ -124,6 +127,30 @@ def bag_dirs(directory: Path) -> list[tuple[int, Path]]:
         if m and p.is_dir():
             out.append((int(m.group(2)), p))
     return sorted(out)
+
+
+def _duration(value: Any) -> dict[str, int]:
+    """An rclpy Duration as rmw_time_t ({sec, nsec}); infinite (2**63 - 1 ns) comes out
+    as RMW_DURATION_INFINITE, as rosbag2 writes it."""
+    ns = int(value.nanoseconds)
+    return {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000}
+
+
+def offered_profile(qos: Any) -> dict[str, Any]:
+    """An rclpy QoSProfile as a rosbag2 offered-QoS entry (metadata version 9: the
+    policies by their rmw names, e.g. ``transient_local``; docs/reference/config.md,
+    record). Duck-typed, so this module stays free of rclpy."""
+    return {
+        "history": qos.history.name.lower(),
+        "depth": int(qos.depth),
+        "reliability": qos.reliability.name.lower(),
+        "durability": qos.durability.name.lower(),
+        "deadline": _duration(qos.deadline),
+        "lifespan": _duration(qos.lifespan),
+        "liveliness": qos.liveliness.name.lower(),
+        "liveliness_lease_duration": _duration(qos.liveliness_lease_duration),
+        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
+    }
 
 
 def frame(batch: Sequence[tuple[int, int, bytes]], dropped: int) -> bytes:
@@ -215,6 +242,7 @@ class Recorder:
         self._kill_reason: str | None = None
         self._reported_drops = 0
         self._last_drop_report = 0.0
+        self._offered: dict[int, list[dict[str, Any]]] = {}  # last sent, by input
 
         settings = {
             "directory": str(self.directory),
@@ -295,6 +323,25 @@ class Recorder:
                 self._queued += 1
                 self._queued_bytes += n
                 self._queue.append((index, t_ns, data))
+
+    def offered_qos(self, index: int, profiles: Iterable[Any]) -> None:
+        """The QoS profiles (rclpy QoSProfile) the publishers of input ``index``'s topic
+        offer, as the node sees them in the graph: written as the topic's
+        ``offered_qos_profiles`` so that ``ros2 bag play`` keeps its reliability and
+        durability. A change while a bag holds the topic starts a new bag."""
+        # The graph lists publishers in no fixed order: sorted, so that only a real
+        # change starts a new bag.
+        dicts = sorted(map(offered_profile, profiles), key=lambda d: json.dumps(d, sort_keys=True))
+        if self._offered.get(index) == dicts:
+            return
+        self._offered[index] = dicts
+        data = json.dumps({"input": index, "profiles": dicts}).encode()
+        with self._lock:
+            # Never dropped: rare and small, and a bag without it loses latching.
+            if not self._stopped:
+                self._queued += 1
+                self._queued_bytes += len(data)
+                self._queue.append((QOS_INDEX, time.monotonic_ns(), data))
 
     def record(self, t_ns: int, json_text: str) -> None:
         """One log line (a JSON record) made at monotonic ``t_ns``, for RECORDS_TOPIC."""

@@ -292,6 +292,7 @@ def replay_bench(
             out["cases"].append(
                 {
                     "case": label,
+                    "storage": "sqlite3" if bag.name.endswith("-sqlite3") else "mcap",
                     "config": str(config),
                     "fast": fast,
                     "messages": r["messages"],
@@ -303,8 +304,22 @@ def replay_bench(
                     "write_s": written_s,
                 }
             )
+    out["by_storage"] = by_storage(out["cases"])
     say("replay: monitor ticks/s, tick() against tick_batch")
     out["monitor"] = monitor_rates(plan.path, min_seconds=min_seconds)
+    return out
+
+
+def by_storage(cases: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Messages/s of the bulk-stepping cases per storage (the two readers are separate
+    code with separate goals, docs/BENCHMARKS.md): lowest, highest, case count."""
+    out: dict[str, dict[str, float]] = {}
+    for c in cases:
+        if c["fast"]:
+            rates = out.setdefault(c["storage"], {"min": c["rate"], "max": c["rate"], "cases": 0})
+            rates["min"] = min(rates["min"], c["rate"])
+            rates["max"] = max(rates["max"], c["rate"])
+            rates["cases"] += 1
     return out
 
 

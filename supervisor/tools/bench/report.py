@@ -304,8 +304,20 @@ def _format_replay(rep: dict[str, Any]) -> list[str]:
             f"  {c['case']:<44} {c['messages']:>9} {c['ticks']:>8} {c['violations']:>10} "
             f"{c['seconds']:>8.3f} {c['rate']:>10.0f} {c['bag_mb']:>7.1f}"
         )
+    for storage, r in rep.get("by_storage", {}).items():
+        lines.append(f"  {_STORAGE[storage]}: {_rate_range(r)}")
     lines.append("  monitor alone (native, random inputs): " + _monitor_rates(rep["monitor"]))
     return lines
+
+
+_STORAGE = {"mcap": "MCAP, bulk stepping", "sqlite3": "sqlite3, bulk stepping"}
+
+
+def _rate_range(r: dict[str, float]) -> str:
+    """A storage's msg/s over its bulk cases, as BENCHMARKS.md quotes it."""
+    low, high = r["min"] / 1e6, r["max"] / 1e6
+    span = f"{low:.2f} M msg/s" if low == high else f"{low:.2f}-{high:.2f} M msg/s"
+    return f"{span} ({r['cases']:.0f} cases)"
 
 
 def _monitor_rates(m: dict[str, float]) -> str:
@@ -504,6 +516,9 @@ def format_markdown(r: dict[str, Any]) -> str:
                 f"| {c['case']} | {c['messages']} | {c['ticks']} | {c['violations']} "
                 f"| {c['seconds']:.3f} | {c['rate']:.0f} | {c['bag_mb']:.1f} |"
             )
+        if rep.get("by_storage"):
+            out += ["", "| storage (bulk stepping) | msg/s |", "| --- | --- |"]
+            out += [f"| {_STORAGE[k]} | {_rate_range(v)} |" for k, v in rep["by_storage"].items()]
         out += ["", "| monitor alone | per second |", "| --- | ---: |"]
         out += [f"| {k} | {v:.0f} |" for k, v in rep["monitor"].items()]
     return "\n".join(out) + "\n"
