@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -92,7 +93,9 @@ def test_talker_bags_decode_all_ten_messages_as_rclpy_does(tmp_path: Path, stora
     from rcl_interfaces.msg import Log
     from rclpy.serialization import deserialize_message
 
-    bag = BAGS / storage / "talker"
+    # a copy: sqlite opens talker.db3 (WAL mode) with a -shm file beside it
+    bag = tmp_path / "talker"
+    shutil.copytree(BAGS / storage / "talker", bag)
     rec = open_recordings([bag], _config(tmp_path, TALKER))
     got = _values(list(rec.events()), "/rosout")
     raw = _raw(bag, "/rosout")
@@ -153,6 +156,60 @@ def test_service_events_rosbag2_recorded_decode_as_rclpy_does(tmp_path: Path, ba
     assert expected and len(got) == len(expected)
     for (tg, vg), (te, ve) in zip(got, expected, strict=True):
         assert tg == te and vg["i64"] == ve["i64"] and vg["f64"] == pytest.approx(ve["f64"])
+
+
+ADD_TWO_INTS = """\
+component: Robot
+step: {policy: periodic, period_ms: 100}
+variables:
+  a: {type: int64, service: /add_two_ints, srv: example_interfaces/srv/AddTwoInts, call: request, field: a, initial: 0}
+  b: {type: int64, service: /add_two_ints, srv: example_interfaces/srv/AddTwoInts, call: request, field: b, initial: 0}
+  s: {type: int64, service: /add_two_ints, srv: example_interfaces/srv/AddTwoInts, call: response, field: sum, initial: 0}
+requirements:
+  - {id: R1, text: Robot shall always satisfy a + b < 1000 & s < 1000}
+"""
+
+
+def _add_two_ints(data: bytes) -> dict[str, int]:
+    """An AddTwoInts_Event decoded by hand from its CDR layout (little endian after
+    the 4-byte header): ServiceEventInfo (uint8, Time at 4, char[16] at 12, int64 at
+    32), then sequence<Request, 1> at 40 and sequence<Response, 1>."""
+    assert data[:4] == b"\x00\x01\x00\x00"
+    body = data[4:]
+    (n_req,) = struct.unpack_from("<I", body, 40)
+    out: dict[str, int] = {}
+    at = 44
+    if n_req:
+        out["a"], out["b"] = struct.unpack_from("<qq", body, 48)
+        at = 64
+    (n_resp,) = struct.unpack_from("<I", body, at)
+    if n_resp:
+        (out["s"],) = struct.unpack_from("<q", body, (at + 4 + 7) // 8 * 8)
+    return out
+
+
+@pytest.mark.parametrize(
+    "bag",
+    [
+        "mcap/only_services/only_services.mcap",
+        "mcap/topics_and_services/topics_and_services.mcap",
+        "sqlite3/topics_and_services/topics_and_services.db3",
+    ],
+)
+def test_service_events_of_a_package_not_installed_decode_from_the_bags_srv_text(
+    tmp_path: Path, bag: str
+) -> None:
+    # example_interfaces is not installed: the .srv text rosbag2 stored is the type
+    path = BAGS / bag
+    rec = open_recordings([path], _config(tmp_path, ADD_TWO_INTS))
+    got = _values(list(rec.events()), "/add_two_ints/_service_event")
+    expected = [
+        (t, v)
+        for t, d in _raw(path.parent, "/add_two_ints/_service_event")
+        if (v := _add_two_ints(d))
+    ]
+    assert len(expected) >= 6 and got == expected
+    assert any("s" in v for _t, v in expected) and any("a" in v for _t, v in expected)
 
 
 def test_built_service_and_action_types_hash_as_rosidl_generated_them() -> None:

@@ -268,12 +268,14 @@ def typestore_of(
     label: str = "",
     prefixes: Sequence[Path] | None = None,
 ) -> Typestore:
-    """Types to decode a recording with: its own definitions (name, encoding, text)
-    where they parse and match the installed type's REP-2011 hash; the installed
-    interface packages (then rosbags' Jazzy types) for each ``used`` type the
-    recording does not define, defines as a stub or defines otherwise.  Each
-    installed type preferred to a differing definition of the recording is said
-    in ``said``, one line each."""
+    """Types to decode a recording with (docs/reference/commands.md, "replay").
+
+    For each ``used`` type: the installed interface package's when the recording
+    does not define it, defines it as something that does not parse, or defines it
+    otherwise (a different REP-2011 hash, as rosbag2's stub definitions); else the
+    recording's own.  rosbags' Jazzy types stand in for a package not installed,
+    but never over a definition of the recording that parses.  Each type used
+    instead of the recording's definition is said in ``said``, one line each."""
     defs = list(defs)
     bag, parsed = _bag_types(defs)
     defined = {normalise_type(name) for name, _enc, text in defs if text}
@@ -283,26 +285,27 @@ def typestore_of(
     for typ in dict.fromkeys(normalise_type(u) for u in used):
         try:
             inst: Fielddefs | None = installed_types(typ, prefixes)
-            where = "the installed package"
-            # both sides hashed by rosbags, so that its reading of byte and char (as
-            # uint8) does not make equal types differ
-            inst_hash = _hash(typ, inst)
+            where = f"the one installed in {typ.split('/', 1)[0]}"
         except Exception:  # noqa: BLE001 - none installed, or a file rosbags cannot parse
+            if typ in parsed:
+                continue
             inst = _closure(typ, jazzy)
-            where = "rosbags' Jazzy types"
-            inst_hash = _hash(typ, inst) if inst else None
+            where = "rosbags' Jazzy one"
         if inst is None:
             continue
         if typ in defined:
+            # both sides hashed by rosbags, so that its reading of byte and char (as
+            # uint8) does not make equal types differ
+            inst_hash = _hash(typ, inst)
             own = _closure(typ, bag, inst, jazzy) if typ in parsed else None
             bag_hash = _hash(typ, own) if own else None
             if bag_hash is not None and bag_hash == inst_hash:
                 continue
             if said is not None:
+                theirs = f"hash {bag_hash}" if bag_hash else "does not parse"
                 said.append(
-                    f"warning: {label}: type {typ}: the recording's definition "
-                    f"({bag_hash or 'not decodable'}) differs from {where}'s ({inst_hash}): "
-                    f"{where}'s is used"
+                    f"warning: {label}: type {typ}: the recording's definition ({theirs}) "
+                    f"is not {where} (hash {inst_hash}): decoded with that one"
                 )
         chosen.update(inst)
     store = get_typestore(Stores.EMPTY)
