@@ -64,10 +64,15 @@ def _names(node: tuple[Any, Any]) -> Iterable[str]:
 def _renamed(node: tuple[Any, Any], names: dict[str, str]) -> tuple[Any, Any]:
     kind, payload = node
     if kind == Nodetype.NAME:
-        return kind, names.get(payload, payload)
+        return kind, _unmangled(names.get(payload, payload))
     if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
         return kind, (_renamed(payload[0], names), payload[1])
     return node
+
+
+def _unmangled(name: str) -> str:
+    """rosbags reads a reference 'pkg/srv/X' as 'pkg/srv/msg/X': back to ROS's name."""
+    return name.replace("/srv/msg/", "/srv/").replace("/action/msg/", "/action/")
 
 
 def _parse(text: str, pkg: str, kind: str, short: str, siblings: Sequence[str]) -> Fielddefs:
@@ -77,32 +82,54 @@ def _parse(text: str, pkg: str, kind: str, short: str, siblings: Sequence[str]) 
     found = get_types_from_msg(text, f"{pkg}/msg/{short}")
     names = {f"{pkg}/msg/{s}": f"{pkg}/{kind}/{s}" for s in (short, *siblings)}
     return {
-        names.get(k, k): (consts, [(f, _renamed(t, names)) for f, t in fields])
+        _unmangled(names.get(k, k)): (consts, [(f, _renamed(t, names)) for f, t in fields])
         for k, (consts, fields) in found.items()
     }
+
+
+def _base(kind: str, short: str) -> str:
+    """The interface file's name of a type: 'Fibonacci_SendGoal_Request' ->
+    'Fibonacci' for an action, 'BasicTypes_Event' -> 'BasicTypes' for a service."""
+    if kind == "srv":
+        return re.sub(r"_(Request|Response|Event)$", "", short)
+    if kind == "action":
+        parts = (
+            r"Goal|Result|Feedback|FeedbackMessage|(SendGoal|GetResult)_(Request|Response|Event)"
+        )
+        return re.sub(rf"_({parts})$", "", short)
+    return short
+
+
+def _siblings(kind: str, base: str) -> list[str]:
+    """The types one .srv or .action file makes, which refer to each other."""
+    if kind == "srv":
+        return [f"{base}_Request", f"{base}_Response", f"{base}_Event"]
+    if kind == "action":
+        calls = [
+            f"{base}_{c}_{p}"
+            for c in ("SendGoal", "GetResult")
+            for p in ("Request", "Response", "Event")
+        ]
+        return [
+            f"{base}_Goal",
+            f"{base}_Result",
+            f"{base}_Feedback",
+            f"{base}_FeedbackMessage",
+            *calls,
+        ]
+    return []
 
 
 def _interface_file(pkg: str, kind: str, short: str, prefixes: Sequence[Path]) -> Fielddefs:
     """Every type one installed .msg, .srv or .action file defines that is named
     ``short`` or of which ``short`` is a part; empty if no file is installed."""
-    if kind == "msg":
-        bases = [short]
-    elif kind == "srv":
-        bases = [re.sub(r"_(Request|Response|Event)$", "", short)]
-    elif kind == "action":
-        bases = [
-            re.sub(
-                r"_(Goal|Result|Feedback|FeedbackMessage|(SendGoal|GetResult)_(Request|Response|Event))$",
-                "",
-                short,
-            )
-        ]
-    else:
+    if kind not in ("msg", "srv", "action"):
         return {}
+    base = _base(kind, short)
     for prefix in prefixes:
-        path = prefix / "share" / pkg / kind / f"{bases[0]}.{kind}"
+        path = prefix / "share" / pkg / kind / f"{base}.{kind}"
         if path.is_file():
-            return _file_types(str(path), pkg, kind, bases[0])
+            return _file_types(str(path), pkg, kind, base)
     return {}
 
 
@@ -220,7 +247,10 @@ def _bag_types(defs: Iterable[tuple[str, str, str]]) -> tuple[Fielddefs, set[str
                         types.update(_parse(part, pkg, kind, s, names))
                     parsed.update(f"{pkg}/srv/{n}" for n in names)
                 else:
-                    types.update(_parse(text, pkg, kind or "msg", short, ()))
+                    # a service's or action's part written out as a message (the
+                    # daemon's recorder does): its siblings keep their srv/action names
+                    siblings = _siblings(kind, _base(kind, short))
+                    types.update(_parse(text, pkg, kind or "msg", short, siblings))
         except Exception:  # noqa: BLE001 - a definition rosbags cannot parse: not the bag's
             continue
         if typ in types:
