@@ -7,6 +7,7 @@ installed types."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
 import struct
@@ -20,7 +21,7 @@ from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_typestore
 
 from supervisor.config import load_config
-from supervisor.inputs.rostypes import installed_hash, installed_types, load_msg_types
+from supervisor.inputs.rostypes import installed_types, load_msg_types, msg_search_prefixes
 from supervisor.tools.replay.sources import open_recordings
 
 BAGS = Path(__file__).parent / "data" / "bags"
@@ -44,6 +45,19 @@ variables:
 requirements:
   - {id: R1, text: Robot shall always satisfy i64 < 1000000 & f64 < 1000000.0}
 """
+
+
+def installed_hash(name: str) -> str | None:
+    """The REP-2011 hash rosidl computed for ``name``, as the installed package ships
+    it (``type_hashes`` of ``share/<pkg>/<kind>/<Base>.json``)."""
+    pkg, kind, short = name.split("/")
+    base = short.split("_", 1)[0]
+    for prefix in msg_search_prefixes():
+        path = prefix / "share" / pkg / kind / f"{base}.json"
+        if path.is_file():
+            hashes = json.loads(path.read_text())["type_hashes"]
+            return next((h["hash_string"] for h in hashes if h["type_name"] == name), None)
+    return None
 
 
 def _config(tmp_path: Path, text: str) -> Any:
@@ -286,5 +300,6 @@ def test_the_recorder_still_describes_installed_types_rosbags_lacks() -> None:
     load_msg_types(store, "test_msgs/msg/Nested")
     assert "test_msgs/msg/BasicTypes" in store.types  # used by Nested, loaded with it
     assert [f for f, _ in store.fielddefs["test_msgs/msg/Nested"][1]] == ["basic_types_value"]
+    assert installed_hash("test_msgs/msg/Nested")  # the package is there, its .msg read
     with pytest.raises(LookupError, match="acme_msgs/msg/Nope"):
         load_msg_types(store, "acme_msgs/msg/Nope")

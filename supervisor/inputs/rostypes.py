@@ -8,7 +8,6 @@ for replay (the types it decodes a bag with)."""
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import sys
@@ -179,33 +178,6 @@ def installed_types(
         found[typ] = got[typ]
         pending.extend(n for _f, t in got[typ][1] for n in _names(t))
     return found
-
-
-def installed_hash(name: str, prefixes: Sequence[Path] | None = None) -> str | None:
-    """The REP-2011 type hash the installed package ships for ``name`` (the
-    ``type_hashes`` of ``share/<pkg>/<kind>/<Base>.json``), if it ships one."""
-    prefixes = msg_search_prefixes() if prefixes is None else prefixes
-    pkg, kind, short = ([*name.split("/"), "", ""])[:3]
-    for prefix in prefixes:
-        folder = prefix / "share" / pkg / kind
-        base = short
-        while True:
-            path = folder / f"{base}.json"
-            if path.is_file():
-                return _json_hashes(str(path)).get(name)
-            if "_" not in base:
-                break
-            base = base.rsplit("_", 1)[0]
-    return None
-
-
-@cache
-def _json_hashes(path: str) -> dict[str, str]:
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-        return {h["type_name"]: h["hash_string"] for h in data.get("type_hashes", [])}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return {}
 
 
 def load_msg_types(
