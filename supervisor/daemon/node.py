@@ -1059,7 +1059,7 @@ def _field_plans(subs: list[_Sub]) -> dict[int, list[Any]]:
     from rosbags.typesys import Stores, get_typestore
 
     from supervisor.daemon.cdr import field_plan
-    from supervisor.daemon.recorder import load_msg_types
+    from supervisor.inputs.rostypes import load_msg_types
 
     store = get_typestore(Stores.ROS2_JAZZY)
     out: dict[int, list[Any]] = {}

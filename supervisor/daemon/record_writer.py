@@ -45,8 +45,8 @@ from supervisor.daemon.recorder import (
     RECORDS_TOPIC,
     RECORDS_TYPE,
     bag_dirs,
-    load_msg_types,
 )
+from supervisor.inputs.rostypes import load_msg_types
 
 if TYPE_CHECKING:
     from rosbags.interfaces import Connection, Qos

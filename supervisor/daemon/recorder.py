@@ -29,19 +29,14 @@ import sys
 import threading
 import time
 from array import array
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-from rosbags.typesys import get_types_from_msg
-from rosbags.typesys.base import Nodetype
+from typing import TYPE_CHECKING
 
 from supervisor.children import child_env, start
 
 if TYPE_CHECKING:
-    from rosbags.typesys.store import Typestore
-
     from supervisor.config.record import RecordConfig
 
 RECORDS_TOPIC = "/safety_supervisor/records"
@@ -76,47 +71,6 @@ class RecorderStats:
     bytes: int  # payload bytes written
     bags: int  # bags begun by this recorder
     stopped: str | None  # why the recording stopped, None while it runs or after close()
-
-
-def _names(node: Any) -> Iterable[str]:
-    """The message types a rosbags field type refers to (nested in arrays too)."""
-    kind, payload = node
-    if kind == Nodetype.NAME:
-        yield payload
-    elif kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
-        yield from _names(payload[0])
-
-
-def msg_search_prefixes() -> list[Path]:
-    """Where installed ROS packages keep ``share/<pkg>/msg/*.msg``: the ament
-    prefixes, and this Python's prefix (the ros-jazzy-* wheels install there)."""
-    prefixes = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(":") if p]
-    return [*prefixes, Path(sys.prefix)]
-
-
-def load_msg_types(
-    typestore: Typestore, msgtype: str, prefixes: Sequence[Path] | None = None
-) -> None:
-    """Registers ``msgtype`` and every type it uses from the installed .msg files.
-
-    Raises LookupError naming the first type without a .msg file."""
-    prefixes = msg_search_prefixes() if prefixes is None else prefixes
-    found: dict[str, Any] = {}
-    pending = [msgtype]
-    while pending:
-        name = pending.pop()
-        if name in typestore.types or name in found:
-            continue
-        pkg, _, short = name.rpartition("/msg/")
-        files = [p / "share" / pkg / "msg" / f"{short}.msg" for p in prefixes]
-        path = next((f for f in files if pkg and f.is_file()), None)
-        if path is None:
-            raise LookupError(f"no .msg file for {name} (searched {', '.join(map(str, files))})")
-        types = get_types_from_msg(path.read_text(encoding="utf-8"), name)
-        found.update(types)
-        for _consts, fields in types.values():
-            pending.extend(n for _field, ftype in fields for n in _names(ftype))
-    typestore.register(found)
 
 
 def bag_dirs(directory: Path) -> list[tuple[int, Path]]:

@@ -14,6 +14,7 @@ import numpy as np
 
 from monitors.errors import UserError
 from monitors.untrusted import Untrusted, inflate
+from supervisor.inputs.rostypes import typestore_of
 from supervisor.tools.replay.storage import (
     DEFAULT_BOUNDS,
     NS_MAX,
@@ -24,7 +25,6 @@ from supervisor.tools.replay.storage import (
     normalise_type,
     open_regular,
     raw_chunk,
-    typestore_of,
 )
 
 # --- MCAP storage ---------------------------------------------------------------------
@@ -100,7 +100,9 @@ class Mcap(Source):
             except Damage as e:
                 if not self.topics:
                     raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
-        self.store = typestore_of(list(self._schemas.values()))
+        self.store = typestore_of(
+            list(self._schemas.values()), self.topics.values(), self.warnings, self.label
+        )
 
     def _summary(self) -> bool:
         """Every schema and channel (and the message counts) from the summary at the

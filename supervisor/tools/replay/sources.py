@@ -57,6 +57,7 @@ from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
 from supervisor.inputs.paths import ReadError
 from supervisor.inputs.readers import SKIP, arrival_only, make_reader, plain_field
+from supervisor.inputs.rostypes import package_hint
 from supervisor.names import VIOLATIONS_TOPIC
 from supervisor.tools.replay.mcap import Mcap
 from supervisor.tools.replay.sqlite import Sqlite
@@ -359,7 +360,9 @@ class Recording:
                     raise UserError(f"topic {topic}: {e.message}", file=src.label) from None
                 except KeyError as e:
                     raise UserError(
-                        f"topic {topic}: type {e} is not defined in the recording", file=src.label
+                        f"topic {topic}: type {e.args[0]} is defined neither in the recording "
+                        f"nor by an installed package: {package_hint(str(e.args[0]))}",
+                        file=src.label,
                     ) from None
                 if leaf not in COMPATIBLE[v.type]:
                     raise UserError(

@@ -15,6 +15,7 @@ import numpy as np
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
+from supervisor.inputs.rostypes import typestore_of
 from supervisor.tools.replay.storage import (
     CHUNK_BYTES,
     NS_MAX,
@@ -24,7 +25,6 @@ from supervisor.tools.replay.storage import (
     normalise_type,
     open_regular,
     raw_chunk,
-    typestore_of,
 )
 
 # --- sqlite3 storage ------------------------------------------------------------------
@@ -101,7 +101,7 @@ class Sqlite(Source):
             )
         con.close()
         self._drop()
-        self.store = typestore_of(defs)
+        self.store = typestore_of(defs, self.topics.values(), self.warnings, self.label)
 
     def _connect(self) -> apsw.Connection:
         path = self._patched() if self._cut else self.path

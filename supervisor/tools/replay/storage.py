@@ -12,9 +12,10 @@ from pathlib import Path
 from typing import Any, BinaryIO, Literal
 
 import numpy as np
-from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+# one type resolution for replay and the recorder (supervisor/inputs/rostypes.py)
+from supervisor.inputs.rostypes import normalise_type as normalise_type
 from supervisor.names import VIOLATIONS_TOPIC
 
 # The daemon's JSON records on ROS: the full record stream (with markers) and the
@@ -44,14 +45,6 @@ def field_value(msg: Any, path: str) -> Any:
     for part in path.split("."):
         msg = getattr(msg, part)
     return msg
-
-
-def normalise_type(name: str) -> str:
-    """'std_msgs/Int64', 'std_msgs::msg::Int64' -> 'std_msgs/msg/Int64'."""
-    parts = [p for p in name.replace("::", "/").split("/") if p]
-    if len(parts) == 2:
-        parts = [parts[0], "msg", parts[1]]
-    return "/".join(parts)
 
 
 @dataclass
@@ -144,34 +137,3 @@ class Source:
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
         raise NotImplementedError
-
-
-def typestore_of(defs: list[tuple[str, str, str]]) -> Typestore:
-    """Types from the recording's own definitions (name, encoding, text); rosbags'
-    Jazzy types fill in what a recording does not define."""
-    types: dict[str, Any] = {}
-    for name, encoding, text in defs:
-        if not text:
-            continue
-        try:
-            if encoding in ("ros2idl", "idl"):
-                sep = "=" * 80 + "\n"
-                parts = text.split(sep)[1:] if text.startswith(f"{sep}IDL: ") else [text]
-                for part in parts:
-                    types.update(
-                        get_types_from_idl(
-                            part.split("\n", 1)[1] if part.startswith("IDL: ") else part
-                        )
-                    )
-            else:
-                found = get_types_from_msg(text, normalise_type(name))
-                # rosbags names a service's event type 'pkg/srv/msg/X_Event'; the
-                # recording and the config call it 'pkg/srv/X_Event'
-                types.update({k.replace("/srv/msg/", "/srv/"): v for k, v in found.items()})
-        except Exception:  # noqa: BLE001 - a definition rosbags cannot parse: use Jazzy's
-            continue
-    store = get_typestore(Stores.EMPTY)
-    store.register(types)
-    jazzy = get_typestore(Stores.ROS2_JAZZY)
-    store.register({k: v for k, v in jazzy.fielddefs.items() if k not in store.fielddefs})
-    return store
