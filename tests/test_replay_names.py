@@ -272,3 +272,64 @@ def test_no_progress_when_stderr_is_not_a_terminal(tmp_path):
     run = cli("replay", str(speed_config(tmp_path)), str(bag))
     assert run.returncode == 0, run.stderr
     assert "\r" not in run.stderr and "replay: " not in run.stderr
+
+
+def test_report_bag_reads_relative_names_without_progress_in_a_pipe(tmp_path):
+    """``report --bag`` resolves names as replay does: rosbag2's ``CCC`` is ``/CCC``."""
+    bag = BAGS / "sqlite3/wbag"
+    cfg = event_config(tmp_path, "/CCC", "std_msgs/msg/String")
+    log = tmp_path / "log.jsonl"
+    assert cli("replay", str(cfg), str(bag), "-o", str(log)).returncode == 0
+    page = tmp_path / "r.html"
+    run = cli("report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page))
+    assert run.returncode == 0, run.stderr
+    assert "\r" not in run.stderr and "Traceback" not in run.stderr
+    html = page.read_text()
+    assert "none of the recordings" not in html
+
+
+def test_a_second_replay_compiles_nothing_from_the_user_s_cache(tmp_path):
+    """Without STATE_DIRECTORY replay keeps its monitor in $XDG_CACHE_HOME, made 0700
+    and checked as the daemon's cache is (supervisor/cache.py); the compiler behind a
+    wrapper that logs each compilation (as tests/test_startup_cache.py does)."""
+    from test_startup_cache import _wrapper
+
+    bag = namespaced_bag(tmp_path / "bag", SPEEDS)
+    cfg = speed_config(tmp_path)
+    log = tmp_path / "cc.log"
+    xdg = tmp_path / "xdg"
+    env = {k: v for k, v in os.environ.items() if k != "STATE_DIRECTORY"}
+    env.update(XDG_CACHE_HOME=str(xdg), CC=str(_wrapper(tmp_path / "cc", log)))
+
+    def replay() -> dict[str, object]:
+        run = subprocess.run(
+            [sys.executable, "-m", "supervisor", "replay", str(cfg), str(bag),
+             "--namespace", "/robot1", "--json"],
+            capture_output=True, text=True, env=env, timeout=300,
+        )  # fmt: skip
+        assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+        return json.loads(run.stdout)
+
+    def compiles() -> int:
+        n = len(log.read_text().splitlines()) if log.exists() else 0
+        log.unlink(missing_ok=True)
+        return n
+
+    first = replay()
+    assert compiles() > 0
+    root = xdg / "safety-supervisor"
+    assert root.stat().st_mode & 0o777 == 0o700
+    assert list(root.glob("*/monitor.json")) and list(root.glob("lark-*.tables"))
+    second = replay()
+    timing = ("seconds", "rate")
+    assert {k: v for k, v in second.items() if k not in timing} == {
+        k: v for k, v in first.items() if k not in timing
+    }
+    assert compiles() == 0
+    root.chmod(0o777)  # others could swap the library: not used, said, built afresh
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "replay", str(cfg), str(bag), "--namespace=/robot1"],
+        capture_output=True, text=True, env=env, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 0 and "not used" in run.stderr, run.stderr
+    assert compiles() > 0
