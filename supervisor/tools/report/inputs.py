@@ -178,7 +178,6 @@ def series_from_bag(
     reading where it is (a note), as it ends a replay."""
     from supervisor.tools.replay.sources import open_recordings
 
-    quiet = quiet or not sys.stderr.isatty()  # progress is for a terminal, never a log
     rec = open_recordings(paths, cfg, cfg.ros.namespace)  # names as replay resolves them
     notes = list(rec.warnings)
     pts: dict[str, list[tuple[int, Value]]] = {}
@@ -245,7 +244,6 @@ def windows_from_bag(
     from supervisor.tools.replay.session import loaded
     from supervisor.tools.replay.sources import open_recordings
 
-    quiet = quiet or not sys.stderr.isatty()  # progress is for a terminal, never a log
     with loaded(config) as session:
         session.runtime.recent = deque(maxlen=WINDOW_CAP)
         cap = _Capture(session.runtime, set(wanted.values()))
