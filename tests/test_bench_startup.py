@@ -48,7 +48,7 @@ def test_startup_table() -> None:
     r = _bench()
     assert r.returncode == 0, r.stderr
     rows = [line for line in r.stdout.splitlines() if line.startswith("  ")]
-    labels = ("--help", "check, empty cache", "check, cache filled", "run to READY=1", "replay 10")
+    labels = ("--help", "check, empty cache", "check, cache filled", "run to READY=1", "replay 10 ")
     for label in labels:
         assert any(row.strip().startswith(label) for row in rows), r.stdout
     assert sum("<= " in row for row in rows) == 4, r.stdout  # the four goals

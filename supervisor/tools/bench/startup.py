@@ -167,8 +167,8 @@ ROWS = (
     ("check_warm", "check, cache filled", None),
     ("run_cold", "run to READY=1, empty cache", "run_cold"),
     ("run_warm", "run to READY=1, cache filled", "run_warm"),
-    ("replay_cold", "replay 10 messages, empty cache", None),
-    ("replay_warm", "replay 10 messages, cache filled", "replay_warm"),
+    ("replay_cold", "replay 10 msgs, empty cache", None),
+    ("replay_warm", "replay 10 msgs, cache filled", "replay_warm"),
 )
 
 
