@@ -333,3 +333,27 @@ def test_a_second_replay_compiles_nothing_from_the_user_s_cache(tmp_path):
     )  # fmt: skip
     assert run.returncode == 0 and "not used" in run.stderr, run.stderr
     assert compiles() > 0
+
+
+def test_a_matched_topic_without_messages_judged_nothing(tmp_path):
+    """rosbag2's empty_bag has /rosout, no message on it: exit 1, not a 0-tick success."""
+    cfg = write(
+        tmp_path / "rosout.yaml",
+        """\
+component: R
+step: {policy: on_message}
+variables:
+  level: {type: int64, topic: /rosout, msg: rcl_interfaces/msg/Log, field: level}
+requirements:
+  - id: calm
+    text: R shall always satisfy level < 40
+    on_violation: [note]
+mitigations:
+  note: {log: {message: violated}}
+""",
+    )
+    assert sqlite_counts(BAGS / "sqlite3/empty_bag") == {}
+    run = cli("replay", str(cfg), str(BAGS / "sqlite3/empty_bag"))
+    assert run.returncode == 1 and "Traceback" not in run.stderr
+    last = run.stderr.strip().splitlines()[-1]
+    assert "no message on the config's topics (/rosout)" in last

@@ -107,7 +107,8 @@ def _namespace(given: str | None) -> str | None:
     if not NAMESPACE.fullmatch(given):
         raise UserError(
             f"--namespace {given!r} is not a ROS namespace "
-            "(absolute, like /robot1 or /fleet/robot1)"
+            "(absolute, like /robot1 or /fleet/robot1)",
+            file="replay",
         )
     return given
 

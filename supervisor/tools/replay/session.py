@@ -147,7 +147,8 @@ def run_one(
         if outcome.error is None and outcome.messages == 0 and recording.by_topic:
             outcome.error = UserError(
                 "the recordings hold no message on the config's topics "
-                f"({', '.join(recording.topics)}), so nothing was judged"
+                f"({', '.join(recording.topics)}), so nothing was judged",
+                file=", ".join(str(p) for p in paths),
             )
         return Run(outcome, notes + outcome.warnings + _counted(warnings), recording.missing)
 

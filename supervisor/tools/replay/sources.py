@@ -317,6 +317,7 @@ class Recording:
             raise UserError(
                 "no topic of the config is in the recordings, so nothing would be judged: "
                 f"recorded: {', '.join(bag) or 'none'}; the config reads: {', '.join(sorted(by_topic))}",
+                file=", ".join(s.label for s in sources) or "replay",
                 hint="a robot's bag recorded in a namespace maps onto the config with "
                 "--namespace (or ros.namespace)",
             )
