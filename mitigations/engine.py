@@ -15,9 +15,12 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from mitigations.actions.base import Action, Outcome
-from mitigations.violationlog.writer import ViolationLog
+
+if TYPE_CHECKING:  # an annotation only: replay imports this module and writes no log
+    from mitigations.violationlog.writer import ViolationLog
 
 
 @dataclass(frozen=True)

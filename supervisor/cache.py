@@ -4,7 +4,9 @@ expensive work once between them and a restart does none (docs/reference/command
 "The start-up cache").
 
 The cache lives only in systemd's ``StateDirectory`` (``$STATE_DIRECTORY/cache``),
-never at a path from the config; without ``STATE_DIRECTORY`` nothing is cached.
+never at a path from the config; without ``STATE_DIRECTORY`` nothing is cached, except
+that ``replay`` keeps its monitors in the user's ``$XDG_CACHE_HOME/safety-supervisor``
+(``Cache.open_user``).
 An item is ``<key>/<name>`` with a ``<name>.sha256`` beside it.  Both are written
 to a temporary file, fsynced and renamed, the digest last, so a start killed
 half-way leaves at most an item without its digest, which is never taken for
@@ -70,6 +72,30 @@ class Cache:
             st = root.lstat()
         except OSError as e:
             _warn(f"{root}: {e.strerror}; not used")
+            return None
+        if not _ours(st, stat.S_IFDIR):
+            _warn(f"{root} is not a directory of this user's that only it can write; not used")
+            return None
+        return cls(root)
+
+    @classmethod
+    def open_user(cls) -> Cache | None:
+        """``replay``'s cache: the daemon's (``open``) under systemd, else this user's
+        ``$XDG_CACHE_HOME/safety-supervisor`` (``~/.cache/safety-supervisor``), with
+        the same checks; a path from the environment, never from a config or a bag."""
+        if os.environ.get("STATE_DIRECTORY", "").split(":")[0]:
+            return cls.open()
+        base = os.environ.get("XDG_CACHE_HOME", "")
+        # the XDG base directory specification: a relative value is to be ignored
+        home = Path(base) if os.path.isabs(base) else Path.home() / ".cache"
+        root = home / "safety-supervisor"
+        try:
+            home.mkdir(mode=0o700, parents=True, exist_ok=True)
+            with contextlib.suppress(FileExistsError):
+                root.mkdir(mode=0o700)
+            st = root.lstat()
+        except (OSError, RuntimeError) as e:  # RuntimeError: no home directory
+            _warn(f"{root}: {getattr(e, 'strerror', None) or e}; not used")
             return None
         if not _ours(st, stat.S_IFDIR):
             _warn(f"{root} is not a directory of this user's that only it can write; not used")

@@ -230,6 +230,9 @@ def check_variables(
     for v in cfg.defines:
         if v.name in used and v.define is not None:
             used.update(variables(v.define))
+    for v in cfg.variables.values():  # an age or a rate reads its input's messages
+        if v.name in used and (v.age_of or v.rate_of):
+            used.add(v.age_of or v.rate_of or "")
     if cfg.step.trigger:
         used.add(cfg.step.trigger)
     for entry in cfg.requirements:  # a policy's confirmation reads its variable too

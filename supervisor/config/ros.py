@@ -19,6 +19,9 @@ ROS_KEYS = {
     "reset_service",
 }
 
+# an absolute ROS namespace: also what replay's --namespace takes
+NAMESPACE = re.compile(r"/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?")
+
 
 def load_ros(doc: LineDict) -> RosConfig:
     raw = doc.get("ros")
@@ -34,7 +37,7 @@ def load_ros(doc: LineDict) -> RosConfig:
         out.node_name = str(name)
     ns = r.get("namespace")
     if ns is not None:
-        if not re.match(r"^/([A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*)?$", str(ns)):
+        if not NAMESPACE.fullmatch(str(ns)):
             raise error_at(
                 f"ros.namespace '{ns}' is not a ROS namespace",
                 r,

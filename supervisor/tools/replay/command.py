@@ -38,6 +38,18 @@ def add_parser(sub: Any) -> None:
         metavar="OTHER_CONFIG",
         help="also replay OTHER_CONFIG and report where their violations differ",
     )
+    p.add_argument(
+        "--namespace",
+        default=None,
+        metavar="NS",
+        help="the robot's namespace in the bag: /robot1/scan is the config's /scan "
+        "(default: the config's ros.namespace)",
+    )
+    p.add_argument(
+        "--require-all-topics",
+        action="store_true",
+        help="a config topic in none of the recordings is an error (exit 1), not a warning",
+    )
     p.add_argument("--json", action="store_true", help="the summary as one JSON object")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     p.add_argument(
@@ -52,24 +64,53 @@ def cmd_replay(args: argparse.Namespace) -> int:
     # this module for its parser at every start.
     from supervisor.tools.replay.session import compare, replay_files
 
-    progress = None if args.quiet or args.json else _progress
-    if args.compare:
-        if args.output:
-            raise UserError("-o writes one config's records; give it without --compare")
-        result = compare(
-            Path(args.config), Path(args.compare), _paths(args.bags), progress, fast=not args.exact
-        )
-        _show(result, args.json, _compare_lines)
-        return EXIT_FAIL if result.get("error") else EXIT_OK
-    result = replay_files(
-        Path(args.config),
-        _paths(args.bags),
-        Path(args.output) if args.output else None,
-        progress,
-        fast=not args.exact,
-    )
-    _show(result, args.json, _summary_lines)
+    namespace = _namespace(args.namespace)
+    # progress is for a person at a terminal: never in a log file or a CI's output
+    progress = Progress() if sys.stderr.isatty() and not (args.quiet or args.json) else None
+    try:
+        if args.compare:
+            if args.output:
+                raise UserError("-o writes one config's records; give it without --compare")
+            result = compare(
+                Path(args.config),
+                Path(args.compare),
+                _paths(args.bags),
+                progress,
+                fast=not args.exact,
+                namespace=namespace,
+            )
+            lines = _compare_lines
+        else:
+            result = replay_files(
+                Path(args.config),
+                _paths(args.bags),
+                Path(args.output) if args.output else None,
+                progress,
+                fast=not args.exact,
+                namespace=namespace,
+                require_all_topics=args.require_all_topics,
+            )
+            lines = _summary_lines
+    finally:
+        if progress is not None:
+            progress.end()  # whatever comes next starts on its own line
+    _show(result, args.json, lines)
     return EXIT_FAIL if result.get("error") else EXIT_OK
+
+
+def _namespace(given: str | None) -> str | None:
+    """``--namespace``, checked as the config checks ``ros.namespace``."""
+    if given is None:
+        return None
+    from supervisor.config.ros import NAMESPACE
+
+    if not NAMESPACE.fullmatch(given):
+        raise UserError(
+            f"--namespace {given!r} is not a ROS namespace "
+            "(absolute, like /robot1 or /fleet/robot1)",
+            file="replay",
+        )
+    return given
 
 
 def _paths(names: list[str]) -> list[Path]:
@@ -80,9 +121,25 @@ def _paths(names: list[str]) -> list[Path]:
     return paths
 
 
-def _progress(done: int, total: int | None) -> None:
-    text = f"{done:,} messages" + (f" of {total:,} ({100 * done / total:.0f} %)" if total else "")
-    print(f"\rreplay: {text}", end="", file=sys.stderr, flush=True)
+class Progress:
+    """A ``\r`` line on stderr (a terminal) redrawn as messages are read."""
+
+    def __init__(self) -> None:
+        self.drawn = False
+
+    def __call__(self, done: int, total: int | None) -> None:
+        text = f"{done:,} messages" + (
+            f" of {total:,} ({100 * done / total:.0f} %)" if total else ""
+        )
+        print(f"\rreplay: {text}", end="", file=sys.stderr, flush=True)
+        self.drawn = True
+
+    def end(self) -> None:
+        """Close the progress line, so that an error or warning after it has a line
+        of its own."""
+        if self.drawn:
+            print(file=sys.stderr, flush=True)
+            self.drawn = False
 
 
 def _show(
@@ -91,10 +148,13 @@ def _show(
     if as_json:
         print(json.dumps(result, sort_keys=True))
     else:
-        if sys.stderr.isatty():
-            print(file=sys.stderr)
         for line in lines(result):
             print(line)
+        # last, after the table, where a person reading the summary ends: a
+        # replay that judged only part of its config must not look complete
+        for warning in result.get("missing", []):
+            print(warning)
+    sys.stdout.flush()
     if result.get("error"):
         print(f"safety-supervisor: {result['error']}", file=sys.stderr, flush=True)
 

@@ -2,35 +2,71 @@
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from mitigations.violationlog.writer import ViolationLog
-from monitors.backends.load import compile_spec
+from monitors.backends.load import load_monitor
+from monitors.errors import UserError
+from monitors.ir.formula import use_parser_cache
+from monitors.ir.spec import MonitorSpec
+from supervisor.cache import Cache
 from supervisor.config import load_config
 from supervisor.daemon.session import Session, build_session
-from supervisor.pipeline import build_project
+from supervisor.pipeline import build_project, monitor_library
 from supervisor.tools.replay.engine import Outcome, replay
 from supervisor.tools.replay.sources import Progress, open_recordings
+
+if TYPE_CHECKING:
+    from mitigations.violationlog.writer import ViolationLog
 
 
 @contextmanager
 def loaded(config: Path) -> Iterator[Session]:
-    """The config's session, its monitor built in a temporary directory. Unlike
-    ``run`` it skips the analyses: a replay judges a recording, not the config."""
+    """The config's session, its monitor from the start-up cache (``Cache.open_user``)
+    or built in a temporary directory. Unlike ``run`` it skips the analyses: a
+    replay judges a recording, not the config."""
+    cache = Cache.open_user()
+    if cache is not None:
+        # the requirement parsers' tables too: most of a cold parse (formula.py)
+        use_parser_cache(cache.root)
     project = build_project(load_config(config), ros=False)
     err = project.first_error()
     if err is not None:
         raise err
+    spec = project.spec()
     build = Path(tempfile.mkdtemp(prefix="safety-supervisor-replay-"))
     try:
-        yield build_session(project, compile_spec(project.spec(), build))
+        key = monitor_key(spec) if cache is not None else None
+        yield build_session(project, load_monitor(monitor_library(spec, build, cache, key), spec))
     finally:
         shutil.rmtree(build, ignore_errors=True)
+
+
+def monitor_key(spec: MonitorSpec) -> str:
+    """The cache key of the monitor library alone: its C, the compiler, cffi and
+    Python (build_identity) and this package's version. ``run``'s key covers the
+    analyses too, which a replay does not make; the items are the same
+    (pipeline.monitor_library)."""
+    from importlib.metadata import version
+
+    from monitors.backends.build import build_identity
+    from monitors.backends.c99 import generate
+
+    h = hashlib.sha256()
+    for part in (
+        "safety-supervisor replay monitor 1",
+        version("safety-supervisor"),
+        *generate(spec),
+        build_identity(spec, reset=True, reset_each=True),
+    ):
+        h.update(part.encode() + b"\0")
+    return h.hexdigest()
 
 
 def expand(paths: list[Path]) -> list[Path]:
@@ -53,6 +89,16 @@ def _is_bag(p: Path) -> bool:
     return (p / "metadata.yaml").exists() or any(p.glob("*.mcap")) or any(p.glob("*.db3"))
 
 
+@dataclass
+class Run:
+    """One config's replay: its outcome, the notes on what was read, and the config
+    topics no recording has (topic -> warning line)."""
+
+    outcome: Outcome
+    notes: list[str]
+    missing: dict[str, str] = field(default_factory=dict)
+
+
 def run_one(
     config: Path,
     paths: list[Path],
@@ -60,14 +106,22 @@ def run_one(
     progress: Progress | None,
     *,
     fast: bool = True,
-) -> tuple[Outcome, list[str]]:
-    """Replay ``paths`` with ``config``; the outcome and the notes on what was read."""
+    namespace: str | None = None,
+) -> Run:
+    """Replay ``paths`` with ``config``, recorded names taken off ``namespace`` (the
+    config's ``ros.namespace`` when None)."""
     with loaded(config) as session:
         cfg = session.config
-        recording = open_recordings(expand(paths), cfg)
-        notes = recording.summary().splitlines()
-        out = None
+        recording = open_recordings(
+            expand(paths), cfg, cfg.ros.namespace if namespace is None else namespace
+        )
+        said_later = set(recording.missing.values())
+        notes = [n for n in recording.summary().splitlines() if n not in said_later]
+        out: ViolationLog | None = None
         if output is not None:
+            # structlog and the log writer only when records are written
+            from mitigations.violationlog.writer import ViolationLog
+
             output.parent.mkdir(parents=True, exist_ok=True)
             out = ViolationLog(
                 output,
@@ -90,7 +144,13 @@ def run_one(
         finally:
             if out is not None:
                 out.close()
-        return outcome, notes + outcome.warnings + _counted(warnings)
+        if outcome.error is None and outcome.messages == 0 and recording.by_topic:
+            outcome.error = UserError(
+                "the recordings hold no message on the config's topics "
+                f"({', '.join(recording.topics)}), so nothing was judged",
+                file=", ".join(str(p) for p in paths),
+            )
+        return Run(outcome, notes + outcome.warnings + _counted(warnings), recording.missing)
 
 
 def _counted(warnings: list[str]) -> list[str]:
@@ -108,8 +168,19 @@ def replay_files(
     progress: Progress | None,
     *,
     fast: bool = True,
+    namespace: str | None = None,
+    require_all_topics: bool = False,
 ) -> dict[str, Any]:
-    outcome, notes = run_one(config, paths, output, progress, fast=fast)
+    """One config's replay as the summary ``replay`` shows (and ``--json`` prints).
+    With ``require_all_topics`` a config topic no recording has is the error."""
+    run = run_one(config, paths, output, progress, fast=fast, namespace=namespace)
+    outcome, notes = run.outcome, run.notes
+    error = str(outcome.error) if outcome.error else None
+    if error is None and require_all_topics and run.missing:
+        error = (
+            f"--require-all-topics: {len(run.missing)} config topic(s) in none of the "
+            f"recordings: {', '.join(run.missing)}"
+        )
     return {
         **_totals(outcome),
         "notes": notes,
@@ -123,17 +194,27 @@ def replay_files(
             for rid, v in _by_requirement(outcome).items()
         ],
         "output": str(output) if output else None,
-        "error": str(outcome.error) if outcome.error else None,
+        "missing_topics": list(run.missing),
+        "missing": list(run.missing.values()),
+        "error": error,
     }
 
 
 def compare(
-    a: Path, b: Path, paths: list[Path], progress: Progress | None, *, fast: bool = True
+    a: Path,
+    b: Path,
+    paths: list[Path],
+    progress: Progress | None,
+    *,
+    fast: bool = True,
+    namespace: str | None = None,
 ) -> dict[str, Any]:
     """Both configs over the same recordings: per requirement id, the violations only
     one reports (matched by the time of their tick) and the first detections."""
-    ra, notes_a = run_one(a, paths, None, progress, fast=fast)
-    rb, notes_b = run_one(b, paths, None, None, fast=fast)
+    run_a = run_one(a, paths, None, progress, fast=fast, namespace=namespace)
+    run_b = run_one(b, paths, None, None, fast=fast, namespace=namespace)
+    ra, notes_a, rb, notes_b = run_a.outcome, run_a.notes, run_b.outcome, run_b.notes
+    missing = {**run_a.missing, **run_b.missing}
     va, vb = _by_requirement(ra), _by_requirement(rb)
     rows = []
     for rid in dict.fromkeys([*va, *vb]):
@@ -159,6 +240,8 @@ def compare(
         **_totals(ra),
         "configs": [str(a), str(b)],
         "notes": notes_a + [n for n in notes_b if n not in notes_a],
+        "missing_topics": list(missing),
+        "missing": list(missing.values()),
         "requirements": rows,
         "error": errors[0] if errors else None,
     }

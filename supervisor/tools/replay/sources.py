@@ -274,7 +274,7 @@ def _leaf_type(store: Typestore, msgtype: str, path: str) -> str:
 class Recording:
     """Recordings opened for a config; see the module docstring."""
 
-    def __init__(self, sources: list[Source], cfg: Config) -> None:
+    def __init__(self, sources: list[Source], cfg: Config, namespace: str = "/") -> None:
         self.sources = sources
         self.cfg = cfg
         self.warnings: list[str] = [w for s in sources for w in s.warnings]
@@ -282,38 +282,56 @@ class Recording:
         for v in cfg.inputs:
             if v.topic:
                 by_topic.setdefault(v.topic, []).append(v)
+        # per source, each recorded name -> the config's name for it (resolve())
+        self.names: list[dict[str, str]] = []
         recorded: dict[str, str] = {}
         self.ignored: dict[str, set[str]] = {}
         for src in sources:
+            names = self._resolved(src, by_topic, namespace)
+            self.names.append(names)
+            resolved = set(names.values())
             for topic, typ in src.topics.items():
-                if topic in by_topic:
-                    want = normalise_type(by_topic[topic][0].msg or "")
+                name = names[topic]
+                if name in by_topic:
+                    want = normalise_type(by_topic[name][0].msg or "")
                     if typ != want:
-                        v = by_topic[topic][0]
+                        v = by_topic[name][0]
                         raise UserError(
                             f"topic {topic} is recorded as {typ}, but the config reads it as {want}",
                             file=src.label,
                             hint=f"variable '{v.name}' at {cfg.path}:{v.line}",
                         )
-                    recorded[topic] = typ
-                elif topic == VIOLATIONS_TOPIC and RECORDS_TOPIC in src.topics:
+                    recorded[name] = typ
+                elif name == VIOLATIONS_TOPIC and RECORDS_TOPIC in resolved:
                     # the same violations are on the records topic beside it
                     self.ignored.setdefault(src.label, set()).add(topic)
-                elif topic in RECORD_TOPICS:
+                elif name in RECORD_TOPICS:
                     if typ != STRING:
                         raise UserError(
                             f"topic {topic} is recorded as {typ}, not {STRING}", file=src.label
                         )
-                    recorded[topic] = typ
+                    recorded[name] = typ
                 else:
                     self.ignored.setdefault(src.label, set()).add(topic)
-        missing = [t for t in by_topic if t not in recorded]
-        for t in missing:
-            names = [v.name for v in by_topic[t]]
+        if by_topic and not recorded:  # the daemon's own records alone are read
+            bag = sorted({t for s in sources for t in s.topics})
+            raise UserError(
+                "no topic of the config is in the recordings, so nothing would be judged: "
+                f"recorded: {', '.join(bag) or 'none'}; the config reads: {', '.join(sorted(by_topic))}",
+                file=", ".join(s.label for s in sources) or "replay",
+                hint="a robot's bag recorded in a namespace maps onto the config with "
+                "--namespace (or ros.namespace)",
+            )
+        # config topics no recording has: also apart, for replay to say them at its end
+        # and in --json (docs/reference/commands.md, replay)
+        self.missing: dict[str, str] = {}
+        for t in (t for t in by_topic if t not in recorded):
+            names_ = [v.name for v in by_topic[t]]
             no_initial = [v.name for v in by_topic[t] if v.initial is None]
-            text = f"warning: topic {t} ({', '.join(names)}) is in none of the recordings"
+            text = f"warning: topic {t} ({', '.join(names_)}) is in none of the recordings"
             if no_initial:
                 text += f"; {', '.join(no_initial)} without 'initial:' never get a value, so the monitor never steps"
+            self.missing[t] = printable(text)
             self.warnings.append(text)
         self.topics = sorted(recorded)
         self.ids = {t: i for i, t in enumerate(self.topics)}
@@ -322,10 +340,39 @@ class Recording:
         self.total: int | None = None
         if all(s.counts is not None for s in sources):
             self.total = sum(
-                n for s in sources for t, n in (s.counts or {}).items() if t in recorded
+                n
+                for s, names in zip(sources, self.names, strict=True)
+                for t, n in (s.counts or {}).items()
+                if names.get(t, t) in recorded and t not in self.ignored.get(s.label, ())
             )
         # Fields are checked against the recorded types now, before anything is read.
         self._topic_readers = [self._readers(s) for s in sources]
+
+    @staticmethod
+    def _resolved(
+        src: Source, by_topic: dict[str, list[Variable]], namespace: str
+    ) -> dict[str, str]:
+        """Each recorded name as the config names it: a relative name (rosbag2 records
+        ``topic1``) is resolved in the root namespace as rclpy does, ``/topic1``; a name
+        under ``namespace`` (a robot's, like ``/robot1``) that the config does not name
+        as it is loses that prefix, so ``/robot1/scan`` is the config's ``/scan``.
+        Two recorded names for one config topic in one file are an error."""
+        out: dict[str, str] = {}
+        for topic in src.topics:
+            name = topic if topic.startswith("/") else f"/{topic}"
+            if namespace != "/" and name not in by_topic and name.startswith(namespace + "/"):
+                name = name[len(namespace) :]
+            out[topic] = name
+        seen: dict[str, str] = {}
+        for topic, name in out.items():
+            if name in seen and (name in by_topic or name in RECORD_TOPICS):
+                raise UserError(
+                    f"topics {seen[name]} and {topic} are both the config's {name}",
+                    file=src.label,
+                    hint="replay one of them, or give the namespace that tells them apart",
+                )
+            seen[name] = topic
+        return out
 
     def summary(self) -> str:
         """What is read and what is not, a line each."""
@@ -337,14 +384,15 @@ class Recording:
 
     def _readers(self, src: Source) -> dict[int, _TopicReader]:
         out: dict[int, _TopicReader] = {}
+        recorded_as = {n: t for t, n in self.names[self.sources.index(src)].items()}
         for topic, tid in self.ids.items():
-            if topic not in src.topics:
+            if topic not in recorded_as:
                 continue
             if topic in RECORD_TOPICS:
                 out[tid] = _TopicReader(topic, STRING, [], [], record=True)
                 continue
             variables = self.by_topic[topic]
-            msgtype = src.topics[topic]
+            msgtype = src.topics[recorded_as[topic]]
             plans: list[FieldPlan | None] = []
             dtypes: list[Any] = []
             for v in variables:
@@ -524,10 +572,11 @@ class Recording:
     def _source_batches(self, src: Source, chunk: int) -> Iterator[Batch | UserError]:
         """One source's batches; damage ends them with the located error."""
         readers = self._topic_readers[self.sources.index(src)]
+        names = self.names[self.sources.index(src)]
         ids = {
-            t: self.ids[t]
-            for t in src.topics
-            if t in self.ids and t not in self.ignored.get(src.label, ())
+            t: self.ids[n]
+            for t, n in names.items()
+            if n in self.ids and t not in self.ignored.get(src.label, ())
         }
         first = 0
         last = -1
@@ -724,13 +773,14 @@ def _open_one(path: Path, cfg: Config) -> list[Source]:
     )
 
 
-def open_recordings(paths: list[Path], cfg: Config) -> Recording:
-    """Open bags, storage files and traces for cfg's topic variables; type mismatches
-    are errors here, before anything is read (``Recording.warnings`` lists the config
-    topics no recording has)."""
+def open_recordings(paths: list[Path], cfg: Config, namespace: str = "/") -> Recording:
+    """Open bags, storage files and traces for cfg's topic variables, their names
+    resolved with ``namespace`` (``Recording._resolved``); type mismatches and a
+    recording with none of the config's topics are errors here, before anything is
+    read (``Recording.missing`` lists the config topics no recording has)."""
     try:
         sources = [s for p in paths for s in _open_one(Path(p), cfg)]
-        return Recording(sources, cfg)
+        return Recording(sources, cfg, namespace)
     except UserError as e:
         raise _printable(e) from None
 

@@ -178,7 +178,7 @@ def series_from_bag(
     reading where it is (a note), as it ends a replay."""
     from supervisor.tools.replay.sources import open_recordings
 
-    rec = open_recordings(paths, cfg)
+    rec = open_recordings(paths, cfg, cfg.ros.namespace)  # names as replay resolves them
     notes = list(rec.warnings)
     pts: dict[str, list[tuple[int, Value]]] = {}
     try:
@@ -249,7 +249,7 @@ def windows_from_bag(
         cap = _Capture(session.runtime, set(wanted.values()))
         outcome = replay(
             session,
-            open_recordings(paths, session.config),
+            open_recordings(paths, session.config, session.config.ros.namespace),
             cap,
             progress=None if quiet else _progress("replaying"),
         )
