@@ -21,9 +21,11 @@ from supervisor.tools.replay.storage import (
     Damage,
     Raw,
     Source,
+    inflate_payloads,
     normalise_type,
     open_regular,
     raw_chunk,
+    refuse_serialization,
     typestore_of,
 )
 
@@ -82,11 +84,13 @@ class Mcap(Source):
         counts: dict[str, int] | None = None,
         topics: dict[str, str] | None = None,
         bounds: Bounds = DEFAULT_BOUNDS,
+        label: str | None = None,
     ) -> None:
         self.path = path
         self.bounds = bounds
         self.warnings: list[str] = []
-        self.label = str(path)
+        self.label = label or str(path)
+        self._encodings: dict[str, str] = {}
         self.counts = counts
         self._schemas: dict[int, tuple[str, str, str]] = {}
         self._channels: dict[int, tuple[str, int]] = {}
@@ -100,6 +104,8 @@ class Mcap(Source):
             except Damage as e:
                 if not self.topics:
                     raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
+        for topic, enc in self._encodings.items():
+            refuse_serialization(topic, enc, self.label)
         self.store = typestore_of(list(self._schemas.values()))
 
     def _summary(self) -> bool:
@@ -162,7 +168,8 @@ class Mcap(Source):
 
     def _channel(self, buf: Any, pos: int) -> None:
         cid, sid = struct.unpack_from("<HH", buf, pos)
-        topic, _ = _string(buf, pos + 4)
+        topic, at = _string(buf, pos + 4)
+        self._encodings[topic], _ = _string(buf, at)
         self._channels[cid] = (topic, sid)
         if sid in self._schemas:
             self.topics.setdefault(topic, normalise_type(self._schemas[sid][0]))
@@ -362,7 +369,8 @@ class Mcap(Source):
         )
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
-        return self._records(ids)
+        # rosbag2's per-message compression, whatever the metadata says
+        return (inflate_payloads(raw, self.bounds) for raw in self._records(ids))
 
 
 def _bad_message(pos: int, t: int) -> str:

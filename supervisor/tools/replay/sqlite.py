@@ -9,6 +9,7 @@ import tempfile
 from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
+from urllib.parse import quote
 
 import apsw
 import numpy as np
@@ -17,13 +18,17 @@ from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.replay.storage import (
     CHUNK_BYTES,
+    DEFAULT_BOUNDS,
     NS_MAX,
+    Bounds,
     Damage,
     Raw,
     Source,
+    inflate_payloads,
     normalise_type,
     open_regular,
     raw_chunk,
+    refuse_serialization,
     typestore_of,
 )
 
@@ -38,9 +43,16 @@ _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payload
 
 
 class Sqlite(Source):
-    def __init__(self, path: Path, counts: dict[str, int] | None = None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        counts: dict[str, int] | None = None,
+        bounds: Bounds = DEFAULT_BOUNDS,
+        label: str | None = None,
+    ) -> None:
         self.path = path
-        self.label = str(path)
+        self.bounds = bounds
+        self.label = label or str(path)
         self.counts = counts
         self.warnings: list[str] = []
         self._tmp: Path | None = None
@@ -73,6 +85,16 @@ class Sqlite(Source):
                     f"row {k} of table topics is {shown}: not (whole number, name, type)",
                     file=self.label,
                 )
+        try:
+            for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
+                if isinstance(name, str) and isinstance(fmt, str):
+                    refuse_serialization(name, fmt, self.label)
+        except apsw.Error:
+            pass  # no such column: CDR, the only serialization of that bag's rosbag2
+        except UserError:
+            con.close()
+            self._drop()
+            raise
         self._ids = {tid: name for tid, name, _ in rows}
         self.topics = {name: normalise_type(typ) for _, name, typ in rows}
         defs: list[tuple[str, str, str]] = []
@@ -105,7 +127,14 @@ class Sqlite(Source):
 
     def _connect(self) -> apsw.Connection:
         path = self._patched() if self._cut else self.path
-        return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
+        # rosbag2 writes WAL mode, where even a read-only open creates -shm and -wal
+        # files beside the bag (and fails in a read-only directory): immutable reads
+        # the file alone, unless a -wal of a recorder killed holds messages.
+        wal = Path(f"{path}-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
+        uri = f"file:{quote(str(path))}?immutable=1"
+        return apsw.Connection(uri, flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
 
     def _drop(self) -> None:
         if self._tmp is not None:
@@ -142,6 +171,10 @@ class Sqlite(Source):
         return self._tmp
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
+        # rosbag2's per-message compression, whatever the metadata says
+        return (inflate_payloads(raw, self.bounds) for raw in self._rows(ids, chunk))
+
+    def _rows(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
         wanted = {tid: ids[name] for tid, name in self._ids.items() if name in ids}
         # Only the wanted topics' rows: the extra topics' payloads are never fetched.
         marks = ",".join("?" * len(wanted))
