@@ -189,3 +189,102 @@ def test_replay_leaves_a_wal_mode_bag_as_it_was_even_read_only(tmp_path):
             assert sorted(p.name for p in bag.iterdir()) == before
     finally:
         bag.chmod(0o755)
+
+
+def replay_until_error(paths: list[Path], cfg) -> tuple[list, UserError]:
+    rec = open_recordings(paths, cfg)
+    got = []
+    with pytest.raises(UserError) as err:
+        for ev in rec.events():
+            if ev[1] != "record":
+                got.append(ev)
+    return got, err.value
+
+
+@pytest.mark.parametrize("cut", [4096 * 3, 4096 * 7 + 1000, 4096 * 12 + 2048, 4096 * 19 + 10])
+def test_a_db3_cut_anywhere_is_read_up_to_the_damage_then_says_the_byte(tmp_path, cut):
+    bag, files = message_bag(tmp_path)
+    expected = expected_rosout(files, tmp_path)
+    f = files[1]
+    f.write_bytes(f.read_bytes()[:cut])
+    got, err = replay_until_error([bag], config(tmp_path))
+    assert len(got) < len(expected)
+    assert got == expected[: len(got)]
+    text = str(err)
+    assert "\n" not in text and str(f) in text
+    assert f"damaged: the file is cut short at byte {cut}" in text
+
+
+@pytest.mark.parametrize("quarter", [1, 2, 3])
+def test_an_mcap_cut_inside_its_only_chunk_is_damage_at_a_byte(tmp_path, quarter):
+    # rosbag2's cdr_test: its schemas, channels and messages are in one chunk
+    src = BAGS / "mcap" / "cdr_test"
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    f = bag / "cdr_test_0.mcap"
+    data = f.read_bytes()
+    at = data.index(b"\x06", 8)  # the chunk record, right after the header
+    length = int.from_bytes(data[at + 1 : at + 9], "little")
+    assert data.count(b"\x06") >= 1 and at + 9 + length < len(data)
+    f.write_bytes(data[: at + 9 + length * quarter // 4])
+    with pytest.raises(UserError) as err:
+        list(open_recordings([bag], config(tmp_path, CDR_CONFIG)).events())
+    text = str(err.value)
+    assert "\n" not in text and str(f) in text and "not defined" not in text
+    assert "damaged" in text and f"the record at byte {at} is cut short" in text
+
+
+def test_an_mcap_cut_after_its_data_is_still_damage(tmp_path):
+    # every message is read, but the file is not whole: said, not passed over
+    src = BAGS / "mcap" / "cdr_test"
+    bag = tmp_path / "bag"
+    shutil.copytree(src, bag)
+    f = bag / "cdr_test_0.mcap"
+    data = f.read_bytes()
+    f.write_bytes(data[: len(data) - 40])
+    _, err = replay_until_error([bag], config(tmp_path, CDR_CONFIG))
+    text = str(err)
+    assert "\n" not in text and "damaged" in text and f"cut short at byte {len(data) - 40}" in text
+
+
+INT_CONFIG = """\
+component: Robot
+step: {policy: periodic, period_ms: 100}
+variables:
+  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}
+requirements:
+  - {id: R1, text: Robot shall always satisfy x < 1000000}
+"""
+
+
+def test_an_mcap_compressed_per_file_replays_as_the_plain_one(tmp_path):
+    # no such bag in rosbag2's resources: one written by rosbags, then compressed by
+    # zstandard as rosbag2's zstd file compressor does (one .mcap.zstd per file)
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    bag = tmp_path / "bag"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c = w.add_connection("/x", "std_msgs/msg/Int64", typestore=TS)
+        for i in range(500):
+            w.write(
+                c,
+                1000 + i,
+                bytes(
+                    TS.serialize_cdr(TS.types["std_msgs/msg/Int64"](data=i), "std_msgs/msg/Int64")
+                ),
+            )
+    cfg = config(tmp_path, INT_CONFIG)
+    expected = replay([bag], cfg)
+    assert [e[2] for e in expected] == [[("x", i)] for i in range(500)]
+    (plain,) = bag.glob("*.mcap")
+    packed = plain.with_name(plain.name + ".zstd")
+    with plain.open("rb") as src, packed.open("wb") as dst:
+        zstandard.ZstdCompressor().copy_stream(src, dst)
+    plain.unlink()
+    meta = bag / "metadata.yaml"
+    text = meta.read_text().replace(plain.name, packed.name)
+    text = text.replace("compression_format: ''", "compression_format: zstd")
+    meta.write_text(text.replace("compression_mode: ''", "compression_mode: FILE"))
+    assert "compression_mode: FILE" in meta.read_text()
+    assert replay([bag], cfg) == expected
+    assert replay([packed], cfg) == expected

@@ -95,6 +95,7 @@ class Mcap(Source):
         self._schemas: dict[int, tuple[str, str, str]] = {}
         self._channels: dict[int, tuple[str, int]] = {}
         self.topics = dict(topics or {})
+        damage: Damage | None = None  # where a file without its summary ends early
         if not self._summary():
             # No summary (a recorder killed): a pass over the file finds the channels,
             # skipping chunks whose indexes name known channels only.
@@ -104,9 +105,17 @@ class Mcap(Source):
             except Damage as e:
                 if not self.topics:
                     raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
+                damage = e
         for topic, enc in self._encodings.items():
             refuse_serialization(topic, enc, self.label)
         self.store = typestore_of(list(self._schemas.values()))
+        lost = sorted({t for t in self.topics.values() if t not in self.store.fielddefs})
+        if damage is not None and lost:
+            # the metadata names the topics, but their definitions were in the part
+            # lost (rosbag2 writes them into the first chunk): damage, not a type fault
+            raise UserError(
+                f"{damage}; the definition of {lost[0]} was in the part lost", file=self.label
+            )
 
     def _summary(self) -> bool:
         """Every schema and channel (and the message counts) from the summary at the
@@ -265,6 +274,13 @@ class Mcap(Source):
             yield from self._chunk(mm, pending, indexes, ids)
         if loose[0]:
             yield raw_chunk(*loose).in_order()
+        if not head and mm[size - len(MAGIC) :] != MAGIC:
+            # every message is read, but the summary after them is cut: damage all
+            # the same (truncation anywhere is, docs/reference/commands.md)
+            where = f"{self._count} messages read"
+            if self._last_t is not None:
+                where += f", the last at t_ns {self._last_t}"
+            raise Damage(f"damaged: the file is cut short at byte {size}, after its data ({where})")
 
     def _chunk(
         self,

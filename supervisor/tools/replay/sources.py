@@ -256,7 +256,7 @@ def _storage(
     if f.suffix != ".zstd":
         if f.suffix == ".mcap":
             return Mcap(f, counts, topics, bounds)
-        return Sqlite(f, counts, bounds)
+        return Sqlite(f, counts, bounds, topics=topics)
     # zstd per file: read a decompressed copy, deleted with the source
     try:
         plain = inflate_file(f, bounds)
@@ -267,7 +267,7 @@ def _storage(
         if plain.suffix == ".mcap":
             src = Mcap(plain, counts, topics, bounds, label=str(f))
         else:
-            src = Sqlite(plain, counts, bounds, label=str(f))
+            src = Sqlite(plain, counts, bounds, label=str(f), topics=topics)
     except BaseException:
         plain.unlink(missing_ok=True)
         raise
