@@ -297,7 +297,8 @@ class Sqlite(Source):
 def _cut_short(path: Path) -> int | None:
     """The file's size if it ends before the pages its header counts, or inside a page
     (sqlite's file format, "The database header"); None if whole or not known."""
-    if Path(f"{path}-wal").exists():
+    wal = Path(f"{path}-wal")
+    if wal.exists() and wal.stat().st_size > 0:
         return None  # the pages may be in the write-ahead log
     try:
         with open_regular(path) as f:
