@@ -22,9 +22,11 @@ from supervisor.tools.replay.storage import (
     Damage,
     Raw,
     Source,
+    inflate_payloads,
     normalise_type,
     open_regular,
     raw_chunk,
+    refuse_serialization,
 )
 
 # --- MCAP storage ---------------------------------------------------------------------
@@ -82,15 +84,18 @@ class Mcap(Source):
         counts: dict[str, int] | None = None,
         topics: dict[str, str] | None = None,
         bounds: Bounds = DEFAULT_BOUNDS,
+        label: str | None = None,
     ) -> None:
         self.path = path
         self.bounds = bounds
         self.warnings: list[str] = []
-        self.label = str(path)
+        self.label = label or str(path)
+        self._encodings: dict[str, str] = {}
         self.counts = counts
         self._schemas: dict[int, tuple[str, str, str]] = {}
         self._channels: dict[int, tuple[str, int]] = {}
         self.topics = dict(topics or {})
+        damage: Damage | None = None  # where a file without its summary ends early
         if not self._summary():
             # No summary (a recorder killed): a pass over the file finds the channels,
             # skipping chunks whose indexes name known channels only.
@@ -100,9 +105,19 @@ class Mcap(Source):
             except Damage as e:
                 if not self.topics:
                     raise UserError(f"not a readable MCAP file: {e}", file=self.label) from None
+                damage = e
+        for topic, enc in self._encodings.items():
+            refuse_serialization(topic, enc, self.label)
         self.store = typestore_of(
             list(self._schemas.values()), self.topics.values(), self.warnings, self.label
         )
+        lost = sorted({t for t in self.topics.values() if t not in self.store.fielddefs})
+        if damage is not None and lost:
+            # the metadata names the topics, but their definitions were in the part
+            # lost (rosbag2 writes them into the first chunk): damage, not a type fault
+            raise UserError(
+                f"{damage}; the definition of {lost[0]} was in the part lost", file=self.label
+            )
 
     def _summary(self) -> bool:
         """Every schema and channel (and the message counts) from the summary at the
@@ -164,7 +179,8 @@ class Mcap(Source):
 
     def _channel(self, buf: Any, pos: int) -> None:
         cid, sid = struct.unpack_from("<HH", buf, pos)
-        topic, _ = _string(buf, pos + 4)
+        topic, at = _string(buf, pos + 4)
+        self._encodings[topic], _ = _string(buf, at)
         self._channels[cid] = (topic, sid)
         if sid in self._schemas:
             self.topics.setdefault(topic, normalise_type(self._schemas[sid][0]))
@@ -260,6 +276,13 @@ class Mcap(Source):
             yield from self._chunk(mm, pending, indexes, ids)
         if loose[0]:
             yield raw_chunk(*loose).in_order()
+        if not head and mm[size - len(MAGIC) :] != MAGIC:
+            # every message is read, but the summary after them is cut: damage all
+            # the same (truncation anywhere is, docs/reference/commands.md)
+            where = f"{self._count} messages read"
+            if self._last_t is not None:
+                where += f", the last at t_ns {self._last_t}"
+            raise Damage(f"damaged: the file is cut short at byte {size}, after its data ({where})")
 
     def _chunk(
         self,
@@ -364,7 +387,8 @@ class Mcap(Source):
         )
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
-        return self._records(ids)
+        # rosbag2's per-message compression, whatever the metadata says
+        return (inflate_payloads(raw, self.bounds) for raw in self._records(ids))
 
 
 def _bad_message(pos: int, t: int) -> str:

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import re
 import struct
+import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,8 +78,10 @@ from supervisor.tools.replay.storage import (
     Raw,
     Source,
     field_value,
+    inflate_file,
     normalise_type,
     open_regular,
+    refuse_serialization,
 )
 from supervisor.tools.replay.trace import Trace
 
@@ -169,13 +172,13 @@ def bag_info(meta: Path) -> tuple[dict[str, str], dict[str, int], list[str]]:
     info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
     if not isinstance(info, dict):
         raise bad("rosbag2_bagfile_information", "missing, or not a mapping")
-    mode, fmt = info.get("compression_mode"), info.get("compression_format")
-    if mode and fmt:
-        raise UserError(
-            f"compressed bag ({printable(str(fmt)[:40])}, per {printable(str(mode)[:40]).lower()})",
-            file=str(meta.parent),
-            hint="decompress it: ros2 bag convert",
-        )
+    # zstd per file (the files end in .zstd) or per message (each payload says so by
+    # zstd's magic): both are read as they are, supervisor/tools/replay/storage.py
+    mode, fmt = info.get("compression_mode") or "", info.get("compression_format") or ""
+    if str(mode).upper() not in ("", "NONE", "FILE", "MESSAGE"):
+        raise bad("compression_mode", f"'{printable(str(mode)[:40])}' is not FILE, MESSAGE or NONE")
+    if mode and str(mode).upper() != "NONE" and fmt != "zstd":
+        raise bad("compression_format", f"'{printable(str(fmt)[:40])}' is not zstd")
     entries = info.get("topics_with_message_count") or []
     if not isinstance(entries, list):
         raise bad("topics_with_message_count", "not a list")
@@ -190,6 +193,10 @@ def bag_info(meta: Path) -> tuple[dict[str, str], dict[str, int], list[str]]:
         n = t.get("message_count") or 0
         if not isinstance(n, int) or isinstance(n, bool) or n < 0:
             raise bad(f"topics_with_message_count[{k}].message_count", "not a whole number >= 0")
+        fmt = tm.get("serialization_format") or ""
+        if not isinstance(fmt, str):
+            raise bad(f"topics_with_message_count[{k}].serialization_format", "not a string")
+        refuse_serialization(name, fmt, str(meta.parent))
         topics[name] = normalise_type(typ)
         counts[name] = n
     files = info.get("relative_file_paths") or []
@@ -201,20 +208,31 @@ def bag_info(meta: Path) -> tuple[dict[str, str], dict[str, int], list[str]]:
             shown = printable(repr(f)[:80])
             raise bad(
                 f"relative_file_paths[{k}]",
-                f"{shown} is not a file name in the bag directory ending in .mcap or .db3",
+                f"{shown} is not a file name in the bag directory ending in .mcap or .db3"
+                " (or either with .zstd)",
             )
     return topics, counts, files
 
 
-_FILE_NAME = re.compile(r"[^/\\\x00]+\.(mcap|db3)")
+_FILE_NAME = re.compile(r"[^/\\\x00]+\.(mcap|db3)(\.zstd)?")
+_STORAGE = (".mcap", ".db3", ".mcap.zstd", ".db3.zstd")
+
+
+def _storage_files(path: Path) -> list[Path]:
+    """A bag directory's storage files in rosbag2's order, ``x_2`` before ``x_10``."""
+
+    def key(f: Path) -> list[Any]:
+        return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", f.name)]
+
+    return sorted((f for f in path.iterdir() if f.name.endswith(_STORAGE)), key=key)
+
+
 _YamlLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: 10x faster
 
 
 def bag_dir(path: Path, bounds: Bounds = DEFAULT_BOUNDS) -> list[Source]:
     topics, counts, names = bag_info(path / "metadata.yaml")
-    files = [path / p for p in names]
-    if not files:
-        files = sorted([*path.glob("*.mcap"), *path.glob("*.db3")])
+    files = [path / p for p in names] or _storage_files(path)
     sources: list[Source] = []
     for k, f in enumerate(files):
         if not f.exists():
@@ -236,9 +254,26 @@ def _storage(
         open_regular(f).close()
     except Damage as e:
         raise UserError(str(e), file=str(f)) from None
-    if f.suffix == ".mcap":
-        return Mcap(f, counts, topics, bounds)
-    return Sqlite(f, counts)
+    if f.suffix != ".zstd":
+        if f.suffix == ".mcap":
+            return Mcap(f, counts, topics, bounds)
+        return Sqlite(f, counts, bounds, topics=topics)
+    # zstd per file: read a decompressed copy, deleted with the source
+    try:
+        plain = inflate_file(f, bounds)
+    except Damage as e:
+        raise UserError(str(e), file=str(f)) from None
+    try:
+        src: Source
+        if plain.suffix == ".mcap":
+            src = Mcap(plain, counts, topics, bounds, label=str(f))
+        else:
+            src = Sqlite(plain, counts, bounds, label=str(f), topics=topics)
+    except BaseException:
+        plain.unlink(missing_ok=True)
+        raise
+    weakref.finalize(src, plain.unlink, missing_ok=True)
+    return src
 
 
 # --- the recording --------------------------------------------------------------------
@@ -755,21 +790,22 @@ def _open_one(path: Path, cfg: Config) -> list[Source]:
     if path.is_dir():
         if (path / "metadata.yaml").exists():
             return bag_dir(path, bounds)
-        files = sorted([*path.glob("*.mcap"), *path.glob("*.db3")])
+        files = _storage_files(path)
         if not files:
             raise UserError(
-                "not a rosbag2 bag: no metadata.yaml, .mcap or .db3 file", file=str(path)
+                "not a rosbag2 bag: no metadata.yaml, .mcap or .db3 file (or .zstd of one)",
+                file=str(path),
             )
         # a bag directory whose recorder died before writing metadata.yaml
         return [_storage(f, bounds) for f in files]
-    if path.suffix in (".mcap", ".db3"):
+    if path.name.endswith(_STORAGE):
         return [_storage(path, bounds)]
     if path.suffix in (".jsonl", ".json", ".ndjson"):
         return [Trace(path, cfg)]
     raise UserError(
         f"unknown recording format '{path.suffix}'",
         file=str(path),
-        hint="give a rosbag2 bag directory, a .mcap or .db3 file, or a .jsonl trace",
+        hint="give a rosbag2 bag directory, a .mcap or .db3 file (or .zstd of one), or a .jsonl trace",
     )
 
 

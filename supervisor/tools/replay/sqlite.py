@@ -9,6 +9,7 @@ import tempfile
 from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
+from urllib.parse import quote
 
 import apsw
 import numpy as np
@@ -18,13 +19,17 @@ from monitors.untrusted import printable
 from supervisor.inputs.rostypes import typestore_of
 from supervisor.tools.replay.storage import (
     CHUNK_BYTES,
+    DEFAULT_BOUNDS,
     NS_MAX,
+    Bounds,
     Damage,
     Raw,
     Source,
+    inflate_payloads,
     normalise_type,
     open_regular,
     raw_chunk,
+    refuse_serialization,
 )
 
 # --- sqlite3 storage ------------------------------------------------------------------
@@ -38,13 +43,22 @@ _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payload
 
 
 class Sqlite(Source):
-    def __init__(self, path: Path, counts: dict[str, int] | None = None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        counts: dict[str, int] | None = None,
+        bounds: Bounds = DEFAULT_BOUNDS,
+        label: str | None = None,
+        topics: dict[str, str] | None = None,
+    ) -> None:
         self.path = path
-        self.label = str(path)
+        self.bounds = bounds
+        self.label = label or str(path)
         self.counts = counts
         self.warnings: list[str] = []
         self._tmp: Path | None = None
         self._cut = False  # truncated: read a copy whose header counts the pages present
+        self._cut_at: int | None = _cut_short(path)  # the file's size, if shorter than it says
         try:
             con = self._connect()
             rows = con.execute("SELECT id, name, type FROM topics").fetchall()
@@ -59,9 +73,18 @@ class Sqlite(Source):
             except apsw.Error as e:
                 con.close()
                 self._drop()
-                raise UserError(
-                    f"not a readable rosbag2 sqlite3 file ({e})", file=self.label
-                ) from None
+                if self._cut_at is None or topics is None:
+                    raise UserError(
+                        f"not a readable rosbag2 sqlite3 file ({e})", file=self.label
+                    ) from None
+                # the topics table is past the damage: the bag's metadata names them,
+                # and reading says where the damage is
+                rows = []
+        if not rows and topics and self._cut_at is not None:
+            self._ids: dict[int, str] = {}
+            self.topics = dict(topics)
+            self.store = typestore_of([])
+            return
         for k, row in enumerate(rows, 1):
             if not (
                 isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)
@@ -73,6 +96,16 @@ class Sqlite(Source):
                     f"row {k} of table topics is {shown}: not (whole number, name, type)",
                     file=self.label,
                 )
+        try:
+            for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
+                if isinstance(name, str) and isinstance(fmt, str):
+                    refuse_serialization(name, fmt, self.label)
+        except apsw.Error:
+            pass  # no such column: CDR, the only serialization of that bag's rosbag2
+        except UserError:
+            con.close()
+            self._drop()
+            raise
         self._ids = {tid: name for tid, name, _ in rows}
         self.topics = {name: normalise_type(typ) for _, name, typ in rows}
         defs: list[tuple[str, str, str]] = []
@@ -105,7 +138,14 @@ class Sqlite(Source):
 
     def _connect(self) -> apsw.Connection:
         path = self._patched() if self._cut else self.path
-        return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
+        # rosbag2 writes WAL mode, where even a read-only open creates -shm and -wal
+        # files beside the bag (and fails in a read-only directory): immutable reads
+        # the file alone, unless a -wal of a recorder killed holds messages.
+        wal = Path(f"{path}-wal")
+        if wal.exists() and wal.stat().st_size > 0:
+            return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
+        uri = f"file:{quote(str(path))}?immutable=1"
+        return apsw.Connection(uri, flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
 
     def _drop(self) -> None:
         if self._tmp is not None:
@@ -139,9 +179,22 @@ class Sqlite(Source):
                         break
                     out.write(block)
                     left -= len(block)
+        try:
+            # Tables and indexes whose first page is lost make sqlite refuse the whole
+            # schema: the copy forgets them, so that what is present reads.
+            con = apsw.Connection(str(self._tmp))
+            con.execute("PRAGMA writable_schema=ON")
+            con.execute("DELETE FROM sqlite_master WHERE rootpage > ?", (pages,))
+            con.close()
+        except apsw.Error:
+            pass  # a schema damaged otherwise: reading it says so
         return self._tmp
 
     def chunks(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
+        # rosbag2's per-message compression, whatever the metadata says
+        return (inflate_payloads(raw, self.bounds) for raw in self._rows(ids, chunk))
+
+    def _rows(self, ids: dict[str, int], chunk: int) -> Iterator[Raw]:
         wanted = {tid: ids[name] for tid, name in self._ids.items() if name in ids}
         # Only the wanted topics' rows: the extra topics' payloads are never fetched.
         marks = ",".join("?" * len(wanted))
@@ -150,6 +203,7 @@ class Sqlite(Source):
             f"WHERE topic_id IN ({marks}) ORDER BY timestamp"
         )
         n, last = 0, None
+        self._given: tuple[object, ...] = ()  # the last chunk's times, to count those at last
         try:
             con = self._connect()
         except (apsw.Error, UserError) as e:
@@ -171,7 +225,7 @@ class Sqlite(Source):
                         rows += got
                         size += sum(len(r[2]) for r in got if isinstance(r[2], bytes))
                     if not rows:
-                        return
+                        break
                     ts, tids, data, ok = zip(*rows, strict=True)
                     good = len(rows) if all(ok) else ok.index(0)
                     if good:
@@ -182,39 +236,100 @@ class Sqlite(Source):
                         yield raw
                         n += good
                         last = ts[good - 1]
+                        self._given = ts[:good]
                     if good < len(rows):
                         raise Damage(_bad_row(n, rows[good], last))
-            except apsw.Error:
-                pass
-            # A failed read loses its chunk's rows: read them again one by one up to the
-            # damage, so that every readable message is replayed.
-            ts_: list[int] = []
-            tops: list[int] = []
-            data_: list[bytes] = []
-            try:
-                cur = con.execute(f"{query} LIMIT -1 OFFSET ?", [*wanted, n])
-                while row := cur.fetchone():
-                    if not row[3]:
-                        if ts_:
-                            yield raw_chunk(ts_, tops, data_)
-                        raise Damage(_bad_row(n + len(ts_), row, last))
-                    ts_.append(row[0])
-                    tops.append(wanted[row[1]])
-                    data_.append(row[2])
-                    last = row[0]
             except apsw.Error as e:
+                failed: apsw.Error | None = e
+            else:
+                failed = None
+            if failed is not None:
+                # A failed read loses its chunk's rows, and the timestamp index may be
+                # what is lost: read the table itself row by row, in its own order, up
+                # to the damage, leaving out the rows given already (all before
+                # ``last``, and ``at_last`` of those at it), so that every readable
+                # message is replayed (docs/reference/commands.md, "Damaged input").
+                at_last = 0 if last is None else _count_at(self._given, last)
+                ts_: list[int] = []
+                tops: list[int] = []
+                data_: list[bytes] = []
+                try:
+                    cur = con.execute(
+                        f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages NOT INDEXED "
+                        f"WHERE topic_id IN ({marks}) ORDER BY rowid",
+                        list(wanted),
+                    )
+                    while row := cur.fetchone():
+                        if not row[3]:
+                            if ts_:
+                                yield raw_chunk(ts_, tops, data_).in_order()
+                            raise Damage(_bad_row(n + len(ts_), row, last))
+                        if last is not None and row[0] <= last:
+                            if row[0] < last or at_last > 0:
+                                at_last -= row[0] == last
+                                continue
+                        ts_.append(row[0])
+                        tops.append(wanted[row[1]])
+                        data_.append(row[2])
+                except apsw.Error as e:
+                    failed = e
+                else:
+                    failed = None
                 if ts_:
-                    yield raw_chunk(ts_, tops, data_)
-                n += len(ts_)
+                    yield raw_chunk(ts_, tops, data_).in_order()
+                    n += len(ts_)
+                    last = max(ts_)
+            if failed is not None or self._cut_at is not None:
                 where = f"{n} messages read" + (
                     f", the last at t_ns {last}" if last is not None else ""
                 )
-                raise Damage(f"damaged database ({e}); {where}") from None
-            if ts_:
-                yield raw_chunk(ts_, tops, data_)
+                said = f" ({failed})" if failed is not None else ""
+                if self._cut_at is not None:
+                    raise Damage(
+                        f"damaged: the file is cut short at byte {self._cut_at}{said}; {where}"
+                    )
+                raise Damage(f"damaged database{said}; {where}")
         finally:
             con.close()
             self._drop()
+
+
+def _cut_short(path: Path) -> int | None:
+    """The file's size if it ends before the pages its header counts, or inside a page
+    (sqlite's file format, "The database header"); None if whole or not known."""
+    wal = Path(f"{path}-wal")
+    if wal.exists() and wal.stat().st_size > 0:
+        return None  # the pages may be in the write-ahead log
+    try:
+        with open_regular(path) as f:
+            head = f.read(100)
+            size = os.fstat(f.fileno()).st_size
+    except Damage:
+        return None  # opening says why
+    if len(head) < 100 or not head.startswith(b"SQLite format 3\x00"):
+        return None
+    (psize,) = struct.unpack_from(">H", head, 16)
+    page = 65536 if psize == 1 else psize
+    (changes, declared, valid_for) = (
+        struct.unpack_from(">I", head, 24)[0],
+        struct.unpack_from(">I", head, 28)[0],
+        struct.unpack_from(">I", head, 92)[0],
+    )
+    if page < 512 or page & (page - 1):
+        return None
+    if size % page or (changes == valid_for and declared * page > size):
+        return size
+    return None
+
+
+def _count_at(given: tuple[object, ...], last: object) -> int:
+    """How many of the times given (in order, ``last`` the final one) equal ``last``."""
+    k = 0
+    for t in reversed(given):
+        if t != last:
+            break
+        k += 1
+    return k
 
 
 def _bad_row(n: int, row: tuple[object, ...], last: object) -> str:

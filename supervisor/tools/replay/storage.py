@@ -6,6 +6,8 @@ from __future__ import annotations
 import fcntl
 import os
 import stat
+import struct
+import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +15,9 @@ from typing import Any, BinaryIO, Literal
 
 import numpy as np
 from rosbags.typesys.store import Typestore
+
+from monitors.errors import UserError
+from monitors.untrusted import Untrusted, inflate, printable
 
 # one type resolution for replay and the recorder (supervisor/inputs/rostypes.py)
 from supervisor.inputs.rostypes import normalise_type as normalise_type
@@ -124,6 +129,121 @@ def open_regular(path: Path) -> BinaryIO:
         raise Damage("not a regular file")
     fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
     return os.fdopen(fd, "rb")
+
+
+def refuse_serialization(topic: str, fmt: str, label: str) -> None:
+    """A topic recorded in a serialisation other than CDR, the only one replay decodes,
+    is refused rather than misread (an empty one is rosbag2's default, CDR)."""
+    if fmt and fmt != "cdr":
+        raise UserError(
+            f"topic {printable(topic[:200])} is recorded as '{printable(fmt[:40])}', "
+            "not 'cdr', the only serialization replay decodes",
+            file=label,
+        )
+
+
+# rosbag2's zstd compression (docs/reference/commands.md, "replay"): a whole storage
+# file (``compression_mode: FILE``, ``.db3.zstd``/``.mcap.zstd``) or each payload
+# (``MESSAGE``). A CDR payload starts with 0x00 (its encapsulation), a zstd frame with
+# this magic, so a payload says which it is even without the bag's metadata.
+ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_BLOCK = 1 << 20
+
+
+def inflate_payloads(raw: Raw, bounds: Bounds) -> Raw:
+    """``raw`` with each zstd-compressed payload decompressed, each by the bounded
+    ``inflate`` (at most ``bounds.chunk_bytes``, ``bounds.ratio`` times its size)."""
+    if not len(raw) or raw.items is not None:
+        return raw
+    b = np.frombuffer(raw.buf, np.uint8)
+    some = raw.end > raw.start
+    first = np.zeros(len(raw), np.bool_)
+    first[some] = b[raw.start[some]] == ZSTD_MAGIC[0]
+    if not first.any():
+        return raw
+    payloads: list[bytes] = []
+    for i in range(len(raw)):
+        p = raw.payload(i)
+        if first[i] and p.startswith(ZSTD_MAGIC):
+            try:
+                p = inflate("zstd", p, max_size=bounds.chunk_bytes, max_ratio=int(bounds.ratio))
+            except Untrusted as e:
+                raise Damage(
+                    f"the zstd-compressed message at t_ns {int(raw.t_ns[i])}: {e} ({bounds.says()})"
+                ) from None
+        payloads.append(p)
+    return raw_chunk(raw.t_ns.tolist(), raw.topic.tolist(), payloads)
+
+
+def inflate_file(path: Path, bounds: Bounds) -> Path:
+    """A ``.zstd`` storage file decompressed, streamed block by block into a temporary
+    file (the caller deletes it), at most ``bounds.ratio`` times the file's size;
+    ``Damage`` if it is not zstd, is cut short or inflates past that."""
+    import zstandard
+
+    with open_regular(path) as f:
+        size = os.fstat(f.fileno()).st_size
+        limit = int(bounds.ratio * max(size, 1))
+        _zstd_whole(f, size)
+        f.seek(0)
+        fd, name = tempfile.mkstemp(suffix=path.suffixes[-2] if len(path.suffixes) > 1 else "")
+        out_path = Path(name)
+        try:
+            with os.fdopen(fd, "wb") as out:
+                reader = zstandard.ZstdDecompressor().stream_reader(f, read_across_frames=True)
+                total = 0
+                while block := reader.read(min(_BLOCK, limit + 1 - total)):
+                    total += len(block)
+                    if total > limit:
+                        raise Damage(f"inflates to more than {limit} bytes ({bounds.says()})")
+                    out.write(block)
+        except zstandard.ZstdError as e:
+            out_path.unlink(missing_ok=True)
+            raise Damage(f"damaged: the zstd data does not decompress ({e})") from None
+        except BaseException:
+            out_path.unlink(missing_ok=True)
+            raise
+    return out_path
+
+
+def _zstd_whole(f: BinaryIO, size: int) -> None:
+    """Every zstd frame of ``f`` whole, by its frame and block headers (RFC 8878,
+    section 3.1), read without decompressing: zstandard's stream reader ends a frame
+    cut short without a word."""
+    pos = 0
+    while pos < size:
+        f.seek(pos)
+        head = f.read(18)
+        if len(head) < 4:
+            raise Damage(f"damaged: zstd data cut short at byte {pos} of {size}")
+        (magic,) = struct.unpack_from("<I", head)
+        if magic & 0xFFFFFFF0 == 0x184D2A50:  # a skippable frame
+            if len(head) < 8:
+                raise Damage(f"damaged: zstd data cut short at byte {pos} of {size}")
+            pos += 8 + struct.unpack_from("<I", head, 4)[0]
+            continue
+        if head[:4] != ZSTD_MAGIC:
+            raise Damage(f"damaged: no zstd frame at byte {pos}")
+        if len(head) < 5:
+            raise Damage(f"damaged: zstd data cut short at byte {pos + len(head)} of {size}")
+        fhd = head[4]
+        single = bool(fhd & 0x20)
+        fcs = (1 if single else 0, 2, 4, 8)[fhd >> 6]
+        pos += 5 + (0 if single else 1) + (0, 1, 2, 4)[fhd & 3] + fcs
+        last = False
+        while not last:
+            f.seek(pos)
+            bh = f.read(3)
+            if len(bh) < 3:
+                raise Damage(f"damaged: zstd data cut short at byte {pos} of {size}")
+            v = bh[0] | bh[1] << 8 | bh[2] << 16
+            last, kind, n = bool(v & 1), (v >> 1) & 3, v >> 3
+            if kind == 3:
+                raise Damage(f"damaged: a reserved zstd block type at byte {pos}")
+            pos += 3 + (1 if kind == 1 else n)
+        pos += 4 if fhd & 4 else 0  # the content checksum
+        if pos > size:
+            raise Damage(f"damaged: zstd data cut short at byte {size}, its frame ends at {pos}")
 
 
 class Source:
