@@ -109,6 +109,37 @@ def _no(value: Any) -> Any:
 # through the encoder JSONRenderer builds from the same settings, so the bytes are
 # the chain's (tests/test_violationlog_render.py compares them).
 _ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode
+# The fields a violation record has before ``recent``, in the writer's order.
+_BEFORE_RECENT = ("requirement", "text", "formula", "tick", "inputs")
+
+
+class Row(dict[str, Any]):
+    """One tick of a violation record's ``recent``, with its JSON as ``_ENCODE``
+    renders it inside the record, made when the tick is stepped: the record on the
+    halt's path then joins these instead of encoding every tick again
+    (docs/reference/log.md#durability).  ``json`` is None when the row has no
+    plain JSON form (NaN, infinities, other types): the record goes the safe way.
+    A row is not changed once made (its ``json`` would no longer be its bytes)."""
+
+    __slots__ = ("json",)
+
+    def __init__(self, row: Mapping[str, Any]) -> None:
+        super().__init__(row)
+        try:
+            self.json: str | None = _ENCODE(self)
+        except (ValueError, TypeError):
+            self.json = None
+
+
+def _fragments(recent: Sequence[Mapping[str, Any]]) -> list[str] | None:
+    """Each row's pre-encoded JSON, or None if any row has none."""
+    out = []
+    for r in recent:
+        text = r.json if type(r) is Row else None
+        if text is None:
+            return None
+        out.append(text)
+    return out
 
 
 def _stderr_is_journal() -> bool:
@@ -294,7 +325,8 @@ class ViolationLog:
             formula=formula,
             tick=tick,
             inputs=dict(inputs),
-            recent=[dict(r) for r in recent],
+            # a Row is not changed once made (no copy needed); other rows are copied
+            recent=[r if type(r) is Row else dict(r) for r in recent],
             stale=list(stale),
             policy_state=dict(policy_state or {}),
         )
@@ -504,9 +536,18 @@ class ViolationLog:
         record = {"ts": ts, "event": event, "component": self._component}
         record |= {"config_sha256": self._config_sha256, "prev_sha256": ZERO_SHA256}
         record["seq"] = seq
-        record |= fields
+        parts = _fragments(fields["recent"]) if event == "violation" else None
         try:
-            text = _ENCODE(record)
+            if parts is None:
+                text = _ENCODE(record | fields)
+            else:
+                # The same bytes as the whole record's encoding, with each tick of
+                # ``recent`` joined from its Row instead of encoded here.
+                tail = dict(fields)
+                for k in _BEFORE_RECENT:
+                    record[k] = tail.pop(k)
+                del tail["recent"]
+                text = f'{_ENCODE(record)[:-1]},"recent":[{",".join(parts)}],{_ENCODE(tail)[1:]}'
         except (ValueError, TypeError):  # NaN, infinities, sets, other mappings
             header = {"ts": ts, "config_sha256": self._config_sha256}
             header |= {"prev_sha256": ZERO_SHA256, "seq": seq}
