@@ -121,7 +121,7 @@ def _violations(path: Path, rows: list[dict[str, Any]]) -> None:
                 recent_=1,
             )
         nan = {"tick": 11, "speed": math.nan}
-        recent = [*rows, Row(nan) if isinstance(rows[0], Row) else nan]
+        recent = [*rows, Row.of(nan) if isinstance(rows[0], Row) else nan]
         log.violation("r", text="t", formula="f", tick=12, inputs={}, recent=recent)
     finally:
         log.close()
@@ -133,8 +133,8 @@ def test_pre_encoded_recent_rows_give_the_same_bytes(tmp_path: Path) -> None:
     whole from plain rows (and the chain's), and a row with no plain JSON form (NaN)
     sends the record the safe way, as before."""
     plain = [{"tick": t, "OpState": 3, "halt": False, "speed": t / 3} for t in range(10)]
-    rows = [Row(r) for r in plain]
-    assert all(r.json is not None for r in rows) and Row({"x": math.nan}).json is None
+    rows = [Row.of(r) for r in plain]
+    assert all(r.json is not None for r in rows) and Row.of({"x": math.nan}).json is None
     _violations(tmp_path / "rows.jsonl", rows)
     _violations(tmp_path / "plain.jsonl", plain)
     lines = (tmp_path / "rows.jsonl").read_bytes().splitlines(keepends=True)

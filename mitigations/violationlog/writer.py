@@ -108,34 +108,55 @@ def _no(value: Any) -> Any:
 # path (docs/reference/log.md#durability): the same dict in the same key order
 # through the encoder JSONRenderer builds from the same settings, so the bytes are
 # the chain's (tests/test_violationlog_render.py compares them).
-_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode
+def _encoder() -> Callable[[Any], str]:
+    """``json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode``,
+    with the C encoder that ``encode`` makes on every call (json/encoder.py) made
+    once.  Without a check for circular containers: a record has none, and one
+    would still fail (RecursionError), reported as a record not rendered."""
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None:  # a Python without _json: the encoder's own path
+        return json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode
+    chunks = make(
+        None, _no, json.encoder.encode_basestring_ascii, None, ":", ",", False, False, False
+    )
+
+    def encode(o: Any) -> str:
+        return "".join(chunks(o, 0))
+
+    return encode
+
+
+_ENCODE = _encoder()
 # The fields a violation record has before ``recent``, in the writer's order.
 _BEFORE_RECENT = ("requirement", "text", "formula", "tick", "inputs")
 
 
 class Row(dict[str, Any]):
     """One tick of a violation record's ``recent``, with its JSON as ``_ENCODE``
-    renders it inside the record, made when the tick is stepped: the record on the
-    halt's path then joins these instead of encoding every tick again
-    (docs/reference/log.md#durability).  ``json`` is None when the row has no
-    plain JSON form (NaN, infinities, other types): the record goes the safe way.
-    A row is not changed once made (its ``json`` would no longer be its bytes)."""
+    renders it inside the record, made (:meth:`of`) when the tick is stepped: the
+    record on the halt's path then joins these instead of encoding every tick again
+    (docs/reference/log.md#durability).  ``json`` is None (or unset) when the row
+    has no plain JSON form (NaN, infinities, other types): the record goes the safe
+    way.  A row is not changed once made (its ``json`` would no longer be its bytes)."""
 
     __slots__ = ("json",)
+    json: str | None
 
-    def __init__(self, row: Mapping[str, Any]) -> None:
-        super().__init__(row)
+    @classmethod
+    def of(cls, row: Mapping[str, Any]) -> Row:
+        r = cls(row)
         try:
-            self.json: str | None = _ENCODE(self)
+            r.json = _ENCODE(r)
         except (ValueError, TypeError):
-            self.json = None
+            r.json = None
+        return r
 
 
 def _fragments(recent: Sequence[Mapping[str, Any]]) -> list[str] | None:
     """Each row's pre-encoded JSON, or None if any row has none."""
     out = []
     for r in recent:
-        text = r.json if type(r) is Row else None
+        text = getattr(r, "json", None) if type(r) is Row else None
         if text is None:
             return None
         out.append(text)

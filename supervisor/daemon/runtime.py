@@ -411,7 +411,7 @@ class Runtime:
         snap = dict(zip((i.spec.name for i in self._in), values, strict=True))
         result = StepResult(self.tick, t_ns, [i for i, f in enumerate(flags) if f], snap)
         # encoded now, once: the violation record joins the rows' JSON (writer.Row)
-        self.recent.append(Row({"tick": self.tick, **snap}))
+        self.recent.append(Row.of({"tick": self.tick, **snap}))
         self.tick += 1
         return result
 
