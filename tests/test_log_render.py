@@ -147,3 +147,23 @@ def test_pre_encoded_recent_rows_give_the_same_bytes(tmp_path: Path) -> None:
         prev = sha256_hex(line)
     assert [len(json.loads(x)["recent"]) for x in lines] == [10, 1, 0, 4, 11]
     assert json.loads(lines[4])["recent"][-1] == {"tick": 11, "speed": "nan"}
+
+
+def test_record_times_are_utc_to_the_microsecond(tmp_path: Path) -> None:
+    """Each record's ``ts``: UTC, six digits of microseconds even when they are
+    zeros, between the clock read before and after the write."""
+    from datetime import UTC, datetime
+
+    path = tmp_path / "violations.jsonl"
+    before = datetime.now(UTC).replace(tzinfo=None)
+    log = ViolationLog(path, "robot-1", CFG, echo=False)
+    try:
+        for _ in range(50):
+            log.supervisor("start")
+    finally:
+        log.close()
+    after = datetime.now(UTC).replace(tzinfo=None)
+    for line in path.read_bytes().splitlines():
+        ts = json.loads(line)["ts"]
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}Z", ts), ts
+        assert before <= datetime.strptime(ts, "%Y-%m-%dT%H:%M:%S.%fZ") <= after, ts

@@ -42,10 +42,10 @@ import json
 import os
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -68,7 +68,21 @@ from mitigations.violationlog.journal import JournalSender, priority, record_fie
 from monitors.errors import UserError
 
 _RESERVED = frozenset(HEADER) | {"line_sha256"}
-_ISO_UTC_US = "%Y-%m-%dT%H:%M:%S.%fZ"  # strftime keeps .000000; isoformat() would drop it
+_second: tuple[int, str] = (-1, "")  # the last second stamped, and its text
+
+
+def _now() -> str:
+    """The UTC time to the microsecond, ``2026-11-27T15:16:06.269955Z`` (always six
+    digits): the second's text made once per second, the microseconds added, which
+    takes a fifth of ``datetime.now(UTC).strftime`` on the halt's path."""
+    global _second
+    s, us = divmod(time.time_ns() // 1000, 1_000_000)
+    last = _second  # one read: another thread may replace it meanwhile
+    if last[0] != s:
+        last = _second = (s, time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(s)))
+    return f"{last[1]}.{us:06d}Z"
+
+
 _PREV_KEY = b'"prev_sha256":"'
 RETRY_INTERVAL_S = 1.0
 
@@ -585,7 +599,7 @@ class ViolationLog:
     ) -> bool:
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
-        ts = datetime.now(UTC).strftime(_ISO_UTC_US)
+        ts = _now()
         entry: _Entry | None = None
         error: str | None = None
         with self._lock:
@@ -690,7 +704,7 @@ class ViolationLog:
         }
         if first_last:
             fields["first_ts"], fields["last_ts"] = first_last
-        ts = datetime.now(UTC).strftime(_ISO_UTC_US)
+        ts = _now()
         entry = self._render("supervisor", ts, fields, durable=True)
         entry.counted = False  # one per gap, so the queue stays bounded
         self._queue.append(entry)
