@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any
 import structlog
 
 from mitigations.violationlog.format import EMPTY_SHA256, ZERO_SHA256, seal_line, sha256_hex
-from mitigations.violationlog.writer import ViolationLog, _processors
+from mitigations.violationlog.writer import Row, ViolationLog, _processors
 
 REPO = Path(__file__).resolve().parents[1]
 CFG = "c0" * 32
@@ -97,3 +98,72 @@ def test_written_lines_are_the_structlog_chains(tmp_path: Path) -> None:
         timeout=120,
     )
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def _same_but_hashes_and_ts(line: bytes) -> bytes:
+    return re.sub(rb'"(ts|prev_sha256|line_sha256)":"[^"]*"', rb'"\1":""', line)
+
+
+def _violations(path: Path, rows: list[dict[str, Any]]) -> None:
+    log = ViolationLog(path, "robot-1", CFG, echo=False)
+    try:
+        for recent in (rows, rows[:1], [], [*rows[:3], {"tick": 3, "OpState": 2}]):
+            log.violation(
+                "state_req103",
+                text='While "OpState" = 3 \\ é',
+                formula="G (OpState = 3 -> halt)",
+                tick=42,
+                inputs={"recent": [], "speed": 0.25},
+                recent=recent,
+                stale=[],
+                policy_state={"latched": True},
+                formula_inputs={"OpState": "/state.data"},
+                recent_=1,
+            )
+        nan = {"tick": 11, "speed": math.nan}
+        recent = [*rows, Row.of(nan) if isinstance(rows[0], Row) else nan]
+        log.violation("r", text="t", formula="f", tick=12, inputs={}, recent=recent)
+    finally:
+        log.close()
+
+
+def test_pre_encoded_recent_rows_give_the_same_bytes(tmp_path: Path) -> None:
+    """The daemon's runtime keeps each tick of ``recent`` as a Row with its JSON made
+    when stepped; the record joined from those is, byte for byte, the one encoded
+    whole from plain rows (and the chain's), and a row with no plain JSON form (NaN)
+    sends the record the safe way, as before."""
+    plain = [{"tick": t, "OpState": 3, "halt": False, "speed": t / 3} for t in range(10)]
+    rows = [Row.of(r) for r in plain]
+    assert all(r.json is not None for r in rows) and Row.of({"x": math.nan}).json is None
+    _violations(tmp_path / "rows.jsonl", rows)
+    _violations(tmp_path / "plain.jsonl", plain)
+    lines = (tmp_path / "rows.jsonl").read_bytes().splitlines(keepends=True)
+    want = (tmp_path / "plain.jsonl").read_bytes().splitlines(keepends=True)
+    assert len(lines) == len(want) == 5
+    assert [_same_but_hashes_and_ts(x) for x in lines] == [_same_but_hashes_and_ts(x) for x in want]
+    prev = EMPTY_SHA256
+    for line in lines[:4]:
+        assert line == chain_line(json.loads(line), prev), line
+        prev = sha256_hex(line)
+    assert [len(json.loads(x)["recent"]) for x in lines] == [10, 1, 0, 4, 11]
+    assert json.loads(lines[4])["recent"][-1] == {"tick": 11, "speed": "nan"}
+
+
+def test_record_times_are_utc_to_the_microsecond(tmp_path: Path) -> None:
+    """Each record's ``ts``: UTC, six digits of microseconds even when they are
+    zeros, between the clock read before and after the write."""
+    from datetime import UTC, datetime
+
+    path = tmp_path / "violations.jsonl"
+    before = datetime.now(UTC).replace(tzinfo=None)
+    log = ViolationLog(path, "robot-1", CFG, echo=False)
+    try:
+        for _ in range(50):
+            log.supervisor("start")
+    finally:
+        log.close()
+    after = datetime.now(UTC).replace(tzinfo=None)
+    for line in path.read_bytes().splitlines():
+        ts = json.loads(line)["ts"]
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}Z", ts), ts
+        assert before <= datetime.strptime(ts, "%Y-%m-%dT%H:%M:%S.%fZ") <= after, ts

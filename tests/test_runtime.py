@@ -4,6 +4,7 @@ Tick-precise: time is passed in explicitly, the monitor is the real compiled
 sRobot monitor from config/srobot.yaml.
 """
 
+import json
 from pathlib import Path
 
 import pytest
@@ -207,6 +208,9 @@ def test_recent_keeps_the_last_ticks(srobot):
         burst(rt, dict(IDLE, distance_to_target=10 + k), k * 10 * MS)
     assert [r["distance_to_target"] for r in rt.recent] == [12, 13, 14]
     assert [r["tick"] for r in rt.recent] == [2, 3, 4]
+    # each tick's JSON made when stepped, which the violation record joins
+    # (mitigations/violationlog/writer.py Row; bytes: tests/test_log_render.py)
+    assert [json.loads(r.json) for r in rt.recent] == [dict(r) for r in rt.recent]
 
 
 def test_fields_of_one_message_are_set_together(srobot):

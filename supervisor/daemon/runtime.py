@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from mitigations.violationlog.writer import Row
+
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 # A stamp later than its receipt by more than this is said (input_future_stamp):
 # clocks synchronised by NTP or PTP agree far better.
@@ -408,7 +410,8 @@ class Runtime:
         self._pending_since = None
         snap = dict(zip((i.spec.name for i in self._in), values, strict=True))
         result = StepResult(self.tick, t_ns, [i for i, f in enumerate(flags) if f], snap)
-        self.recent.append({"tick": self.tick, **snap})
+        # encoded now, once: the violation record joins the rows' JSON (writer.Row)
+        self.recent.append(Row.of({"tick": self.tick, **snap}))
         self.tick += 1
         return result
 
