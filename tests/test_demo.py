@@ -63,19 +63,27 @@ def section(out: str, title: str) -> tuple[int, dict[str, str]]:
 
 
 def leftovers(*markers: str) -> list[str]:
-    """Command lines of live processes that contain every marker."""
+    """Command lines of live processes that hold every marker as whole arguments
+    (a marker of several words as consecutive arguments), so ``--seed 1`` is not
+    found in another run's ``--seed 11``."""
+    wanted = [m.split() for m in markers]
     found = []
     for proc in Path("/proc").iterdir():
         if not proc.name.isdigit():
             continue
         try:
-            cmd = (proc / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+            argv = (proc / "cmdline").read_bytes().decode(errors="replace").split("\0")
             state = (proc / "stat").read_text().rsplit(")", 1)[1].split()[0]
         except OSError:
             continue
-        if state != "Z" and all(m in cmd for m in markers):
-            found.append(cmd)
+        words = [w for a in argv for w in a.split()]
+        if state != "Z" and all(_holds(words, m) for m in wanted):
+            found.append(" ".join(argv))
     return found
+
+
+def _holds(words: list[str], run: list[str]) -> bool:
+    return any(words[i : i + len(run)] == run for i in range(len(words) - len(run) + 1))
 
 
 def no_leftovers(log: Path, seed: int) -> None:
