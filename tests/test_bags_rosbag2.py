@@ -155,9 +155,70 @@ CASES += [
     )
     for storage in ("sqlite3", "mcap")
 ]
-# Not yet rows: service events, several topics and the judged-nothing bag have their
-# own tests below; compressed, reindex (no metadata) and wrong_rmw_test bags are
-# strict xfails until replay reads them.
+# rosbag2's reindex inputs multiple_files (sqlite3 and MCAP): three split files
+# without a metadata.yaml, 3177 std_msgs/msg/String on /chatter (1324 + 1324 + 529),
+# every one "test" (rosbag2_py's reindex test records a talker of "test"). So
+# "n <= 3" fails at every tick and "n = 4" at none.
+CASES += [
+    Case(
+        bag=f"{storage}/multiple_files_no_metadata",
+        topic_in_bag="/chatter",
+        msg="std_msgs/msg/String",
+        variables={"n": "data"},
+        reduce={"n": "len"},
+        topic="/chatter",
+        requirements={"short": "n <= 3", "four": "n = 4"},
+        violations={"short": list(range(3177)), "four": []},
+    )
+    for storage in ("sqlite3", "mcap")
+]
+# Rows replay does not pass yet: they wait for the storage part (zstd per file and per
+# message, split bags without metadata.yaml); strict, so a pass turns them into rows.
+# file_compression: four .db3.zstd files, 383 std_msgs/msg/String on /topic, "Hello,
+# world! 11721" to "Hello, world! 12103", all 19 characters: "n <= 18" fails at every
+# tick, "n = 19" at none. message_compression: four .db3 of zstd messages, 369 on
+# /topic, "Hello, world! 4084" to "Hello, world! 4452", all 18 characters.
+_NEEDS_STORAGE = "needs the storage part: "
+PENDING: list[Any] = [
+    pytest.param(
+        Case(
+            bag="sqlite3/file_compression_no_metadata",
+            topic_in_bag="/topic",
+            msg="std_msgs/msg/String",
+            variables={"n": "data"},
+            reduce={"n": "len"},
+            topic="/topic",
+            requirements={"short": "n <= 18", "exact": "n = 19"},
+            violations={"short": list(range(383)), "exact": []},
+        ),
+        marks=pytest.mark.xfail(
+            strict=True,
+            raises=AssertionError,
+            reason=_NEEDS_STORAGE + "zstd per file (.db3.zstd), split without metadata.yaml",
+        ),
+        id="sqlite3/file_compression_no_metadata",
+    ),
+    pytest.param(
+        Case(
+            bag="sqlite3/message_compression_no_metadata",
+            topic_in_bag="/topic",
+            msg="std_msgs/msg/String",
+            variables={"n": "data"},
+            reduce={"n": "len"},
+            topic="/topic",
+            requirements={"short": "n <= 17", "exact": "n = 18"},
+            violations={"short": list(range(369)), "exact": []},
+        ),
+        marks=pytest.mark.xfail(
+            strict=True,
+            raises=AssertionError,
+            reason=_NEEDS_STORAGE + "zstd per message, split without metadata.yaml",
+        ),
+        id="sqlite3/message_compression_no_metadata",
+    ),
+]
+# Service events, several topics and the bags refused or judged nothing have their own
+# tables below.
 
 
 def _config(tmp: Path, case: Case) -> Path:
@@ -186,19 +247,45 @@ def _config(tmp: Path, case: Case) -> Path:
     return path
 
 
+# zstd's frame magic: rosbag2's message compression stores each message's CDR as one
+# zstd frame (a CDR payload starts with its encapsulation header 00 01 or 00 00).
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+
+
 def _sqlite_rows(bag: Path, topic: str) -> list[tuple[int, bytes]]:
+    """Every .db3 of the directory, a .db3.zstd (rosbag2's per-file compression)
+    decompressed to a temporary copy first, a zstd message (per message) decompressed."""
+    import tempfile
+
+    import zstandard
+
     rows: list[tuple[int, bytes]] = []
-    for db in sorted(bag.glob("*.db3")):
-        con = sqlite3.connect(f"file:{db}?mode=ro&immutable=1", uri=True)
-        try:
-            rows += con.execute(
-                "SELECT m.timestamp, m.data FROM messages m JOIN topics t ON m.topic_id = t.id "
-                "WHERE t.name = ? ORDER BY m.timestamp",
-                (topic,),
-            ).fetchall()
-        finally:
-            con.close()
-    return [(int(t), bytes(d)) for t, d in rows]
+    with tempfile.TemporaryDirectory() as tmp:
+        files: list[Path] = []
+        for f in sorted([*bag.glob("*.db3"), *bag.glob("*.db3.zstd")]):
+            if f.suffix == ".zstd":
+                plain = Path(tmp) / f.stem
+                with f.open("rb") as src, plain.open("wb") as dst:
+                    zstandard.ZstdDecompressor().copy_stream(src, dst)
+                f = plain
+            files.append(f)
+        for db in files:
+            con = sqlite3.connect(f"file:{db}?mode=ro&immutable=1", uri=True)
+            try:
+                rows += con.execute(
+                    "SELECT m.timestamp, m.data FROM messages m JOIN topics t "
+                    "ON m.topic_id = t.id WHERE t.name = ? ORDER BY m.timestamp",
+                    (topic,),
+                ).fetchall()
+            finally:
+                con.close()
+    out = [(int(t), bytes(d)) for t, d in rows]
+    return [
+        (t, zstandard.ZstdDecompressor().decompressobj().decompress(d))
+        if d.startswith(_ZSTD_MAGIC)
+        else (t, d)
+        for t, d in out
+    ]
 
 
 def _mcap_rows(bag: Path, topic: str) -> list[tuple[int, bytes]]:
@@ -238,7 +325,9 @@ def _replay(config: Path, bag: Path, out: Path, *args: str) -> subprocess.Comple
     )
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c.bag for c in CASES])
+@pytest.mark.parametrize(
+    "case", [*CASES, *PENDING], ids=[*(c.bag for c in CASES), *(p.id for p in PENDING)]
+)
 def test_replay_matches_independent_reader(case: Case, tmp_path: Path) -> None:
     expected = independent_values(case)
     assert expected, f"{case.bag}: the independent reader found no message on {case.topic_in_bag}"
