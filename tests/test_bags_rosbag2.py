@@ -669,3 +669,78 @@ def test_replay_events_match_independent_reader(case: EventCase, tmp_path: Path)
         assert got == ticks, f"{case.bag}: requirement {rid}"
     counts = {r["id"]: r["violations"] for r in summary["requirements"]}
     assert counts == {"echo": len(expected)} | {k: len(v) for k, v in case.violations.items()}
+
+
+@dataclass(frozen=True)
+class Refused:
+    """A bag replay must not judge: exit 1 and one line on stderr.
+
+    ``variable`` is the config's one variable (YAML mapping); the line must contain
+    every string of ``says``, case aside (``{bag}`` is the path replay was given)."""
+
+    bag: str
+    variable: str
+    says: tuple[str, ...]
+
+
+_ROSOUT = "{type: int64, topic: /rosout, msg: rcl_interfaces/msg/Log, field: level}"
+_JUDGED_NOTHING = (
+    "safety-supervisor: {bag}: the recordings hold no message on the config's topics "
+    "(/rosout), so nothing was judged",
+)
+_TEST_TOPIC = "{type: int64, topic: /test_topic, msg: test_msgs/msg/BasicTypes, field: int32_value}"
+# wrong_rmw_test's metadata.yaml declares serialization_format wrong_format for both
+# topics (its payloads happen to be CDR; rosbag2 refuses the bag for the format): the
+# line names the recording, the format, and CDR, the one replay reads.
+_WRONG_FORMAT = ("{bag}", "wrong_format", "cdr")
+
+REFUSED: list[Any] = [
+    # rosbag2's empty_bag: /rosout and /parameter_events, no message on either.
+    pytest.param(Refused("sqlite3/empty_bag", _ROSOUT, _JUDGED_NOTHING), id="sqlite3/empty_bag"),
+    # rosbag2's compressed_bag (zstd per file) holds the same two topics, no message.
+    pytest.param(
+        Refused("sqlite3/compressed_bag", _ROSOUT, _JUDGED_NOTHING),
+        marks=pytest.mark.xfail(
+            strict=True, raises=AssertionError, reason=_NEEDS_STORAGE + "zstd per file"
+        ),
+        id="sqlite3/compressed_bag",
+    ),
+    *(
+        pytest.param(
+            Refused(f"{storage}/wrong_rmw_test", _TEST_TOPIC, _WRONG_FORMAT),
+            marks=pytest.mark.xfail(
+                strict=True,
+                raises=AssertionError,
+                reason=_NEEDS_STORAGE + "a declared serialization_format other than cdr refused",
+            ),
+            id=f"{storage}/wrong_rmw_test",
+        )
+        for storage in ("sqlite3", "mcap")
+    ),
+]
+
+
+@pytest.mark.parametrize("case", REFUSED)
+def test_replay_refuses_in_one_line(case: Refused, tmp_path: Path) -> None:
+    config = tmp_path / "refused.yaml"
+    config.write_text(
+        "component: R\nstep: {policy: on_message}\n"
+        f"variables:\n  v: {case.variable}\n"
+        "requirements:\n  - id: r\n    text: R shall always satisfy v < 40\n"
+        "    on_violation: [note]\n"
+        "mitigations:\n  note: {log: {message: violated}}\n"
+    )
+    bag = tmp_path / "bag"
+    shutil.copytree(BAGS / case.bag, bag)
+    out = tmp_path / "out.jsonl"
+    proc = _replay(config, bag, out)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    line = lines[0]
+    for part in case.says:
+        assert part.format(bag=bag).lower() in line.lower(), line
+    if proc.stdout.strip():
+        summary = json.loads(proc.stdout)
+        assert line == f"safety-supervisor: {summary['error']}"
+        assert summary["ticks"] == 0
