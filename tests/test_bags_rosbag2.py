@@ -744,3 +744,14 @@ def test_replay_refuses_in_one_line(case: Refused, tmp_path: Path) -> None:
         summary = json.loads(proc.stdout)
         assert line == f"safety-supervisor: {summary['error']}"
         assert summary["ticks"] == 0
+
+
+def test_every_corpus_bag_is_judged_or_refused() -> None:
+    """Each bag of tests/data/bags has a row in one of the tables above (an xfail
+    row counts: it says what replay must do once it reads the bag)."""
+    corpus = {f"{d.parent.name}/{d.name}" for d in BAGS.glob("*/*") if d.is_dir()}
+    tabled = {c.bag for c in CASES} | {c.bag for c in EVENT_CASES}
+    tabled |= {p.values[0].bag for p in [*PENDING, *REFUSED]}
+    assert corpus, BAGS
+    assert sorted(corpus - tabled) == []
+    assert sorted(tabled - corpus) == []
