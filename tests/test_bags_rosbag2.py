@@ -3,7 +3,10 @@ the values replay saw against an independent reader of the same files (the sqlit
 module or the mcap package, decoded by rclpy's deserialize_message with the
 installed type), and the violations against a table worked out by hand.
 
-Each case is one row of ``CASES``; a bag that replay learns to read gets a row.
+Each case is one row of ``CASES`` (one topic), ``EVENT_CASES`` (several topics and
+service events, tick by tick) or ``REFUSED`` (a bag replay must not judge, and its one
+line); ``PENDING`` and the xfail rows of ``REFUSED`` say what replay must do with the
+bags it does not read yet. Every bag of the corpus has a row.
 """
 
 from __future__ import annotations
