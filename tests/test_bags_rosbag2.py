@@ -5,8 +5,8 @@ installed type), and the violations against a table worked out by hand.
 
 Each case is one row of ``CASES`` (one topic), ``EVENT_CASES`` (several topics and
 service events, tick by tick) or ``REFUSED`` (a bag replay must not judge, and its one
-line); ``PENDING`` and the xfail rows of ``REFUSED`` say what replay must do with the
-bags it does not read yet. Every bag of the corpus has a row.
+line); ``COMPRESSED`` holds the split zstd bags without metadata. Every bag of the
+corpus has a row.
 """
 
 from __future__ import annotations
@@ -181,8 +181,7 @@ CASES += [
 # world! 11721" to "Hello, world! 12103", all 19 characters: "n <= 18" fails at every
 # tick, "n = 19" at none. message_compression: four .db3 of zstd messages, 369 on
 # /topic, "Hello, world! 4084" to "Hello, world! 4452", all 18 characters.
-_NEEDS_STORAGE = "needs the storage part: "
-PENDING: list[Any] = [
+COMPRESSED: list[Any] = [
     pytest.param(
         Case(
             bag="sqlite3/file_compression_no_metadata",
@@ -193,11 +192,6 @@ PENDING: list[Any] = [
             topic="/topic",
             requirements={"short": "n <= 18", "exact": "n = 19"},
             violations={"short": list(range(383)), "exact": []},
-        ),
-        marks=pytest.mark.xfail(
-            strict=True,
-            raises=AssertionError,
-            reason=_NEEDS_STORAGE + "zstd per file (.db3.zstd), split without metadata.yaml",
         ),
         id="sqlite3/file_compression_no_metadata",
     ),
@@ -211,11 +205,6 @@ PENDING: list[Any] = [
             topic="/topic",
             requirements={"short": "n <= 17", "exact": "n = 18"},
             violations={"short": list(range(369)), "exact": []},
-        ),
-        marks=pytest.mark.xfail(
-            strict=True,
-            raises=AssertionError,
-            reason=_NEEDS_STORAGE + "zstd per message, split without metadata.yaml",
         ),
         id="sqlite3/message_compression_no_metadata",
     ),
@@ -329,7 +318,7 @@ def _replay(config: Path, bag: Path, out: Path, *args: str) -> subprocess.Comple
 
 
 @pytest.mark.parametrize(
-    "case", [*CASES, *PENDING], ids=[*(c.bag for c in CASES), *(p.id for p in PENDING)]
+    "case", [*CASES, *COMPRESSED], ids=[*(c.bag for c in CASES), *(p.id for p in COMPRESSED)]
 )
 def test_replay_matches_independent_reader(case: Case, tmp_path: Path) -> None:
     expected = independent_values(case)
@@ -703,19 +692,11 @@ REFUSED: list[Any] = [
     # rosbag2's compressed_bag (zstd per file) holds the same two topics, no message.
     pytest.param(
         Refused("sqlite3/compressed_bag", _ROSOUT, _JUDGED_NOTHING),
-        marks=pytest.mark.xfail(
-            strict=True, raises=AssertionError, reason=_NEEDS_STORAGE + "zstd per file"
-        ),
         id="sqlite3/compressed_bag",
     ),
     *(
         pytest.param(
             Refused(f"{storage}/wrong_rmw_test", _TEST_TOPIC, _WRONG_FORMAT),
-            marks=pytest.mark.xfail(
-                strict=True,
-                raises=AssertionError,
-                reason=_NEEDS_STORAGE + "a declared serialization_format other than cdr refused",
-            ),
             id=f"{storage}/wrong_rmw_test",
         )
         for storage in ("sqlite3", "mcap")
@@ -750,11 +731,10 @@ def test_replay_refuses_in_one_line(case: Refused, tmp_path: Path) -> None:
 
 
 def test_every_corpus_bag_is_judged_or_refused() -> None:
-    """Each bag of tests/data/bags has a row in one of the tables above (an xfail
-    row counts: it says what replay must do once it reads the bag)."""
+    """Each bag of tests/data/bags has a row in one of the tables above."""
     corpus = {f"{d.parent.name}/{d.name}" for d in BAGS.glob("*/*") if d.is_dir()}
     tabled = {c.bag for c in CASES} | {c.bag for c in EVENT_CASES}
-    tabled |= {p.values[0].bag for p in [*PENDING, *REFUSED]}
+    tabled |= {p.values[0].bag for p in [*COMPRESSED, *REFUSED]}
     assert corpus, BAGS
     assert sorted(corpus - tabled) == []
     assert sorted(tabled - corpus) == []
