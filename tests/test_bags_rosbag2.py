@@ -679,6 +679,7 @@ _ROSOUT = "{type: int64, topic: /rosout, msg: rcl_interfaces/msg/Log, field: lev
 _JUDGED_NOTHING = (
     "safety-supervisor: {bag}: the recordings hold no message on the config's topics "
     "(/rosout), so nothing was judged",
+    "hint: replay a recording made while those topics were published",
 )
 _TEST_TOPIC = "{type: int64, topic: /test_topic, msg: test_msgs/msg/BasicTypes, field: int32_value}"
 # wrong_rmw_test's metadata.yaml declares serialization_format wrong_format for both

@@ -357,3 +357,20 @@ mitigations:
     assert run.returncode == 1 and "Traceback" not in run.stderr
     last = run.stderr.strip().splitlines()[-1]
     assert "no message on the config's topics (/rosout)" in last
+
+
+def test_a_missing_event_topic_is_not_said_to_keep_the_monitor_from_stepping(tmp_path):
+    """An event is false until its message comes (docs/reference/config.md), so only
+    the value without 'initial:' is named as never getting one."""
+    bag = namespaced_bag(tmp_path / "bag", SPEEDS)
+    extra = (
+        "  odom: {type: double, topic: /odom_speed, msg: std_msgs/msg/Float64}\n"
+        "  bump: {type: bool, topic: /bumper, msg: std_msgs/msg/Float64, event: true}\n"
+    )
+    cfg = speed_config(tmp_path, extra=extra)
+    cfg.write_text(cfg.read_text().replace("odom < 100.0", "odom < 100.0 & !bump"))
+    run = cli("replay", str(cfg), str(bag), "--namespace=/robot1")
+    assert "Traceback" not in run.stderr, run.stderr
+    said = [line for line in (run.stdout + run.stderr).splitlines() if "never" in line]
+    assert said and all("without 'initial:', odom never gets a value" in s for s in said), said
+    assert not [s for s in said if "bump" in s.split("never")[0].split("without")[-1]], said

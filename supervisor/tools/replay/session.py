@@ -149,6 +149,8 @@ def run_one(
                 "the recordings hold no message on the config's topics "
                 f"({', '.join(recording.topics)}), so nothing was judged",
                 file=", ".join(str(p) for p in paths),
+                hint="replay a recording made while those topics were published, "
+                "or name in the config the topics the recording has messages on",
             )
         return Run(outcome, notes + outcome.warnings + _counted(warnings), recording.missing)
 

@@ -362,10 +362,16 @@ class Recording:
         self.missing: dict[str, str] = {}
         for t in (t for t in by_topic if t not in recorded):
             names_ = [v.name for v in by_topic[t]]
-            no_initial = [v.name for v in by_topic[t] if v.initial is None]
+            # an event is false until its message comes (docs/reference/config.md), so
+            # only a value without 'initial:' keeps the monitor from stepping
+            no_initial = [v.name for v in by_topic[t] if v.initial is None and not v.event]
             text = f"warning: topic {t} ({', '.join(names_)}) is in none of the recordings"
             if no_initial:
-                text += f"; {', '.join(no_initial)} without 'initial:' never get a value, so the monitor never steps"
+                verb = "gets" if len(no_initial) == 1 else "get"
+                text += (
+                    f"; without 'initial:', {', '.join(no_initial)} never {verb} a value, "
+                    "so the monitor never steps"
+                )
             self.missing[t] = printable(text)
             self.warnings.append(text)
         self.topics = sorted(recorded)
