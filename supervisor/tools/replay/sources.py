@@ -2,9 +2,10 @@
 
 Inputs (any mix, merged by receive time):
 
-- a rosbag2 bag directory (``metadata.yaml`` and ``.db3`` or ``.mcap`` files,
-  metadata version 8 or 9), or one of its storage files given directly, also an MCAP
-  file whose recorder was killed before writing ``metadata.yaml`` or its summary;
+- a rosbag2 bag directory (``metadata.yaml``, versions 1 to 9, and ``.db3`` or
+  ``.mcap`` files, zstd-compressed per file or per message; or the files alone, in
+  rosbag2's order, without ``metadata.yaml``), or one of its storage files given
+  directly, also an MCAP file whose recorder was killed before writing its summary;
 - a JSON-lines trace (``.jsonl``/``.json``), one object per line::
 
       {"t_ns": 1500000000, "name": "speed", "value": 0.25}
