@@ -288,6 +288,28 @@ def test_report_bag_reads_relative_names(tmp_path):
     assert "none of the recordings" not in html
 
 
+def test_report_bag_takes_the_namespace_replay_takes(tmp_path):
+    """``report --bag --namespace`` maps a namespaced bag as ``replay --namespace``
+    does; a bad one is one line, exit 1."""
+    bag = namespaced_bag(tmp_path / "bag", SPEEDS)
+    cfg = speed_config(tmp_path)
+    log = tmp_path / "log.jsonl"
+    assert (
+        cli("replay", str(cfg), str(bag), "--namespace", "/robot1", "-o", str(log)).returncode == 0
+    )
+    page = tmp_path / "r.html"
+    argv = ["report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page)]
+    run = cli(*argv, "--namespace", "/robot1")
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    assert "none of the recordings" not in page.read_text()
+    bad = cli(*argv, "--namespace", "robot1")
+    assert bad.returncode == 1 and "Traceback" not in bad.stderr, bad.stderr
+    assert bad.stderr.strip().splitlines() == [
+        "report: --namespace 'robot1' is not a ROS namespace "
+        "(absolute, like /robot1 or /fleet/robot1)"
+    ], bad.stderr
+
+
 def test_a_second_replay_compiles_nothing_from_the_user_s_cache(tmp_path):
     """Without STATE_DIRECTORY replay keeps its monitor in $XDG_CACHE_HOME, made 0700
     and checked as the daemon's cache is (supervisor/cache.py); the compiler behind a

@@ -64,7 +64,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     # this module for its parser at every start.
     from supervisor.tools.replay.session import compare, replay_files
 
-    namespace = _namespace(args.namespace)
+    namespace = checked_namespace(args.namespace, "replay")
     # progress is for a person at a terminal: never in a log file or a CI's output
     progress = Progress() if sys.stderr.isatty() and not (args.quiet or args.json) else None
     try:
@@ -98,8 +98,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return EXIT_FAIL if result.get("error") else EXIT_OK
 
 
-def _namespace(given: str | None) -> str | None:
-    """``--namespace``, checked as the config checks ``ros.namespace``."""
+def checked_namespace(given: str | None, command: str) -> str | None:
+    """``--namespace`` of replay or report, checked as the config checks
+    ``ros.namespace``."""
     if given is None:
         return None
     from supervisor.config.ros import NAMESPACE
@@ -108,7 +109,7 @@ def _namespace(given: str | None) -> str | None:
         raise UserError(
             f"--namespace {given!r} is not a ROS namespace "
             "(absolute, like /robot1 or /fleet/robot1)",
-            file="replay",
+            file=command,
         )
     return given
 

@@ -53,7 +53,15 @@ class Report:
     notes: list[str]
 
 
-def build(logs: list[str], bags: list[str], config: str | None, quiet: bool = False) -> Report:
+def build(
+    logs: list[str],
+    bags: list[str],
+    config: str | None,
+    quiet: bool = False,
+    namespace: str | None = None,
+) -> Report:
+    """``namespace``: the robot's namespace in ``bags`` (None: the config's
+    ``ros.namespace``), as replay's ``--namespace``."""
     data = load_logs(logs)
     cfg_path, no_config = resolve_config(config, data, "--bag" if bags else None, bags)
     project = None
@@ -74,9 +82,9 @@ def build(logs: list[str], bags: list[str], config: str | None, quiet: bool = Fa
     if bags:
         assert cfg is not None and cfg_path is not None
         paths = bag_paths(bags)
-        series, more = series_from_bag(paths, cfg, quiet)
+        series, more = series_from_bag(paths, cfg, quiet, namespace)
         notes += more
-        replayed, more = windows_from_bag(cfg_path, paths, data, shown, quiet)
+        replayed, more = windows_from_bag(cfg_path, paths, data, shown, quiet, namespace)
         windows.update(replayed)
         notes += more
         source = "the recording (" + ", ".join(bags) + "), every message at its receive time"

@@ -38,6 +38,13 @@ def add_parser(sub: Any) -> None:
         help="the config the log was written with (default: a *.yaml beside the log or in "
         "the recording with the log's config_sha256; the path the log names is never opened)",
     )
+    p.add_argument(
+        "--namespace",
+        default=None,
+        metavar="NS",
+        help="the robot's namespace in the --bag recordings, as replay's --namespace "
+        "(default: the config's ros.namespace)",
+    )
     p.add_argument("-o", "--output", required=True, metavar="REPORT.html")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
@@ -45,13 +52,15 @@ def add_parser(sub: Any) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     # The pipeline and the replay load only when report runs: the CLI imports this
     # module for its parser at every start.
+    from supervisor.tools.replay.command import checked_namespace
     from supervisor.tools.report.build import build
     from supervisor.tools.report.page import write
 
     out = Path(args.output)
     if out.is_dir():
         raise UserError("is a directory; give the HTML file to write", file=str(out))
-    rep = build(args.logs, args.bag, args.config, quiet=args.quiet)
+    namespace = checked_namespace(args.namespace, "report")
+    rep = build(args.logs, args.bag, args.config, quiet=args.quiet, namespace=namespace)
     try:
         write(rep, out)
     except OSError as e:

@@ -172,13 +172,14 @@ def _progress(label: str) -> Callable[[int, int | None], None]:
 
 
 def series_from_bag(
-    paths: list[Path], cfg: Config, quiet: bool
+    paths: list[Path], cfg: Config, quiet: bool, namespace: str | None = None
 ) -> tuple[dict[str, Series], list[str]]:
     """Every input value in the recording at its receive time; damage ends the
     reading where it is (a note), as it ends a replay."""
     from supervisor.tools.replay.sources import open_recordings
 
-    rec = open_recordings(paths, cfg, cfg.ros.namespace)  # names as replay resolves them
+    # names as replay resolves them (docs/reference/commands.md, replay)
+    rec = open_recordings(paths, cfg, cfg.ros.namespace if namespace is None else namespace)
     notes = list(rec.warnings)
     pts: dict[str, list[tuple[int, Value]]] = {}
     try:
@@ -234,7 +235,12 @@ class _Capture:
 
 
 def windows_from_bag(
-    config: Path, paths: list[Path], data: LogData, wanted: dict[int, tuple[str, int]], quiet: bool
+    config: Path,
+    paths: list[Path],
+    data: LogData,
+    wanted: dict[int, tuple[str, int]],
+    quiet: bool,
+    namespace: str | None = None,
 ) -> tuple[dict[int, Window], list[str]]:
     """Replay the recording with the config (the daemon's core, as ``replay`` does),
     keeping up to WINDOW_CAP ticks of history: the windows of the violations wanted
@@ -249,7 +255,11 @@ def windows_from_bag(
         cap = _Capture(session.runtime, set(wanted.values()))
         outcome = replay(
             session,
-            open_recordings(paths, session.config, session.config.ros.namespace),
+            open_recordings(
+                paths,
+                session.config,
+                session.config.ros.namespace if namespace is None else namespace,
+            ),
             cap,
             progress=None if quiet else _progress("replaying"),
         )
