@@ -284,6 +284,21 @@ def _shutdown(m: Machine) -> None:
             _stop_nspawn(m.nspawn)
 
 
+def _remove_orphaned_sessions() -> None:
+    """Session copies whose pytest process is gone (killed before its cleanup ran)."""
+    for d in CACHE.glob("session-*"):
+        pid = d.name.split("-")[1]
+        if not pid.isdigit():  # the unnamed copies of earlier versions of this file
+            shutil.rmtree(d, ignore_errors=True)
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(d, ignore_errors=True)
+        except PermissionError:
+            pass  # alive, another user's
+
+
 @pytest.fixture(scope="session")
 def machine(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
     if os.geteuid() != 0:
@@ -296,8 +311,10 @@ def machine(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
     house = _wheelhouse(wheel)
     pristine = _cached_rootfs()
     # A throwaway copy per session: tests never dirty the cache.  Beside the
-    # cache (same file system, out of a possibly small /tmp).
-    root = Path(tempfile.mkdtemp(prefix="session-", dir=CACHE)) / "root"
+    # cache (same file system, out of a possibly small /tmp), named with this
+    # process's pid so that a later session removes the copy of a killed one.
+    _remove_orphaned_sessions()
+    root = Path(tempfile.mkdtemp(prefix=f"session-{os.getpid()}-", dir=CACHE)) / "root"
     try:
         _ok(_run(["cp", "-a", "--reflink=auto", str(pristine), str(root)], 600))
         shutil.copytree(house, root / "wheelhouse")
