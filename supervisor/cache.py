@@ -65,18 +65,7 @@ class Cache:
         state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
         if not state:
             return None
-        root = Path(state) / SUBDIR
-        try:
-            with contextlib.suppress(FileExistsError):
-                root.mkdir(mode=0o700)
-            st = root.lstat()
-        except OSError as e:
-            _warn(f"{root}: {e.strerror}; not used")
-            return None
-        if not _ours(st, stat.S_IFDIR):
-            _warn(f"{root} is not a directory of this user's that only it can write; not used")
-            return None
-        return cls(root)
+        return cls._made(Path(state), Path(state) / SUBDIR)
 
     @classmethod
     def open_user(cls) -> Cache | None:
@@ -88,9 +77,15 @@ class Cache:
         base = os.environ.get("XDG_CACHE_HOME", "")
         # the XDG base directory specification: a relative value is to be ignored
         home = Path(base) if os.path.isabs(base) else Path.home() / ".cache"
-        root = home / "safety-supervisor"
+        return cls._made(home, home / "safety-supervisor", parents=True)
+
+    @classmethod
+    def _made(cls, home: Path, root: Path, parents: bool = False) -> Cache | None:
+        """``root`` made (mode 0700) in ``home`` (made too with ``parents``), or None
+        with one warning when that fails or ``root`` is not only this user's."""
         try:
-            home.mkdir(mode=0o700, parents=True, exist_ok=True)
+            if parents:
+                home.mkdir(mode=0o700, parents=True, exist_ok=True)
             with contextlib.suppress(FileExistsError):
                 root.mkdir(mode=0o700)
             st = root.lstat()

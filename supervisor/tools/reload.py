@@ -18,7 +18,7 @@ import sys
 
 from monitors.untrusted import printable
 from supervisor.names import client_control_socket
-from supervisor.tools.reset import request, seconds_arg
+from supervisor.tools.reset import add_socket_options, request
 
 # Below the unit's TimeoutStartSec= (60 s), which systemd also applies to
 # ExecReload: the command, not systemd, says why a reload did not finish.
@@ -30,18 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "reload",
         help="reload the running supervisor's config; returns once it is in force or refused",
     )
-    r.add_argument(
-        "--socket",
-        metavar="PATH",
-        help="the daemon's control socket (default: /run/safety-supervisor/control.sock "
-        "if it exists, else the one `run` uses for this user and ROS_DOMAIN_ID)",
-    )
-    r.add_argument(
-        "--timeout",
-        type=seconds_arg,
-        default=DEFAULT_TIMEOUT_S,
-        help=f"seconds to wait for the outcome (default {DEFAULT_TIMEOUT_S:g})",
-    )
+    add_socket_options(r, DEFAULT_TIMEOUT_S, "the outcome")
 
 
 def cmd_reload(args: argparse.Namespace) -> int:

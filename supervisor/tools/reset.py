@@ -34,10 +34,8 @@ CONNECT_RETRY_S = 0.02
 MAX_TIMEOUT_S = 86400.0  # a day: beyond it, a typo
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    r = sub.add_parser(
-        "reset", help="operator reset of the running supervisor (lifts latched mitigations)"
-    )
+def add_socket_options(r: argparse.ArgumentParser, timeout_s: float, wait_for: str) -> None:
+    """``--socket`` and ``--timeout`` of the commands that ask the control socket."""
     r.add_argument(
         "--socket",
         metavar="PATH",
@@ -47,9 +45,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     r.add_argument(
         "--timeout",
         type=seconds_arg,
-        default=10.0,
-        help="seconds to wait for the answer (default 10)",
+        default=timeout_s,
+        help=f"seconds to wait for {wait_for} (default {timeout_s:g})",
     )
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    r = sub.add_parser(
+        "reset", help="operator reset of the running supervisor (lifts latched mitigations)"
+    )
+    add_socket_options(r, 10.0, "the answer")
     r.add_argument(
         "--requirement",
         metavar="ID",
