@@ -4,6 +4,7 @@ columns, with no Python code run per row, and give exactly what a row-by-row rea
 
 from __future__ import annotations
 
+import gc
 import sqlite3
 import sys
 from pathlib import Path
@@ -69,6 +70,27 @@ def test_reading_runs_no_python_code_per_row(tmp_path: Path) -> None:
     small = python_calls(bag(tmp_path, 20_000, "small"))
     large = python_calls(bag(tmp_path, 60_000, "large"))
     assert large - small < 1000, (small, large)
+
+
+def test_reading_starts_no_garbage_collection_per_rows(tmp_path: Path) -> None:
+    # A tuple per row fetched, none in a cycle: collections they would start walk the
+    # whole heap, again and again (docs/BENCHMARKS.md, "Replay throughput").
+    db = bag(tmp_path, 60_000)
+    started: list[int] = []
+
+    def note(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            started.append(info["generation"])
+
+    gc.collect()
+    gc.callbacks.append(note)
+    try:
+        raws, damage = read(db)
+    finally:
+        gc.callbacks.remove(note)
+    assert damage is None and sum(map(len, raws)) == 60_000
+    assert gc.isenabled()
+    assert len(started) < 10, started
 
 
 def expected(db: Path) -> list[tuple[object, ...]]:

@@ -3,10 +3,12 @@ to its damage (supervisor/tools/replay/sources.py)."""
 
 from __future__ import annotations
 
+import gc
 import os
 import struct
 import tempfile
 from collections.abc import Iterator
+from contextlib import contextmanager
 from itertools import chain, islice
 from pathlib import Path
 from urllib.parse import quote
@@ -40,6 +42,10 @@ from supervisor.tools.replay.storage import (
 # input anybody could have written; docs/reference/faults.md, "Trust").
 _ROW_OK = "typeof(timestamp) = 'integer' AND timestamp >= 0 AND typeof(data) = 'blob'"
 _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payloads
+# Rows per chunk at most: the bulk stepper re-scans the rest of a chunk after each
+# violation, so chunks about as long as an MCAP chunk's keep violating bags fast
+# (docs/BENCHMARKS.md, "Replay throughput").
+_ROWS = 8192
 
 
 class Sqlite(Source):
@@ -222,21 +228,23 @@ class Sqlite(Source):
                     kparts: list[tuple[object, ...]] = []
                     dparts: list[tuple[object, ...]] = []
                     count = size = 0
+                    most = min(chunk, _ROWS)
                     bad: tuple[object, ...] | None = None
-                    while count < chunk and size < CHUNK_BYTES and bad is None:
-                        got = list(islice(cur, min(_FETCH, chunk - count)))
-                        if not got:
-                            break
-                        ts, tids, data, ok = zip(*got, strict=True)
-                        if not all(ok):
-                            good = ok.index(0)
-                            bad = got[good]
-                            ts, tids, data = ts[:good], tids[:good], data[:good]
-                        tparts.append(ts)
-                        kparts.append(tids)
-                        dparts.append(data)
-                        count += len(ts)
-                        size += sum(map(len, data))  # type: ignore[arg-type]
+                    with _gc_paused():
+                        while count < most and size < CHUNK_BYTES and bad is None:
+                            got = list(islice(cur, min(_FETCH, most - count)))
+                            if not got:
+                                break
+                            ts, tids, data, ok = zip(*got, strict=True)
+                            if not all(ok):
+                                good = ok.index(0)
+                                bad = got[good]
+                                ts, tids, data = ts[:good], tids[:good], data[:good]
+                            tparts.append(ts)
+                            kparts.append(tids)
+                            dparts.append(data)
+                            count += len(ts)
+                            size += sum(map(len, data))  # type: ignore[arg-type]
                     if count:
                         raw = _columns(tparts, dparts, count)
                         # the query matched these ids: numbers equal to a wanted one
@@ -303,6 +311,20 @@ class Sqlite(Source):
         finally:
             con.close()
             self._drop()
+
+
+@contextmanager
+def _gc_paused() -> Iterator[None]:
+    """The cyclic garbage collector paused while rows are fetched: a tuple per row, none
+    in a cycle, whose allocation would start collections of the whole heap again and
+    again, a third of a replay's time (docs/BENCHMARKS.md, "Replay throughput")."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _columns(tparts: list[tuple[object, ...]], dparts: list[tuple[object, ...]], count: int) -> Raw:
