@@ -3,11 +3,13 @@ to its damage (supervisor/tools/replay/sources.py)."""
 
 from __future__ import annotations
 
+import gc
 import os
 import struct
 import tempfile
 from collections.abc import Iterator
-from itertools import islice
+from contextlib import contextmanager
+from itertools import chain, islice
 from pathlib import Path
 from urllib.parse import quote
 
@@ -40,6 +42,10 @@ from supervisor.tools.replay.storage import (
 # input anybody could have written; docs/reference/faults.md, "Trust").
 _ROW_OK = "typeof(timestamp) = 'integer' AND timestamp >= 0 AND typeof(data) = 'blob'"
 _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payloads
+# Rows per chunk at most: the bulk stepper re-scans the rest of a chunk after each
+# violation, so chunks about as long as an MCAP chunk's keep violating bags fast
+# (docs/BENCHMARKS.md, "Replay throughput").
+_ROWS = 8192
 
 
 class Sqlite(Source):
@@ -203,7 +209,7 @@ class Sqlite(Source):
             f"WHERE topic_id IN ({marks}) ORDER BY timestamp"
         )
         n, last = 0, None
-        self._given: tuple[object, ...] = ()  # the last chunk's times, to count those at last
+        self._given = np.empty(0, np.int64)  # the last chunk's times, to count those at last
         try:
             con = self._connect()
         except (apsw.Error, UserError) as e:
@@ -216,29 +222,42 @@ class Sqlite(Source):
             try:
                 cur = con.execute(query, list(wanted))
                 while True:
-                    rows: list[tuple[object, ...]] = []
-                    size = 0
-                    while len(rows) < chunk and size < CHUNK_BYTES:
-                        got = list(islice(cur, min(_FETCH, chunk - len(rows))))
-                        if not got:
-                            break
-                        rows += got
-                        size += sum(len(r[2]) for r in got if isinstance(r[2], bytes))
-                    if not rows:
-                        break
-                    ts, tids, data, ok = zip(*rows, strict=True)
-                    good = len(rows) if all(ok) else ok.index(0)
-                    if good:
-                        raw = raw_chunk(list(ts[:good]), [], list(data[:good]))
+                    # Columns per fetch, joined once per chunk: no Python code per row
+                    # (docs/BENCHMARKS.md, "Replay throughput").
+                    tparts: list[tuple[object, ...]] = []
+                    kparts: list[tuple[object, ...]] = []
+                    dparts: list[tuple[object, ...]] = []
+                    count = size = 0
+                    most = min(chunk, _ROWS)
+                    bad: tuple[object, ...] | None = None
+                    with _gc_paused():
+                        while count < most and size < CHUNK_BYTES and bad is None:
+                            got = list(islice(cur, min(_FETCH, most - count)))
+                            if not got:
+                                break
+                            ts, tids, data, ok = zip(*got, strict=True)
+                            if not all(ok):
+                                good = ok.index(0)
+                                bad = got[good]
+                                ts, tids, data = ts[:good], tids[:good], data[:good]
+                            tparts.append(ts)
+                            kparts.append(tids)
+                            dparts.append(data)
+                            count += len(ts)
+                            size += sum(map(len, data))  # type: ignore[arg-type]
+                    if count:
+                        raw = _columns(tparts, dparts, count)
                         # the query matched these ids: numbers equal to a wanted one
-                        at = np.searchsorted(keys, np.asarray(tids[:good], dtype=np.int64))
-                        raw.topic = index[at]
+                        tid = np.fromiter(chain.from_iterable(kparts), np.int64, count)
+                        raw.topic = index[np.searchsorted(keys, tid)]
                         yield raw
-                        n += good
-                        last = ts[good - 1]
-                        self._given = ts[:good]
-                    if good < len(rows):
-                        raise Damage(_bad_row(n, rows[good], last))
+                        n += count
+                        last = int(raw.t_ns[-1])
+                        self._given = raw.t_ns
+                    if bad is not None:
+                        raise Damage(_bad_row(n, bad, last))
+                    if not count:
+                        break
             except apsw.Error as e:
                 failed: apsw.Error | None = e
             else:
@@ -249,7 +268,7 @@ class Sqlite(Source):
                 # to the damage, leaving out the rows given already (all before
                 # ``last``, and ``at_last`` of those at it), so that every readable
                 # message is replayed (docs/reference/commands.md, "Damaged input").
-                at_last = 0 if last is None else _count_at(self._given, last)
+                at_last = 0 if last is None else _count_at(self._given.tolist(), last)
                 ts_: list[int] = []
                 tops: list[int] = []
                 data_: list[bytes] = []
@@ -294,6 +313,35 @@ class Sqlite(Source):
             self._drop()
 
 
+@contextmanager
+def _gc_paused() -> Iterator[None]:
+    """The cyclic garbage collector paused while rows are fetched: a tuple per row, none
+    in a cycle, whose allocation would start collections of the whole heap again and
+    again, a third of a replay's time (docs/BENCHMARKS.md, "Replay throughput")."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def _columns(tparts: list[tuple[object, ...]], dparts: list[tuple[object, ...]], count: int) -> Raw:
+    """A chunk of ``count`` rows from the fetches' timestamp and blob columns (checked
+    by ``_ROW_OK``: whole numbers and blobs), its topics left to the caller."""
+    datas: list[bytes] = list(chain.from_iterable(dparts))  # type: ignore[arg-type]
+    lengths = np.fromiter(map(len, datas), np.int64, count)
+    end = np.cumsum(lengths)
+    return Raw(
+        np.fromiter(chain.from_iterable(tparts), np.int64, count),  # type: ignore[arg-type]
+        np.empty(count, np.int32),
+        b"".join(datas),
+        end - lengths,
+        end,
+    )
+
+
 def _cut_short(path: Path) -> int | None:
     """The file's size if it ends before the pages its header counts, or inside a page
     (sqlite's file format, "The database header"); None if whole or not known."""
@@ -322,7 +370,7 @@ def _cut_short(path: Path) -> int | None:
     return None
 
 
-def _count_at(given: tuple[object, ...], last: object) -> int:
+def _count_at(given: list[int], last: object) -> int:
     """How many of the times given (in order, ``last`` the final one) equal ``last``."""
     k = 0
     for t in reversed(given):
