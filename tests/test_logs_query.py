@@ -31,15 +31,16 @@ T0 = datetime(2026, 11, 20, 0, 0, tzinfo=UTC)
 STEP = timedelta(minutes=1)  # one record a minute: 300 records span 5 hours
 
 
-class _Clock(datetime):
+class _Clock:
     """The writer's clock, one STEP per record, so record times are known."""
 
     t = T0
 
     @classmethod
-    def now(cls, tz: Any = None) -> datetime:  # noqa: ARG003 - the writer asks for UTC
+    def stamp(cls) -> str:
+        """As the writer's ``_now`` writes a time: UTC, six digits of microseconds."""
         cls.t += STEP
-        return cls.t
+        return cls.t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
 def _write(log: ViolationLog, i: int) -> None:
@@ -65,7 +66,7 @@ def _write(log: ViolationLog, i: int) -> None:
 def rotated(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     """v.jsonl.2.gz (oldest), v.jsonl.1, v.jsonl: 300 records and 2 log_reopened."""
     monkeypatch.setattr(_Clock, "t", T0)
-    monkeypatch.setattr(writer, "datetime", _Clock)
+    monkeypatch.setattr(writer, "_now", _Clock.stamp)
     live = tmp_path / "v.jsonl"
     with ViolationLog(live, "sRobot", "ab" * 32, echo=False) as log:
         for i in range(300):
