@@ -200,14 +200,18 @@ TRACED = "write,fsync,fdatasync,sendto,sendmsg,futex"
 
 
 def _halt_daemon(
-    tmp_path: Path, durability: str | None, strace: Path | None = None, inject: str = ""
+    tmp_path: Path,
+    durability: str | None,
+    strace: Path | None = None,
+    inject: str = "",
+    stale_ms: int = 500,
 ) -> Any:
     """The sRobot daemon whose state_req103 publishes the halt (every other
     requirement only records), optionally under ``strace -f`` (``inject``: its
-    ``-e inject=`` fault)."""
+    ``-e inject=`` fault); ``stale_ms``: its inputs' stale limit."""
     from rosutil import Daemon, variant
 
-    edits = [REQ103]
+    edits = [REQ103, ("  stale_after_ms: 500 ", f"  stale_after_ms: {stale_ms} ")]
     if durability is not None:
         edits.append(("  recent: 10\n", f"  recent: 10\n  durability: {durability}\n"))
     config = variant(tmp_path, *edits)
@@ -325,7 +329,9 @@ def test_a_daemon_killed_after_the_halt_leaves_the_record_and_an_intact_chain(
     daemon is SIGKILLed after the halt and before the record reached the disk: what
     survives is the page cache's copy, as after any crash of the process."""
     trace = tmp_path / "strace.txt"
-    d = _halt_daemon(tmp_path, None, trace, inject="fsync:delay_enter=3000000")
+    # Inputs never go stale here: a 3 s fsync blocks the loop, and each stale input's
+    # record would block it 3 s more (on a loaded machine, past the wait for the halt).
+    d = _halt_daemon(tmp_path, None, trace, inject="fsync:delay_enter=3000000", stale_ms=600_000)
     try:
         v = _see_the_halt(tmp_path, robot_node, d)
         pid = _daemon_pid(d)
