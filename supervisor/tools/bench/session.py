@@ -165,8 +165,6 @@ class Daemon(Helper):
         if not self.wait(timeout):
             raise BenchError(f"daemon did not stop within {timeout:g} s")
         if self.returncode != 0:
-            import shutil as _sh  # TEMP debugging
-            _sh.copy(self.stderr_path, f"/tmp/segv/daemon-{self.pid}.stderr")
             raise BenchError(f"daemon exited ({self.returncode}): {self.last_stderr()}")
         return cpu
 
