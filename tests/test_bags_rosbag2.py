@@ -685,7 +685,12 @@ _TEST_TOPIC = "{type: int64, topic: /test_topic, msg: test_msgs/msg/BasicTypes, 
 # wrong_rmw_test's metadata.yaml declares serialization_format wrong_format for both
 # topics (its payloads happen to be CDR; rosbag2 refuses the bag for the format): the
 # line names the recording, the format, and CDR, the one replay reads.
-_WRONG_FORMAT = ("{bag}", "wrong_format", "cdr")
+_WRONG_FORMAT = (
+    "{bag}",
+    "wrong_format",
+    "cdr",
+    "hint: record it again with an rmw that writes cdr",
+)
 
 REFUSED: list[Any] = [
     # rosbag2's empty_bag: /rosout and /parameter_events, no message on either.

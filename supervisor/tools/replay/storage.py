@@ -139,6 +139,8 @@ def refuse_serialization(topic: str, fmt: str, label: str) -> None:
             f"topic {printable(topic[:200])} is recorded as '{printable(fmt[:40])}', "
             "not 'cdr', the only serialization replay decodes",
             file=label,
+            hint="record it again with an RMW that writes CDR (every ROS 2 RMW does by "
+            "default), or convert its messages to CDR",
         )
 
 
