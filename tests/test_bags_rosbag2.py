@@ -133,6 +133,31 @@ CASES += [
     for storage in ("sqlite3", "mcap")
     for name in ("rewriter_b", "convert_b")
 ]
+# rosbag2's rewriter_a bags (and convert_a, the same recording under rosbag2_py's
+# name) hold 100 test_msgs/msg/Empty on a_empty (at 0 ms, two each at 2, 4, ... 98 ms,
+# one at 100 ms) and 50 test_msgs/msg/BasicTypes on b_basictypes (at 1, 3, ... 99 ms),
+# relative names; the config reads only /b_basictypes (a_empty is reported as not in
+# the config). Every BasicTypes is the same: uint8_value 100, every other field 0
+# (false, 0.0, b"\x00"). So "u8 <= 99" fails at all 50 ticks, "u8 <= 100" and
+# "i64 = 0" at none, and "u8 + i64 <= 99" as "u8 <= 99" since i64 adds nothing.
+CASES += [
+    Case(
+        bag=f"{storage}/{name}",
+        topic_in_bag="b_basictypes",
+        msg="test_msgs/msg/BasicTypes",
+        variables={"u8": "uint8_value", "i64": "int64_value"},
+        topic="/b_basictypes",
+        requirements={
+            "over": "u8 <= 99",
+            "edge": "u8 <= 100",
+            "zero": "i64 = 0",
+            "sum": "u8 + i64 <= 99",
+        },
+        violations={"over": list(range(50)), "edge": [], "zero": [], "sum": list(range(50))},
+    )
+    for storage in ("sqlite3", "mcap")
+    for name in ("rewriter_a", "convert_a")
+]
 # rosbag2's wbag bags: five split files (wbag_0 to wbag_4), eight relative topics AAA
 # to HHH of std_msgs/msg/String; the config reads /AAA, whose 804 messages span all
 # five files. Each is "Hello, world! N - M" with N a counter rising with the recording
