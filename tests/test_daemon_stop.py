@@ -32,6 +32,10 @@ CYCLES = 20
 # Half the lease tells the two apart even when the machine is so loaded that the
 # observer's discovery thread waits seconds for a core (seen in CI beside other runs).
 GONE_S = 10.0
+LEASE_S = 20.0
+# Seen: 2 goodbyes lost in about 150 stops of this loop (the node then stays for
+# its lease); a stop that does not destroy the node loses every one.
+MAX_LINGERING = 2
 STOP_S = 10.0  # a sanity deadline for SIGTERM to exit; the unit allows more
 # The daemon's node under a name of this test run: another run's daemon that
 # drew the same random ROS_DOMAIN_ID must not count as a ghost.
@@ -104,19 +108,25 @@ def test_stop_loop_under_flood_no_crash_no_ghost(
             _receiving(d)
             stops.append(_stop(d))
             t_exit = time.monotonic()
+            # Gone at once, or, when the goodbye was lost, by the lease's end.
             wait_until(
                 f"cycle {i}: the stopped daemon's node to leave the graph",
                 lambda: _daemons(robot_node) == 0,
-                GONE_S,
+                LEASE_S + 5,
             )
             gone.append(time.monotonic() - t_exit)
         finally:
             d.close()
+    lingered = [round(g, 1) for g in gone if g > GONE_S]
     # The figures of docs/BENCHMARKS.md (visible with -s).
     print(
         f"\n{CYCLES} stops under a flood: SIGTERM to exit max {max(stops):.3f} s, "
-        f"exit to gone from the graph max {max(gone) * 1e3:.1f} ms"
+        f"exit to gone from the graph: {CYCLES - len(lingered)} at once (max "
+        f"{max((g for g in gone if g <= GONE_S), default=0) * 1e3:.1f} ms), lingering {lingered} s"
     )
+    # The goodbye is best effort in DDS (reference/faults.md, "Stop"): rarely lost,
+    # never as a rule, as when the node was not destroyed (every cycle for the lease).
+    assert len(lingered) <= MAX_LINGERING, lingered
 
 
 def test_restarted_daemon_beside_its_predecessor(
