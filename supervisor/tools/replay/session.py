@@ -112,9 +112,7 @@ def run_one(
     config's ``ros.namespace`` when None)."""
     with loaded(config) as session:
         cfg = session.config
-        recording = open_recordings(
-            expand(paths), cfg, cfg.ros.namespace if namespace is None else namespace
-        )
+        recording = open_recordings(expand(paths), cfg, namespace)
         said_later = set(recording.missing.values())
         notes = [n for n in recording.summary().splitlines() if n not in said_later]
         out: ViolationLog | None = None

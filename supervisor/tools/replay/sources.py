@@ -816,14 +816,15 @@ def _open_one(path: Path, cfg: Config) -> list[Source]:
     )
 
 
-def open_recordings(paths: list[Path], cfg: Config, namespace: str = "/") -> Recording:
+def open_recordings(paths: list[Path], cfg: Config, namespace: str | None = None) -> Recording:
     """Open bags, storage files and traces for cfg's topic variables, their names
-    resolved with ``namespace`` (``Recording._resolved``); type mismatches and a
+    resolved with ``namespace`` (``Recording._resolved``; None: the config's
+    ``ros.namespace``, as ``replay --namespace`` defaults); type mismatches and a
     recording with none of the config's topics are errors here, before anything is
     read (``Recording.missing`` lists the config topics no recording has)."""
     try:
         sources = [s for p in paths for s in _open_one(Path(p), cfg)]
-        return Recording(sources, cfg, namespace)
+        return Recording(sources, cfg, cfg.ros.namespace if namespace is None else namespace)
     except UserError as e:
         raise _printable(e) from None
 

@@ -179,7 +179,7 @@ def series_from_bag(
     from supervisor.tools.replay.sources import open_recordings
 
     # names as replay resolves them (docs/reference/commands.md, replay)
-    rec = open_recordings(paths, cfg, cfg.ros.namespace if namespace is None else namespace)
+    rec = open_recordings(paths, cfg, namespace)
     notes = list(rec.warnings)
     pts: dict[str, list[tuple[int, Value]]] = {}
     try:
@@ -255,11 +255,7 @@ def windows_from_bag(
         cap = _Capture(session.runtime, set(wanted.values()))
         outcome = replay(
             session,
-            open_recordings(
-                paths,
-                session.config,
-                session.config.ros.namespace if namespace is None else namespace,
-            ),
+            open_recordings(paths, session.config, namespace),
             cap,
             progress=None if quiet else _progress("replaying"),
         )
