@@ -364,20 +364,14 @@ def _strip_comments(c: str) -> str:
     return re.sub(r"/\*.*?\*/", "", c, flags=re.S)
 
 
-ROOT = Path(__file__).resolve().parents[3]
+def test_generated_c_is_loop_free_strict_c99(tmp_path: Path) -> None:
+    assert_hard_real_time_c(make_spec(RICH), tmp_path)
 
 
-def _mobile_base_spec() -> MonitorSpec:
-    from supervisor.pipeline import project_for
-
-    return project_for(ROOT / "config" / "mobile-base.yaml").spec()
-
-
-@pytest.mark.parametrize("which", ["rich", "mobile-base"])
-def test_generated_c_is_loop_free_strict_c99(tmp_path, which: str) -> None:
-    # mobile-base: reductions, ages, rates, events and goal states are read before
-    # the monitor; its C (hypot included) stays as hard real-time as any other
-    spec = make_spec(RICH) if which == "rich" else _mobile_base_spec()
+def assert_hard_real_time_c(spec: MonitorSpec, tmp_path: Path) -> None:
+    """The spec's C is strict C99 without loops or allocation, every stack frame is
+    static and the call graph acyclic (also used for the shipped configs' monitors,
+    tests/supervisor/test_shipped_monitors.py)."""
     c_path, _ = write_c(spec, tmp_path)
     code = _strip_comments(c_path.read_text())
     assert not re.search(r"\b(for|while|do|goto|malloc|calloc|realloc|free|alloca)\b", code)

@@ -9,7 +9,7 @@ from monitors.backends.load import compile_spec
 from monitors.verify.interpret import verdicts
 from supervisor.pipeline import project_for
 
-ROOT = Path(__file__).resolve().parents[3]
+ROOT = Path(__file__).resolve().parents[2]
 INPUTS = ["classifier", "distance_to_target", "OpState", "alert", "halt", "slowdown", "turnoffUVC"]
 # Outputs of a correct safety controller in each OpState (thesis Tables 7, 8).
 OUTPUTS = {
