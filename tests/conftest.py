@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import signal
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,6 +18,52 @@ from sshd import Sshd, sshd_available, start_sshd
 # default in every child (exec keeps ignored signals, resets handled ones).
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+# A skip that CI needs run is a failure in CI: with SAFETY_SUPERVISOR_REQUIRE_<KIND>=1
+# (.ci/run sets them), a skip whose reason names that kind fails the test instead.
+# The skip reasons say what is missing in these words; `-rs` lists the skips.
+REQUIRED_KINDS: dict[str, re.Pattern[str]] = {
+    "STRACE": re.compile(r"\bstrace\b"),
+    "ROOT": re.compile(r"\bneeds root\b"),
+    "ROS": re.compile(r"\brclpy\b"),
+    "COPILOT": re.compile(r"\bCopilot\b"),
+    # sshd, ssh-keygen, systemd-analyze, logrotate: the Debian packages .ci/run installs
+    "TOOLS": re.compile(r"\binstall Debian's\b"),
+}
+
+
+def required_kind(reason: str) -> str | None:
+    """The kind whose SAFETY_SUPERVISOR_REQUIRE_<KIND>=1 forbids a skip for this reason."""
+    for kind, pattern in REQUIRED_KINDS.items():
+        if pattern.search(reason) and os.environ.get(f"SAFETY_SUPERVISOR_REQUIRE_{kind}") == "1":
+            return kind
+    return None
+
+
+def _fail_required_skip(report: pytest.TestReport | pytest.CollectReport) -> None:
+    if not report.skipped or hasattr(report, "wasxfail"):
+        return
+    longrepr = report.longrepr
+    reason = str(longrepr[2] if isinstance(longrepr, tuple) else longrepr)
+    reason = reason.removeprefix("Skipped: ")
+    kind = required_kind(reason)
+    if kind is not None:
+        report.outcome = "failed"
+        report.longrepr = f"SAFETY_SUPERVISOR_REQUIRE_{kind}=1 but the test skipped: {reason}"
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Any:
+    report = yield
+    _fail_required_skip(report)
+    return report
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_make_collect_report(collector: pytest.Collector) -> Any:
+    report = yield
+    _fail_required_skip(report)
+    return report
 
 
 @pytest.fixture

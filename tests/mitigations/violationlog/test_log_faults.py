@@ -45,7 +45,9 @@ def small_fs(tmp_path: Path) -> Iterator[Path]:
         text=True,
     )
     if r.returncode != 0:
-        pytest.skip(f"mount -t tmpfs is not permitted here: {r.stderr.strip()}")
+        pytest.skip(
+            f"mount -t tmpfs is not permitted here (needs root that may mount): {r.stderr.strip()}"
+        )
     try:
         yield mnt
     finally:

@@ -220,7 +220,9 @@ def test_no_daemon_is_one_line(tmp_path: Path) -> None:
     assert r.stderr.strip().count("\n") == 0 and "no supervisor is running" in r.stderr, r.stderr
 
 
-@pytest.mark.skipif(os.geteuid() != 0, reason="runs a client as another uid (os.setuid)")
+@pytest.mark.skipif(
+    os.geteuid() != 0, reason="runs a client as another uid (os.setuid: needs root)"
+)
 def test_permission_refused_by_the_file_and_by_the_daemon(server: ControlServer) -> None:
     def cli() -> str:
         try:
