@@ -192,6 +192,46 @@ def spin_until(node: Any, what: str, predicate: Callable[[], Any], timeout: floa
         spin_once(node)
 
 
+class StatusWatch:
+    """The daemon's status documents (/safety_supervisor/status, ros.status_ms) as
+    this node receives them: ``until`` waits for the daemon to say it has seen
+    something (a message counted, a tick reached) instead of sleeping for it."""
+
+    def __init__(self, node: Any, namespace: str = "/") -> None:
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+
+        self.node = node
+        self.docs: list[dict[str, Any]] = []
+        latched = QoSProfile(
+            depth=1,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        )
+        node.create_subscription(
+            String,
+            namespace.rstrip("/") + "/safety_supervisor/status",
+            lambda m: self.docs.append(json.loads(m.data)),
+            latched,
+        )
+
+    def until(
+        self, what: str, predicate: Callable[[dict[str, Any]], Any], timeout: float = 15
+    ) -> dict[str, Any]:
+        """The first document (from now on) for which ``predicate`` holds."""
+        start = len(self.docs)
+
+        def seen() -> dict[str, Any] | None:
+            return next((d for d in self.docs[start:] if predicate(d)), None)
+
+        return spin_until(self.node, what, seen, timeout)
+
+
+def messages(doc: dict[str, Any], name: str) -> int:
+    """How many messages of input ``name`` the status document counts."""
+    return next(int(i["messages"]) for i in doc["inputs"] if i["name"] == name)
+
+
 TOPICS: list[tuple[str, str, type]] = [  # trigger (turnoffUVC) last, as the controller does
     ("classifier", "/sRobotClassifier", Int64),
     ("distance_to_target", "/scan", Int64),

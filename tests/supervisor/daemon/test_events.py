@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import textwrap
-import time
 from pathlib import Path
 from typing import Any
 
@@ -139,24 +138,30 @@ def test_replay_of_presses_with_and_without_a_halt(tmp_path):
 
 @pytest.mark.ros
 def test_an_estop_without_halt_is_caught_over_dds(tmp_path: Path, robot_node: Any):
-    from rosutil import Daemon, wait_matched
+    from rosutil import Daemon, StatusWatch, messages, wait_matched
     from std_msgs.msg import Bool, Empty
 
-    d = Daemon(tmp_path, write(tmp_path, CONFIG))
+    # A status document every 20 ms (one a tick): what the daemon has seen, awaited.
+    d = Daemon(tmp_path, write(tmp_path, CONFIG + "ros: {status_ms: 20}\n"))
     try:
         d.wait_notify("READY=1", timeout=30)
+        status = StatusWatch(robot_node)
         estop = robot_node.create_publisher(Empty, "/estop", 10)
         halt = robot_node.create_publisher(Bool, "/halt", 10)
         wait_matched([estop, halt])
         halt.publish(Bool(data=False))
-        time.sleep(0.1)
-        estop.publish(Empty())  # a press, then a halt in time: no violation
-        time.sleep(0.05)
+        status.until("halt=False received", lambda doc: messages(doc, "halt") == 1)
+        estop.publish(Empty())  # a press, and a halt in time: no violation
         halt.publish(Bool(data=True))
-        time.sleep(0.4)
+        both = status.until(
+            "the press and the halt received",
+            lambda doc: messages(doc, "estop") == 1 and messages(doc, "halt") == 2,
+        )
+        # 11 ticks later the press's 10 ticks are all judged
+        status.until("the press's window judged", lambda doc: doc["ticks"] > both["ticks"] + 10)
         assert not [r for r in d.records() if r["event"] == "violation"]
         halt.publish(Bool(data=False))
-        time.sleep(0.1)
+        status.until("halt=False received again", lambda doc: messages(doc, "halt") == 3)
         estop.publish(Empty())  # a press and no halt: caught within 10 ticks
         v = d.wait_record(lambda r: r["event"] == "violation", "the estop violation", timeout=5)
         assert v["requirement"] == "estop_halts" and v["inputs"]["halt"] is False
