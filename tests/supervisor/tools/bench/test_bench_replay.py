@@ -162,7 +162,11 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     assert rec["off"]["record"] is None
     closed = rec["on"]["record"]
     assert closed["written"] >= rec["on"]["received"]  # inputs and the log's records
-    assert closed["dropped"] >= 0 and closed["bags"] >= 1
+    # a message dropped is one the daemon received; the report's table says the same
+    assert isinstance(closed["dropped"], int) and 0 <= closed["dropped"] <= rec["on"]["received"]
+    assert closed["bags"] >= 1
+    on_row = f"{closed['written']:>8} {closed['dropped']:>7} {closed['mb_on_disk']:>6.1f}"
+    assert on_row in p.stdout, p.stdout
     assert isinstance(rec["cpu_diff_pct"], float)
     assert r["latency"]["daemon"]["n"] > 0
     rep = r["replay"]
