@@ -18,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mitigations.violationlog.testing import MemoryLog
 from monitors.backends.load import compile_spec
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
@@ -52,27 +53,23 @@ mitigations:
 """
 
 
+def _call(r: dict[str, Any]) -> tuple[Any, ...]:
+    """The fields of a log record the comparisons judge."""
+    if r["event"] == "violation":
+        return ("violation", r["requirement"], r["tick"], tuple(sorted(r["inputs"].items())))
+    if r["event"] == "mitigation":
+        return ("mitigation", r["requirement"], r["action"], r["ok"])
+    if r["event"] == "reset":
+        return ("reset", r["requirement"], r["reason"], r.get("tick"))
+    return ("supervisor", r["what"], r.get("input"), r.get("detail"))
+
+
 class Calls:
-    """The core's log and action outputs, in order, times included."""
+    """The core's log (a MemoryLog) and action outputs, in order, times included."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[Any, ...]] = []
-
-    def violation(self, requirement: str, **f: Any) -> bool:
-        self.calls.append(("violation", requirement, f["tick"], tuple(sorted(f["inputs"].items()))))
-        return True
-
-    def mitigation(self, requirement: str, **f: Any) -> bool:
-        self.calls.append(("mitigation", requirement, f["action"], f["ok"]))
-        return True
-
-    def reset(self, requirement: str, *, reason: str, **extra: Any) -> bool:
-        self.calls.append(("reset", requirement, reason, extra.get("tick")))
-        return True
-
-    def supervisor(self, what: str, **f: Any) -> bool:
-        self.calls.append(("supervisor", what, f.get("input"), f.get("detail")))
-        return True
+        self.log = MemoryLog(lambda r: self.calls.append(_call(r)))
 
     def submit(self, request: Any) -> None:
         self.calls.append(("act", request.requirement, request.actions, request.stage,
@@ -94,7 +91,7 @@ def new_core(project: Any) -> tuple[Core, Calls]:
     monitor = compile_spec(p.spec(), Path(d) / "build")
     calls = Calls()
     session = build_session(p, monitor)
-    core = Core(session, calls, calls.submit, warn=lambda _text: None)
+    core = Core(session, calls.log, calls.submit, warn=lambda _text: None)
     return core, calls
 
 

@@ -15,6 +15,7 @@ from monitors.backends.load import compile_spec
 from monitors.errors import UserError
 from supervisor.config import load_config
 from supervisor.daemon.runtime import InputSpec, Runtime
+from supervisor.daemon.testing import RecordingMonitor
 from supervisor.pipeline import project_for
 from supervisor.tools.replay.session import replay_files
 
@@ -42,22 +43,9 @@ def write(tmp_path: Path, text: str) -> Path:
     return p
 
 
-class _Monitor:
-    def __init__(self) -> None:
-        self.seen: list[list[Any]] = []
-
-    def tick(self, values: list[Any]) -> bytes:
-        self.seen.append(list(values))
-        return b"\x00"
-
-    def reset(self) -> None: ...
-
-    def reset_requirement(self, index: int) -> None: ...
-
-
 @pytest.mark.parametrize("policy", ["periodic", "on_message"])
 def test_an_event_is_true_at_one_step_only(policy):
-    mon = _Monitor()
+    mon = RecordingMonitor(1)
     rt = Runtime(
         [InputSpec("button", "bool", event=True), InputSpec("x", "int64")],
         mon,
@@ -72,19 +60,21 @@ def test_an_event_is_true_at_one_step_only(policy):
         rt.on_timer(5 * MS)  # the grid starts here: the press is seen at this step
         rt.on_timer(15 * MS)
         rt.on_timer(25 * MS)
-        assert [v[0] for v in mon.seen] == [True, False, False]
+        assert [v[0] for v in mon.ticks] == [True, False, False]
     else:
         rt.on_message("x", 2, 3 * MS)
-        assert [v[0] for v in mon.seen[-3:]] == [False, True, False]
+        assert [v[0] for v in mon.ticks[-3:]] == [False, True, False]
 
 
 def test_an_event_is_not_stale_for_being_silent():
-    rt = Runtime([InputSpec("button", "bool", event=True)], _Monitor(), policy="on_message")
+    rt = Runtime(
+        [InputSpec("button", "bool", event=True)], RecordingMonitor(1), policy="on_message"
+    )
     rt.on_message("button", None, 1 * MS)
     assert rt.check_stale(10_000 * MS, 100 * MS) == []  # the step's limit is not its own
     own = Runtime(
         [InputSpec("button", "bool", event=True, stale_after_ns=100 * MS)],
-        _Monitor(),
+        RecordingMonitor(1),
         policy="on_message",
     )
     own.on_message("button", None, 1 * MS)

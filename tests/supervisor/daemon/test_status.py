@@ -13,6 +13,7 @@ import pytest
 
 from mitigations.policy import RequirementPolicy
 from mitigations.settings import PolicyConfig
+from mitigations.violationlog.testing import MemoryLog
 from monitors.backends.load import compile_spec
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
@@ -62,24 +63,8 @@ def test_the_document_of_a_session(tmp_path: Path):
     session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
     board = StatusBoard("safety_supervisor")
 
-    class Log:  # the records as the writer renders them, teed to the board
-        def _line(self, **f: Any) -> bool:
-            board.record(json.dumps({"ts": "2026-11-23T00:00:00.000000Z", **f}))
-            return True
-
-        def violation(self, requirement: str, **f: Any) -> bool:
-            return self._line(event="violation", requirement=requirement, **f)
-
-        def mitigation(self, requirement: str, **f: Any) -> bool:
-            return self._line(event="mitigation", requirement=requirement, **f)
-
-        def reset(self, requirement: str, **f: Any) -> bool:
-            return self._line(event="reset", requirement=requirement, **f)
-
-        def supervisor(self, what: str, **f: Any) -> bool:
-            return self._line(event="supervisor", what=what, **f)
-
-    log = Log()
+    # the records as the writer renders them, teed to the board
+    log = MemoryLog(lambda r: board.record(json.dumps({"ts": "2026-11-23T00:00:00.000000Z", **r})))
 
     def submit(request: Any) -> None:
         for a in request.actions:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import textwrap
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +23,14 @@ from service_msgs.msg import ServiceEventInfo
 from std_srvs.srv import SetBool, SetBool_Event, Trigger, Trigger_Event
 from unique_identifier_msgs.msg import UUID
 
+from mitigations.violationlog.testing import MemoryLog
 from monitors.errors import UserError
 from supervisor.config import load_config
 from supervisor.config.model import Variable
 from supervisor.daemon.core import Core
 from supervisor.daemon.runtime import FUTURE_TOLERANCE_NS, InputSpec, Runtime
 from supervisor.daemon.session import build_session
+from supervisor.daemon.testing import RecordingMonitor
 from supervisor.inputs.paths import EVERY, ReadError, Segment, parse_path, path_type
 from supervisor.inputs.readers import SKIP, check_input, kind_of, make_reader, sporadic
 from supervisor.pipeline import project_for
@@ -769,25 +770,8 @@ def test_action_goal_states_over_a_sequence_of_status_messages():
 # ------------------------------------------------------------ 4. ages and rates in the runtime
 
 
-class Recorder:
-    """A monitor of two requirements that never fire; it keeps every tick's values."""
-
-    def __init__(self) -> None:
-        self.ticks: list[list[Any]] = []
-
-    def tick(self, values: Sequence[Any]) -> Sequence[int]:
-        self.ticks.append(list(values))
-        return [0, 0]
-
-    def reset(self) -> None:
-        pass
-
-    def reset_requirement(self, index: int) -> None:
-        pass
-
-
 def test_an_age_is_the_tick_time_minus_the_stamp_and_grows_between_messages():
-    mon = Recorder()
+    mon = RecordingMonitor(2)
     spec = [
         InputSpec("obstacle", "double"),
         InputSpec("age", "double", kind="age", sporadic=True),
@@ -816,7 +800,7 @@ def test_an_age_is_the_tick_time_minus_the_stamp_and_grows_between_messages():
 
 
 def test_a_stamp_ahead_of_its_receipt_gives_a_negative_age_and_is_said():
-    mon = Recorder()
+    mon = RecordingMonitor(2)
     spec = [InputSpec("age", "double", kind="age", sporadic=True)]
     rt = Runtime(spec, mon, policy="on_message")
     t = 5_000 * MS
@@ -836,8 +820,8 @@ def test_a_stamp_ahead_of_its_receipt_gives_a_negative_age_and_is_said():
     assert [v[0] for v in mon.ticks] == [-1.0, pytest.approx(-1.000001), -50.0]
 
 
-def rate_runtime(window_ms: int, initial: float | None = None) -> tuple[Runtime, Recorder]:
-    mon = Recorder()
+def rate_runtime(window_ms: int, initial: float | None = None) -> tuple[Runtime, RecordingMonitor]:
+    mon = RecordingMonitor(2)
     spec = [
         InputSpec("flag", "bool", initial=False),
         InputSpec(
@@ -934,7 +918,7 @@ def sporadic_project(tmp_path_factory: pytest.TempPathFactory) -> Any:
 
 
 def test_sporadic_inputs_are_stale_by_their_own_limit_only(sporadic_project):
-    session = build_session(sporadic_project, Recorder())
+    session = build_session(sporadic_project, RecordingMonitor(2))
     rt = session.runtime
     kinds = {s.name: (s.kind, s.sporadic) for s in rt.inputs}
     assert kinds == {
@@ -973,35 +957,12 @@ def test_sporadic_inputs_are_stale_by_their_own_limit_only(sporadic_project):
     assert sorted(rt.stale_inputs()) == ["nav_own"]
 
 
-class Calls:
-    """The core's log and action outputs."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[Any, ...]] = []
-
-    def violation(self, requirement: str, **f: Any) -> bool:
-        self.calls.append(("violation", requirement, f["tick"]))
-        return True
-
-    def mitigation(self, requirement: str, **f: Any) -> bool:
-        return True
-
-    def reset(self, requirement: str, *, reason: str, **extra: Any) -> bool:
-        return True
-
-    def supervisor(self, what: str, **f: Any) -> bool:
-        self.calls.append(("supervisor", what, f.get("input"), f.get("count")))
-        return True
-
-    def submit(self, request: Any) -> None:
-        self.calls.append(("act", request.requirement, request.stage))
-
-
 def test_the_core_says_future_stamps_and_no_staleness_of_sporadic_inputs(sporadic_project):
-    mon = Recorder()
-    calls = Calls()
+    mon = RecordingMonitor(2)
+    log = MemoryLog()
+    acts: list[str] = []
     session = build_session(sporadic_project, mon)
-    core = Core(session, calls, calls.submit, warn=lambda _text: None)
+    core = Core(session, log, lambda req: acts.append(req.requirement), warn=lambda _text: None)
     t = 1_000 * MS
     core.start(t)
     core.fields((("obstacle", 1.0), ("scan_age", t + 3 * MS), ("scan_hz", None)), t + MS)
@@ -1009,10 +970,9 @@ def test_the_core_says_future_stamps_and_no_staleness_of_sporadic_inputs(sporadi
     core.fields((("docked", True),), t + 3 * MS)
     # one future stamp, then silence; the plain value goes stale by the step's limit
     core.advance(t + 400 * MS)
-    assert ("supervisor", "input_future_stamp", "scan_age", 1) in calls.calls
-    stale = [c[2] for c in calls.calls if c[:2] == ("supervisor", "input_stale")]
-    assert stale == ["obstacle", "nav_own"]
-    acts = [c[1] for c in calls.calls if c[0] == "act"]
+    said = [(r["what"], r.get("input"), r.get("count")) for r in log.of("supervisor")]
+    assert ("input_future_stamp", "scan_age", 1) in said
+    assert [i for what, i, _ in said if what == "input_stale"] == ["obstacle", "nav_own"]
     assert acts == ["on_stale:obstacle", "on_stale:nav_own"]
     # ages at each tick: from the tick at +10 ms on, (tick - stamp) / 1e6
     ages = [v[1] for v in mon.ticks]
@@ -1027,7 +987,7 @@ def test_the_max_of_no_status_is_rejected_by_an_int64_input():
     seen); an int64 cannot hold it: the daemon rejects it and keeps the last level."""
     v = diag_var("status[].level", reduce="max")
     read = make_reader(v)
-    rt = Runtime([InputSpec("diag", "int64")], Recorder(), policy="on_message")
+    rt = Runtime([InputSpec("diag", "int64")], RecordingMonitor(2), policy="on_message")
     res, events = rt.on_message("diag", read(make_diagnostics([(2, [])])), 0)
     assert res is not None and res.inputs["diag"] == 2
     worst = read(make_diagnostics([]))

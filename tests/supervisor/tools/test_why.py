@@ -112,6 +112,7 @@ def test_the_blamed_inputs_decide_the_verdict(seed):
 def test_a_violation_record_is_explained_from_its_own_fields(tmp_path):
     """The daemon's core writes formula_inputs for a requirement that reads an
     internal variable; its recent window then explains the violation."""
+    from mitigations.violationlog.testing import MemoryLog
     from monitors.backends.load import compile_spec
     from supervisor.daemon.core import Core
     from supervisor.daemon.session import build_session
@@ -130,28 +131,13 @@ def test_a_violation_record_is_explained_from_its_own_fields(tmp_path):
     )
     project = project_for(tmp_path / "c.yaml", ros=False)
     session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
-    records: list[dict] = []
-
-    class Log:
-        def violation(self, requirement: str, **f: object) -> bool:
-            records.append({"requirement": requirement, **f})
-            return True
-
-        def mitigation(self, *a: object, **k: object) -> bool:
-            return True
-
-        def reset(self, *a: object, **k: object) -> bool:
-            return True
-
-        def supervisor(self, *a: object, **k: object) -> bool:
-            return True
-
-    core = Core(session, Log(), lambda _r: None, warn=lambda _t: None)
+    log = MemoryLog()
+    core = Core(session, log, lambda _r: None, warn=lambda _t: None)
     core.start(0)
     core.fields([("halted", False)], 1)
     for k, d in enumerate((9, 7, 5, 2)):
         core.fields([("distance", d)], 10 + k)
-    record = records[0]
+    record = log.of("violation")[0]
     assert record["formula"] == "(H (near -> halted))"
     assert record["formula_inputs"] == "(H ((distance < 3) -> halted))"
     f = formula_for_record(record)
