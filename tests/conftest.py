@@ -4,8 +4,12 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import signal
-from collections.abc import Iterator
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -89,3 +93,62 @@ def robot_node() -> Iterator[Any]:
 
     with ros_node() as node:
         yield node
+
+
+def _done(req: Any) -> dict[str, Any]:
+    return {"ok": True, "message": f"{req.command} done"}
+
+
+@pytest.fixture
+def control_server() -> Iterator[Callable[..., Any]]:
+    """Opens control sockets (supervisor.daemon.control) served as the daemon's
+    receive loop serves them: a thread woken by the server takes the requests and
+    answers a refused one as refused, any other with ``answer(request)`` after
+    ``delay`` seconds (a reload that validates and compiles).  The socket's folder
+    has ``mode`` (pytest's own tmp_path is its user's alone); all closed after the test."""
+    from supervisor.config.model import ControlConfig
+    from supervisor.daemon.control import open_control
+
+    opened: list[tuple[Any, threading.Event, threading.Thread, Path]] = []
+
+    def serve(
+        answer: Callable[[Any], dict[str, Any]] = _done,
+        *,
+        delay: float = 0.0,
+        mode: int = 0o700,
+        group: str | None = None,
+        file: str = "cfg.yaml",
+    ) -> Any:
+        d = Path(tempfile.mkdtemp(prefix="ctl-"))
+        d.chmod(mode)
+        srv = open_control(ControlConfig(socket=str(d / "c.sock"), group=group, file=file))
+        woken, stop = threading.Event(), threading.Event()
+        pending: list[tuple[float, Any]] = []
+
+        def loop() -> None:
+            while not stop.is_set():
+                woken.wait(0.05)  # woken by a request, or the next answer's time
+                woken.clear()
+                for req in srv.take():
+                    if req.refused:
+                        req.answer({"ok": False, "refused": req.refused, "message": req.detail})
+                    else:
+                        pending.append((time.monotonic() + delay, req))
+                for due, req in [p for p in pending if p[0] <= time.monotonic()]:
+                    pending.remove((due, req))
+                    req.answer(answer(req))
+
+        thread = threading.Thread(target=loop, daemon=True)
+        thread.start()
+        srv.start(woken.set)
+        opened.append((srv, stop, thread, d))
+        return srv
+
+    try:
+        yield serve
+    finally:
+        for srv, stop, thread, d in opened:
+            srv.close()
+            stop.set()
+            thread.join(5)
+            shutil.rmtree(d, ignore_errors=True)

@@ -14,15 +14,13 @@ resets under the rate limit, and a reset while a SIGHUP reload runs.
 from __future__ import annotations
 
 import json
-import shutil
 import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -72,43 +70,10 @@ def timed_reset(path: str | Path) -> tuple[float, dict[str, Any]]:
     return time.monotonic() - t0, answer
 
 
-class Loop:
-    """The daemon's side in a thread of its own, as the receive loop: woken by the
-    server, it takes the requests and answers them (every reset accepted)."""
-
-    def __init__(self, srv: ControlServer) -> None:
-        self.srv = srv
-        self.woken = threading.Event()
-        self.stop = threading.Event()
-        self.answered = 0
-        self.thread = threading.Thread(target=self.run, daemon=True)
-
-    def run(self) -> None:
-        while not self.stop.is_set():
-            self.woken.wait(0.1)
-            self.woken.clear()
-            for req in self.srv.take():
-                if req.refused:
-                    req.answer({"ok": False, "refused": req.refused, "message": req.detail})
-                else:
-                    req.answer({"ok": True, "message": "all requirements reset"})
-                self.answered += 1
-
-
 @pytest.fixture
-def served() -> Iterator[ControlServer]:
-    d = Path(tempfile.mkdtemp(prefix="ctl-"))
-    srv = open_control(ControlConfig(socket=str(d / "c.sock"), file="cfg.yaml"))
-    loop = Loop(srv)
-    loop.thread.start()
-    srv.start(loop.woken.set)
-    try:
-        yield srv
-    finally:
-        srv.close()
-        loop.stop.set()
-        loop.thread.join(5)
-        shutil.rmtree(d, ignore_errors=True)
+def served(control_server: Callable[..., ControlServer]) -> ControlServer:
+    """Every reset accepted (tests/conftest.py's control_server)."""
+    return control_server(lambda _req: {"ok": True, "message": "all requirements reset"})
 
 
 # ------------------------------------------------------------------ the findings

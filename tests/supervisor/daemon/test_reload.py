@@ -13,23 +13,20 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import signal
 import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from supervisor.config.model import ControlConfig
 from supervisor.daemon import control
-from supervisor.daemon.control import Caller, ControlServer, open_control
+from supervisor.daemon.control import Caller, ControlServer
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -58,39 +55,14 @@ def test_a_reload_naming_a_requirement_is_a_bad_request() -> None:
 
 
 @pytest.fixture
-def slow_loop(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[ControlServer, float]]:
+def slow_loop(
+    monkeypatch: pytest.MonkeyPatch, control_server: Callable[..., ControlServer]
+) -> tuple[ControlServer, float]:
     """A control server whose loop answers a reload only after a reset's answer
     deadline has passed, as a reload that validates and compiles for seconds."""
     monkeypatch.setattr(control, "ANSWER_TIMEOUT_S", 0.3)
     delay = 0.9
-    d = Path(tempfile.mkdtemp(prefix="ctl-"))
-    srv = open_control(ControlConfig(socket=str(d / "c.sock"), file="cfg.yaml"))
-    woken, stop = threading.Event(), threading.Event()
-    pending: list[tuple[float, Any]] = []
-
-    def loop() -> None:
-        while not stop.is_set():
-            woken.wait(0.05)
-            woken.clear()
-            for req in srv.take():
-                if req.refused:
-                    req.answer({"ok": False, "refused": req.refused, "message": req.detail})
-                else:
-                    pending.append((time.monotonic() + delay, req))
-            for due, req in [p for p in pending if p[0] <= time.monotonic()]:
-                pending.remove((due, req))
-                req.answer({"ok": True, "message": f"{req.command} done"})
-
-    thread = threading.Thread(target=loop, daemon=True)
-    thread.start()
-    srv.start(woken.set)
-    try:
-        yield srv, delay
-    finally:
-        srv.close()
-        stop.set()
-        thread.join(5)
-        shutil.rmtree(d, ignore_errors=True)
+    return control_server(delay=delay), delay
 
 
 def _ask(path: str, line: bytes) -> dict[str, Any]:
@@ -138,53 +110,32 @@ sys.stdout.write(data.decode())
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="runs a client as another user (needs root)")
-def test_an_operator_may_reset_but_not_reload() -> None:
+def test_an_operator_may_reset_but_not_reload(
+    control_server: Callable[..., ControlServer],
+) -> None:
     """A member of the operators' group (here nobody in nogroup) is let in by the
     socket's mode and may reset; only the daemon's user and root may reload."""
-    d = Path(tempfile.mkdtemp(prefix="ctl-"))
-    d.chmod(0o711)
-    srv = open_control(ControlConfig(socket=str(d / "c.sock"), group="nogroup", file="c.yaml"))
-    woken, stop = threading.Event(), threading.Event()
+    srv = control_server(mode=0o711, group="nogroup", file="c.yaml")
 
-    def loop() -> None:
-        while not stop.is_set():
-            woken.wait(0.05)
-            woken.clear()
-            for req in srv.take():
-                if req.refused:
-                    req.answer({"ok": False, "refused": req.refused, "message": req.detail})
-                else:
-                    req.answer({"ok": True, "message": f"{req.command} done"})
+    def as_nobody(command: str) -> dict[str, Any]:
+        r = subprocess.run(
+            ["/usr/bin/python3", "-c", CLIENT, srv.path, json.dumps({"command": command})],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            user=65534,
+            group=65534,
+            extra_groups=[],
+        )
+        assert r.returncode == 0, r.stderr
+        doc = json.loads(r.stdout)
+        assert isinstance(doc, dict), doc
+        return doc
 
-    thread = threading.Thread(target=loop, daemon=True)
-    thread.start()
-    srv.start(woken.set)
-    try:
-
-        def as_nobody(command: str) -> dict[str, Any]:
-            r = subprocess.run(
-                ["/usr/bin/python3", "-c", CLIENT, srv.path, json.dumps({"command": command})],
-                capture_output=True,
-                text=True,
-                timeout=30,
-                user=65534,
-                group=65534,
-                extra_groups=[],
-            )
-            assert r.returncode == 0, r.stderr
-            doc = json.loads(r.stdout)
-            assert isinstance(doc, dict), doc
-            return doc
-
-        assert as_nobody("reset") == {"ok": True, "message": "reset done"}
-        refused = as_nobody("reload")
-        assert refused["refused"] == "permission" and "reload" in refused["message"], refused
-        assert _ask(srv.path, b'{"command": "reload"}\n')["ok"] is True  # root may
-    finally:
-        srv.close()
-        stop.set()
-        thread.join(5)
-        shutil.rmtree(d, ignore_errors=True)
+    assert as_nobody("reset") == {"ok": True, "message": "reset done"}
+    refused = as_nobody("reload")
+    assert refused["refused"] == "permission" and "reload" in refused["message"], refused
+    assert _ask(srv.path, b'{"command": "reload"}\n')["ok"] is True  # root may
 
 
 @pytest.mark.parametrize("command", ["reload", "reset"])

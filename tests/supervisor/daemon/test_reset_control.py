@@ -16,13 +16,11 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import socket
 import stat
 import subprocess
 import sys
-import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -145,26 +143,12 @@ def test_check_warns_when_the_ros_reset_service_is_enabled(tmp_path: Path) -> No
 
 
 @pytest.fixture
-def server() -> Iterator[ControlServer]:
-    """A control socket whose 'loop' answers every request as accepted, in a
-    directory any user may traverse (pytest's own is root's alone)."""
-    d = Path(tempfile.mkdtemp(prefix="ctl-"))
-    d.chmod(0o755)
-    srv = open_control(ControlConfig(socket=str(d / "c.sock"), file="cfg.yaml"))
-
-    def loop() -> None:
-        for req in srv.take():
-            if req.refused:
-                req.answer({"ok": False, "refused": req.refused, "message": req.detail})
-            else:
-                req.answer({"ok": True, "message": f"{req.command} by {req.caller.uid}"})
-
-    srv.start(loop)  # the wake callback serves at once: enough for the socket's side
-    try:
-        yield srv
-    finally:
-        srv.close()
-        shutil.rmtree(d, ignore_errors=True)
+def server(control_server: Callable[..., ControlServer]) -> ControlServer:
+    """A control socket whose loop answers every request as accepted, in a folder
+    any user may traverse (tests/conftest.py's control_server)."""
+    return control_server(
+        lambda req: {"ok": True, "message": f"{req.command} by {req.caller.uid}"}, mode=0o755
+    )
 
 
 def test_socket_mode_and_answers(server: ControlServer) -> None:
