@@ -72,7 +72,7 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Any:
 
 @pytest.fixture
 def sshd(tmp_path: Path) -> Iterator[Sshd]:
-    """A real OpenSSH sshd on 127.0.0.1 (see tests/sshd.py), stopped after the test."""
+    """A real OpenSSH sshd on 127.0.0.1 (see tests/support/sshd.py), stopped after the test."""
     if not sshd_available():
         reason = "/usr/sbin/sshd or ssh-keygen missing (install Debian's openssh-server)"
         if os.environ.get("CI"):
@@ -88,7 +88,7 @@ def sshd(tmp_path: Path) -> Iterator[Sshd]:
 
 @pytest.fixture
 def robot_node() -> Iterator[Any]:
-    """An rclpy node in this process on the test run's DDS domain (tests/rosutil.py)."""
+    """An rclpy node in this process on the test run's DDS domain (tests/support/rosutil.py)."""
     from rosutil import ros_node
 
     with ros_node() as node:

@@ -1,6 +1,6 @@
 """A robot gone mad: the 7 srobot topics republished in a tight loop, for the stop
-tests (tests/test_daemon_stop.py).  Nominal values (rosutil.S0), so the daemon
-monitors without violations; runs until killed.  ``python tests/flood.py``
+tests (tests/system/test_daemon_stop.py).  Nominal values (rosutil.S0), so the daemon
+monitors without violations; runs until killed.  ``python tests/support/flood.py``
 with the test run's ROS environment."""
 
 from __future__ import annotations

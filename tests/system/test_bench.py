@@ -29,8 +29,8 @@ def _number(x: Any) -> bool:
 
 def _bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
-    # The recording, replay and UI parts have tests of their own (tests/test_bench_replay.py,
-    # tests/test_bench_ui.py, tests/test_bench_scale.py).
+    # The recording, replay and UI parts have tests of their own (tests/supervisor/tools/bench/test_bench_replay.py,
+    # tests/supervisor/tools/bench/test_bench_ui.py, tests/supervisor/tools/bench/test_bench_scale.py).
     skip = ["--skip-record", "--skip-replay", "--skip-ui", "--skip-scale", "--skip-soak"]
     return subprocess.run(
         [sys.executable, "-m", "supervisor", "bench", *skip, *args],

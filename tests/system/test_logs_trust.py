@@ -1,7 +1,7 @@
 """A violation log is attacker-controlled input: its hash chain has no key, so anyone
 who can write a file can write a log that verifies (docs/reference/faults.md,
 "Trust").  ``logs`` and ``report`` are run here, in process and as the real command,
-on crafted logs whose chain is recomputed as the format defines it (tests/logcraft.py):
+on crafted logs whose chain is recomputed as the format defines it (tests/support/logcraft.py):
 records of the wrong shape are skipped with one located line and counted, nothing
 reaches a terminal as control sequences or the report page as markup, ``report``
 opens no path a log names, and a compressed log is inflated within a bound."""

@@ -198,7 +198,7 @@ def test_a_recorded_demo_run_replays_to_the_same_decisions(tmp_path: Path) -> No
     for key in want:
         assert got[key] == want[key], key
     # and the incident report of that run opens offline in a real browser, one marker
-    # per violation, a why-tree for each (tests/test_report.py's checks)
+    # per violation, a why-tree for each (tests/system/test_report.py's checks)
     from tests.system.test_report import check_page
 
     page = tmp_path / "report.html"

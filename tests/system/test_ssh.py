@@ -1,4 +1,4 @@
-"""The ssh mitigation against a real OpenSSH sshd on 127.0.0.1 (tests/sshd.py): no mocks."""
+"""The ssh mitigation against a real OpenSSH sshd on 127.0.0.1 (tests/support/sshd.py): no mocks."""
 
 from __future__ import annotations
 

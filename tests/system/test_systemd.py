@@ -5,7 +5,7 @@ for the session and booted with ``systemd-nspawn -b`` (systemd is its PID 1);
 the wheel built from this checkout and a wheelhouse of its dependencies are
 copied in, a bootstrap venv runs ``install-service`` exactly as the README's
 integrator does, and every command runs inside through ``nsenter``.  The unit
-checks on the host (tests/test_packaging.py) cannot see what only PID 1 does:
+checks on the host (tests/supervisor/tools/test_packaging.py) cannot see what only PID 1 does:
 notify, the watchdog, the sandbox's seccomp filter, reload, stop.
 
 Needs root, ``systemd-nspawn`` (systemd-container), ``debootstrap`` and the

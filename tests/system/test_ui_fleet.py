@@ -334,7 +334,7 @@ control: {{socket: ctl.sock}}
 
 
 def other_domain(domain: int) -> int:
-    """A second domain beside the test run's (random, 1-200: tests/rosutil.py)."""
+    """A second domain beside the test run's (random, 1-200: tests/support/rosutil.py)."""
     return domain + 1 if domain < 232 else domain - 1
 
 

@@ -41,7 +41,7 @@ from monitors.verify.interpret import verdicts
 EXAMPLES = Path(__file__).resolve().parents[2] / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
 # FRET's formula for 1.5 seconds has malformed bounds; negative durations and
-# probability bounds we refuse (tests/test_parse.py).
+# probability bounds we refuse (tests/monitors/frontend/test_parse.py).
 NOT_COMPARED = {"unit_after_1.5_seconds", "err_negative_duration", "var_probability2"}
 OK = [d for d in ALL if d["ok"] and d["id"] not in NOT_COMPARED]
 UNIT_PERIOD = {  # one unit per tick, so our tick counts equal FRET's numbers

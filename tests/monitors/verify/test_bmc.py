@@ -1,7 +1,7 @@
 """The z3 encoding (monitors/bmc.py) against the reference interpreter.
 
 Random well-typed formulas over every operator and temporal bound, random traces
-with int64/double edge values (tests/harness.py): with the trace fixed in z3,
+with int64/double edge values (tests/support/harness.py): with the trace fixed in z3,
 every tick's truth value, and every numeric subterm's value bit for bit, must be
 what monitors.verify.interpret computes.  Models found by z3 must read back as traces on
 which the interpreter agrees.

@@ -209,7 +209,7 @@ def test_recent_keeps_the_last_ticks(srobot):
     assert [r["distance_to_target"] for r in rt.recent] == [12, 13, 14]
     assert [r["tick"] for r in rt.recent] == [2, 3, 4]
     # each tick's JSON made when stepped, which the violation record joins
-    # (mitigations/violationlog/writer.py Row; bytes: tests/test_log_render.py)
+    # (mitigations/violationlog/writer.py Row; bytes: tests/mitigations/violationlog/test_log_render.py)
     assert [json.loads(r.json) for r in rt.recent] == [dict(r) for r in rt.recent]
 
 

@@ -3,7 +3,7 @@
 The unit is checked by systemd's own tools (``systemd-analyze verify`` and
 ``security``), and its command lines are run here, outside systemd: ExecStart
 with NOTIFY_SOCKET bound by the test, ExecStartPre's ``check`` on the shipped
-config (ExecReload's ``reload`` runs under systemd in tests/test_systemd.py).
+config (ExecReload's ``reload`` runs under systemd in tests/system/test_systemd.py).
 Paths are substituted by the installer's own renderer, so what is tested is
 what ``install-service`` writes.
 """

@@ -135,7 +135,8 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     args = ["--quick", "--rates", "3000", "--seconds", "1", "--latency-trials", "20"]
     args += ["--replay-messages", "21000", "--record-rates", "5000", "--out", str(out)]
-    args += ["--skip-ui", "--skip-scale", "--skip-soak"]  # tests/test_bench_ui.py, _scale.py
+    # the UI and scale figures: test_bench_ui.py and test_bench_scale.py beside this file
+    args += ["--skip-ui", "--skip-scale", "--skip-soak"]
     p = subprocess.run(
         [sys.executable, "-m", "supervisor", "bench", *args],
         cwd=ROOT,

@@ -313,7 +313,7 @@ def test_report_bag_takes_the_namespace_replay_takes(tmp_path):
 def test_a_second_replay_compiles_nothing_from_the_user_s_cache(tmp_path):
     """Without STATE_DIRECTORY replay keeps its monitor in $XDG_CACHE_HOME, made 0700
     and checked as the daemon's cache is (supervisor/cache.py); the compiler behind a
-    wrapper that logs each compilation (as tests/test_startup_cache.py does)."""
+    wrapper that logs each compilation (as tests/supervisor/test_startup_cache.py does)."""
     from tests.supervisor.test_startup_cache import _wrapper
 
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
