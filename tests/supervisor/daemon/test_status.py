@@ -5,7 +5,6 @@ real daemon over DDS."""
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -101,32 +100,21 @@ def test_the_document_of_a_session(tmp_path: Path):
 @pytest.mark.ros
 @pytest.mark.parametrize("namespace", ["/", "/robot1"])
 def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any, namespace: str):
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from rosutil import Daemon, spin_until, wait_matched
-    from std_msgs.msg import Bool, Float64, String
+    from rosutil import Daemon, StatusWatch, messages, spin_until, wait_matched
+    from std_msgs.msg import Bool, Float64
 
     config = tmp_path / "r.yaml"
     config.write_text(CONFIG + f"ros: {{status_ms: 100, namespace: '{namespace}'}}\n")
     d = Daemon(tmp_path, config)
     try:
         d.wait_notify("READY=1", timeout=30)
-        docs: list[dict[str, Any]] = []
-        qos = QoSProfile(
-            depth=1,
-            reliability=ReliabilityPolicy.RELIABLE,
-            durability=DurabilityPolicy.TRANSIENT_LOCAL,
-        )
-        robot_node.create_subscription(
-            String,
-            namespace.rstrip("/") + "/safety_supervisor/status",
-            lambda m: docs.append(json.loads(m.data)),
-            qos,
-        )
+        status = StatusWatch(robot_node, namespace)
+        docs = status.docs
         speed = robot_node.create_publisher(Float64, "/speed", 10)
         halted = robot_node.create_publisher(Bool, "/halted", 10)
         wait_matched([speed, halted])
         halted.publish(Bool(data=False))
-        time.sleep(0.1)
+        status.until("halted=False received", lambda doc: messages(doc, "halted") == 1)
         speed.publish(Float64(data=3.5))
 
         def latched() -> Any:
