@@ -299,7 +299,7 @@ def test_library_exports_only_the_module_init(tmp_path) -> None:
     # glibc exports a legacy 'step'; the monitor's own must be bound locally, not exported
     nm = shutil.which("nm")
     if nm is None:
-        pytest.skip("binutils nm not installed")
+        pytest.skip("nm missing (install Debian's binutils)")
     mon = compile_spec(make_spec([parse_formula("Y b0")]), tmp_path)
     out = subprocess.run(
         [nm, "-D", "--defined-only", str(mon.path)], capture_output=True, text=True
