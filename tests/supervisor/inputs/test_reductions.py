@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 import random
 import textwrap
-import time
 from pathlib import Path
 from typing import Any
 
@@ -172,12 +171,14 @@ def test_replay_of_a_laserscan_bag(tmp_path):
 @pytest.mark.ros
 def test_an_obstacle_while_moving_is_caught_over_dds(tmp_path: Path, robot_node: Any):
     from nav_msgs.msg import Odometry
-    from rosutil import Daemon, wait_matched
+    from rosutil import Daemon, StatusWatch, messages, wait_matched
     from sensor_msgs.msg import LaserScan
 
-    d = Daemon(tmp_path, write(tmp_path, BASE))
+    # a status document a tick: what the daemon has received and judged, awaited
+    d = Daemon(tmp_path, write(tmp_path, BASE + "ros: {status_ms: 20}\n"))
     try:
         d.wait_notify("READY=1", timeout=30)
+        status = StatusWatch(robot_node)
         scan = robot_node.create_publisher(LaserScan, "/scan", 10)
         odom = robot_node.create_publisher(Odometry, "/odom", 10)
         wait_matched([scan, odom])
@@ -185,9 +186,12 @@ def test_an_obstacle_while_moving_is_caught_over_dds(tmp_path: Path, robot_node:
         moving.twist.twist.linear.x = 0.4
         odom.publish(moving)
         # invalid readings (NaN, inf, below range_min) are not obstacles
-        for ranges in ([math.nan, 2.0], [math.inf, 1.5], [0.05, 3.0]):
+        for n, ranges in enumerate(([math.nan, 2.0], [math.inf, 1.5], [0.05, 3.0]), 1):
             scan.publish(_scan(ranges))
-            time.sleep(0.1)
+            got = status.until(
+                f"scan {n} received", lambda doc, n=n: messages(doc, "obstacle") == n
+            )
+            status.until(f"scan {n} judged", lambda doc, got=got: doc["ticks"] > got["ticks"])
         assert not [r for r in d.records() if r["event"] == "violation"], d.explain()
         scan.publish(_scan([0.4, 5.0]))  # a valid reading at 0.4 m while moving
         v = d.wait_record(lambda r: r["event"] == "violation", "the obstacle violation", 5)
