@@ -14,7 +14,6 @@ import hashlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ctlclient import ask
 
 from supervisor.daemon import control
 from supervisor.daemon.control import Caller, ControlServer
@@ -65,30 +65,14 @@ def slow_loop(
     return control_server(delay=delay), delay
 
 
-def _ask(path: str, line: bytes) -> dict[str, Any]:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(10)
-        s.connect(path)
-        s.sendall(line)
-        data = b""
-        while not data.endswith(b"\n"):
-            chunk = s.recv(65536)
-            if not chunk:
-                break
-            data += chunk
-    doc = json.loads(data)
-    assert isinstance(doc, dict), doc
-    return doc
-
-
 def test_a_reload_is_answered_after_a_resets_deadline(
     slow_loop: tuple[ControlServer, float],
 ) -> None:
     srv, delay = slow_loop
     # A reset past its deadline: the socket thread says busy (unchanged).
-    assert _ask(srv.path, b'{"command": "reset"}\n')["refused"] == "busy"
+    assert ask(srv.path, b'{"command": "reset"}\n')["refused"] == "busy"
     t0 = time.monotonic()
-    answer = _ask(srv.path, b'{"command": "reload"}\n')
+    answer = ask(srv.path, b'{"command": "reload"}\n')
     assert answer == {"ok": True, "message": "reload done"}, answer
     assert time.monotonic() - t0 >= delay * 0.9
 
@@ -135,7 +119,7 @@ def test_an_operator_may_reset_but_not_reload(
     assert as_nobody("reset") == {"ok": True, "message": "reset done"}
     refused = as_nobody("reload")
     assert refused["refused"] == "permission" and "reload" in refused["message"], refused
-    assert _ask(srv.path, b'{"command": "reload"}\n')["ok"] is True  # root may
+    assert ask(srv.path, b'{"command": "reload"}\n')["ok"] is True  # root may
 
 
 @pytest.mark.parametrize("command", ["reload", "reset"])

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from ctlclient import ask
 
 from monitors.errors import UserError
 from supervisor.config import load_config
@@ -44,20 +45,6 @@ def srobot_with(tmp: Path, tail: str) -> Path:
     path = tmp / "srobot.yaml"
     path.write_text(text.rstrip("\n") + "\n" + tail)
     return path
-
-
-def ask(path: str | Path, line: bytes = b'{"command": "reset"}\n') -> dict[str, Any]:
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-        s.settimeout(10)
-        s.connect(str(path))
-        s.sendall(line)
-        data = b""
-        while not data.endswith(b"\n"):
-            chunk = s.recv(4096)
-            if not chunk:
-                break
-            data += chunk
-    return json.loads(data)
 
 
 def as_nobody(fn: Callable[[], str]) -> str:
