@@ -121,7 +121,7 @@ def _no(value: Any) -> Any:
 # The chain of _processors(safe=False) in one call, for the records on the halt's
 # path (docs/reference/log.md#durability): the same dict in the same key order
 # through the encoder JSONRenderer builds from the same settings, so the bytes are
-# the chain's (tests/test_violationlog_render.py compares them).
+# the chain's (tests/mitigations/violationlog/test_log_render.py compares them).
 def _encoder() -> Callable[[Any], str]:
     """``json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode``,
     with the C encoder that ``encode`` makes on every call (json/encoder.py) made

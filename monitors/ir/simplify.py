@@ -2,7 +2,7 @@
 
 FRET's construction yields e.g. ``p S (p & FTP)`` for "always p"; engineers
 expect ``H p``.  Every rule here is valid in the past-time semantics of
-``interpret.py`` and is property-tested against it (tests/test_simplify.py).
+``interpret.py`` and is property-tested against it (tests/monitors/ir/test_simplify.py).
 """
 
 from __future__ import annotations

@@ -266,7 +266,7 @@ class BagWriter:
         if writer is not None and writer.storage is not None:
             # rosbags' McapWriter only ends a chunk at 1 MiB or at close, and has no
             # public flush: its chunk and file are used here (pyproject pins rosbags
-            # < 0.12; tests/test_recorder.py's kill -9 test fails if they change).
+            # < 0.12; tests/supervisor/daemon/test_recorder.py's kill -9 test fails if they change).
             storage: Any = writer.storage
             if storage.chunk.msgs:
                 storage.close_chunk()

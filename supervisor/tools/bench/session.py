@@ -24,7 +24,7 @@ from mitigations.violationlog.reader import records_since
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.children import Child, NotifySocket, daemon_argv, ros_env
 
-# tests/rosutil.py draws ROS_DOMAIN_ID from 1..200; 215..232 is disjoint from it
+# tests/support/rosutil.py draws ROS_DOMAIN_ID from 1..200; 215..232 is disjoint from it
 # and, unlike 102..214, clear of Linux's ephemeral port range.
 DOMAIN_IDS = (215, 232)
 

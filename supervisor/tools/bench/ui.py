@@ -52,7 +52,7 @@ CLIENTS = 10
 # publisher is still running.
 SECONDS = 10.0
 HOST = "127.0.0.1"
-CHROMIUM = "/usr/bin/chromium"  # Debian's, as tests/test_ui.py uses
+CHROMIUM = "/usr/bin/chromium"  # Debian's, as tests/system/test_ui.py uses
 READ_TIMEOUT_S = 30.0  # longer than the server's keepalive (10 s): only a dead stream trips it
 START_TIMEOUT_S = 60.0
 STATUS_AGAIN_TIMEOUT_S = 30.0  # after the run, before the daemon is stopped

@@ -22,7 +22,7 @@ Twist on ``/cmd_vel`` halts it until the scenario's next phase (an operator's re
 
 :data:`SCENARIO` is the script: phases in order, each naming the requirement it
 breaks (or none).  :class:`BaseModel` is the base without ROS, so the script can be
-checked tick by tick without DDS (tests/test_demo_base.py).
+checked tick by tick without DDS (tests/supervisor/tools/test_demo_base.py).
 
 Like :mod:`supervisor.tools.demo.robot`, it prints JSON lines on stdout for the demo's
 view, waits for ``go`` on stdin before the scenario starts (its lidar alone runs from
@@ -58,7 +58,7 @@ REQUIREMENTS = (
 )
 
 # The thresholds of mobile-base.yaml's requirements, for the scenario's own check
-# (tests/test_demo_base.py) and the view's words.
+# (tests/supervisor/tools/test_demo_base.py) and the view's words.
 NEAR_M, SLOW_MPS = 0.5, 0.3  # slow_near_obstacle
 MAX_SCAN_AGE_MS = 300.0  # fresh_scan
 MIN_SCAN_HZ = 8.0  # scan_rate_ok

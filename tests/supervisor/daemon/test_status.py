@@ -1,0 +1,134 @@
+"""``/safety_supervisor/status`` (supervisor/daemon/status.py): the document an
+operator's page shows; built from a real session without ROS, and published by the
+real daemon over DDS."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from mitigations.policy import RequirementPolicy
+from mitigations.settings import PolicyConfig
+from mitigations.violationlog.testing import MemoryLog
+from monitors.backends.load import compile_spec
+from supervisor.daemon.core import Core
+from supervisor.daemon.session import build_session
+from supervisor.daemon.status import StatusBoard, requirement_state
+from supervisor.pipeline import project_for
+
+MS = 1_000_000
+
+CONFIG = """\
+component: R
+step: {policy: on_message, stale_after_ms: 200}
+variables:
+  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}
+  halted: {type: bool, topic: /halted, msg: std_msgs/msg/Bool}
+  fast: {type: bool, define: speed > 3.0}
+requirements:
+  - id: limit
+    text: R shall always satisfy speed <= 2.0
+    on_violation: [note]
+    policy: {debounce_steps: 3, reset: after_mitigation}
+  - id: halt_when_fast
+    text: R shall always satisfy fast -> halted
+    on_violation: [note]
+    policy: {latch: true, repeat_ms: 100}
+mitigations:
+  note: {log: {message: violated}}
+"""
+
+
+def test_one_word_per_policy_state():
+    pol = RequirementPolicy(PolicyConfig(debounce_steps=2, cooldown_ms=100.0), ("a",))
+    assert requirement_state(pol, 0) == "holding"
+    pol.on_step(True, 0, 10 * MS, {})
+    assert requirement_state(pol, 10 * MS) == "debouncing"
+    pol.on_step(True, 1, 20 * MS, {})
+    assert requirement_state(pol, 20 * MS) == "violated"
+    pol.on_step(False, 2, 30 * MS, {})
+    assert requirement_state(pol, 30 * MS) == "cooldown"
+    assert requirement_state(pol, 200 * MS) == "holding"
+    pol.latched = True
+    assert requirement_state(pol, 200 * MS) == "latched"
+
+
+def test_the_document_of_a_session(tmp_path: Path):
+    (tmp_path / "c.yaml").write_text(CONFIG)
+    project = project_for(tmp_path / "c.yaml", ros=False)
+    session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
+    board = StatusBoard("safety_supervisor")
+
+    # the records as the writer renders them, teed to the board
+    log = MemoryLog(lambda r: board.record(json.dumps({"ts": "2026-11-23T00:00:00.000000Z", **r})))
+
+    def submit(request: Any) -> None:
+        for a in request.actions:
+            log.mitigation(
+                request.requirement, action=a, stage=request.stage, ok=True, latency_ms=0.5
+            )
+
+    core = Core(session, log, submit, warn=lambda _t: None)
+    core.start(0)
+    core.fields([("halted", False)], 1 * MS)
+    core.fields([("speed", 3.5)], 2 * MS)  # fast, not halted: latched; limit debouncing
+    doc = board.document(
+        session, session.policies, now_ns=3 * MS, violations=core.violations, reloads=0,
+        recording=False, watchdog_s=None, control_socket="/tmp/c.sock",
+    )  # fmt: skip
+    reqs = {r["id"]: r for r in doc["requirements"]}
+    assert reqs["halt_when_fast"]["state"] == "latched"
+    assert reqs["halt_when_fast"]["actions"][0]["action"] == "note"
+    assert reqs["limit"]["state"] == "debouncing"
+    assert {i["name"]: i["value"] for i in doc["inputs"]} == {"speed": 3.5, "halted": False}
+    assert [i["age_s"] for i in doc["inputs"]] == [0.001, 0.002]
+    assert [e["event"] for e in doc["events"]] == ["violation", "mitigation", "reset"]
+    core.advance(300 * MS)  # both inputs go stale
+    doc = board.document(
+        session, session.policies, now_ns=300 * MS, violations=core.violations, reloads=0,
+        recording=False, watchdog_s=None, control_socket=None,
+    )  # fmt: skip
+    reqs = {r["id"]: r for r in doc["requirements"]}
+    assert sorted(reqs["halt_when_fast"]["stale_inputs"]) == ["halted", "speed"]  # via 'fast'
+    assert [e["what"] for e in doc["events"]] == ["input_stale", "input_stale"]
+    json.dumps(doc)  # JSON as it is
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("namespace", ["/", "/robot1"])
+def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any, namespace: str):
+    from rosutil import Daemon, StatusWatch, messages, spin_until, wait_matched
+    from std_msgs.msg import Bool, Float64
+
+    config = tmp_path / "r.yaml"
+    config.write_text(CONFIG + f"ros: {{status_ms: 100, namespace: '{namespace}'}}\n")
+    d = Daemon(tmp_path, config)
+    try:
+        d.wait_notify("READY=1", timeout=30)
+        status = StatusWatch(robot_node, namespace)
+        docs = status.docs
+        speed = robot_node.create_publisher(Float64, "/speed", 10)
+        halted = robot_node.create_publisher(Bool, "/halted", 10)
+        wait_matched([speed, halted])
+        halted.publish(Bool(data=False))
+        status.until("halted=False received", lambda doc: messages(doc, "halted") == 1)
+        speed.publish(Float64(data=3.5))
+
+        def latched() -> Any:
+            for doc in docs:
+                states = {r["id"]: r["state"] for r in doc["requirements"]}
+                if states.get("halt_when_fast") == "latched":
+                    return doc
+            return None
+
+        doc = spin_until(robot_node, "a status with the latch", latched, timeout=15)
+        assert doc["component"] == "R" and doc["schema"] == 1 and doc["policy"] == "on_message"
+        assert doc["supervisor"].endswith(f":{namespace.rstrip('/')}/safety_supervisor")
+        assert any(e["event"] == "violation" for d_ in docs for e in d_["events"])
+        assert {i["name"] for i in doc["inputs"]} == {"speed", "halted"}
+        d.terminate()
+    finally:
+        d.close()

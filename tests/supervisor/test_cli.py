@@ -1,0 +1,197 @@
+"""The command line as a user runs it: real subprocesses, real files, real compiler."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SROBOT = ROOT / "config" / "srobot.yaml"
+
+
+def cli(*args, stdin=None, cwd=None):
+    env = {k: v for k, v in os.environ.items() if k != "SAFETY_SUPERVISOR_DEBUG"}
+    return subprocess.run(
+        [sys.executable, "-m", "supervisor", *map(str, args)],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        cwd=cwd or ROOT,
+        env=env,
+        timeout=300,
+    )
+
+
+CONFIG = """\
+component: sw
+step: {policy: periodic, period_ms: 100}
+variables:
+  p: {type: bool, topic: /p, msg: std_msgs/msg/Bool}
+  halt: {type: bool, topic: /halt, msg: std_msgs/msg/Bool}
+  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}
+requirements:
+  - id: r1
+    text: sw shall always satisfy p | halt
+  - id: r2
+    text: upon x > 3 sw shall within 1 second satisfy halt
+mitigations:
+  stop: {publish: {topic: /stop, msg: std_msgs/msg/Bool, value: {data: true}}}
+"""
+
+
+def write(tmp_path, text):
+    p = tmp_path / "cfg.yaml"
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def test_formalize_arguments_and_json_stdin():
+    r = cli("formalize", "sw shall always satisfy p")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "(H p)"
+    r = cli("formalize", "--json", stdin="sw shall always satisfy p\nsw will always satisfy q\n")
+    assert r.returncode == 1
+    rows = [json.loads(line) for line in r.stdout.splitlines()]
+    assert rows[0] == {"text": "sw shall always satisfy p", "formula": "(H p)", "error": None}
+    assert rows[1]["formula"] is None and rows[1]["error"].startswith("<stdin>:2:")
+
+
+def test_check_srobot_config_compiles():
+    r = cli("check", SROBOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = r.stdout.splitlines()
+    assert sum(1 for line in lines if line.startswith("ok ")) == 13
+    assert "13 requirements ok" in lines[-1]
+
+
+def test_explain_shows_formula_reading_variables_handler():
+    r = cli("explain", SROBOT, "state_req103")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
+    assert "state_req103" in out and "(H ((classifier = 1) -> ((! dgt_3) -> (OpState = 3))))" in out
+    assert "handlerstate_req103" in out
+    assert "dgt_3 (= distance_to_target > 3)" in out
+    assert "reading:" in out
+
+
+QUOTED_CONFIG = """\
+component: sw
+step: {policy: periodic, period_ms: 100}
+variables:
+  T: {type: bool, topic: /t, msg: std_msgs/msg/Bool}
+  left wheel: {type: int64, topic: /lw, msg: std_msgs/msg/Int64}
+  MODE: {type: bool, topic: /m, msg: std_msgs/msg/Bool}
+  fast: {type: bool, define: "_DQT_left_SPC_wheel_DQT_ > 5"}
+requirements:
+  - id: r1
+    text: in "MODE" mode, when "T" & "left wheel" > 3, sw shall within 2 ticks satisfy !"T" | fast
+    on_violation: [halt]
+mitigations:
+  halt: {publish: {topic: /halt, msg: std_msgs/msg/Bool, value: {data: true}}}
+"""
+
+
+@pytest.mark.slow
+def test_quoted_and_keyword_like_names_check_and_explain(tmp_path):
+    # docs/reference/fretish.md, "Names": sentence -> formula -> C -> explain.
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(QUOTED_CONFIG)
+    r = cli("check", cfg)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "monitor compiled" in r.stdout
+    r = cli("explain", cfg, "r1")
+    assert r.returncode == 0, r.stderr
+    assert "_DQT_left_SPC_wheel_DQT_ > 3" in r.stdout
+    assert "T (bool, /t, formula name _DQT_T_DQT_)" in r.stdout
+    assert "left wheel (int64, /lw, formula name _DQT_left_SPC_wheel_DQT_, C name left_wheel)" in (
+        r.stdout
+    )
+
+
+def test_explain_unknown_requirement():
+    r = cli("explain", SROBOT, "state_req999")
+    assert r.returncode == 1 and "no requirement 'state_req999'" in r.stderr
+
+
+def test_compile_writes_sources_library_manifest(tmp_path):
+    r = cli("compile", SROBOT, "-o", tmp_path / "out")
+    assert r.returncode == 0, r.stdout + r.stderr
+    out = tmp_path / "out"
+    assert (out / "monitor.c").exists() and (out / "monitor.h").exists()
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["backend"] == "native" and len(manifest["requirements"]) == 13
+    assert (out / manifest["library"]).exists()
+    assert manifest["config_sha256"] and manifest["inputs"][0]["c_name"] == "classifier"
+    req = {r["id"]: r for r in manifest["requirements"]}["state_req103"]
+    assert req["handler"] == "handlerstate_req103" and req["variables"] == [
+        "classifier",
+        "dgt_3",
+        "OpState",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("edit", "line", "needle"),
+    [
+        # unknown variable
+        (("satisfy p | halt", "satisfy p | hault"), 9, "undeclared variable 'hault'"),
+        # type mismatch: bool in arithmetic
+        (("satisfy p | halt", "satisfy halt + 1 > 0"), 9, "'+' needs numbers"),
+        # int used as a condition
+        (("satisfy p | halt", "satisfy p & x"), 9, "x is int64"),
+        # reserved name unquoted in a sentence (FRET refuses it; "O" would do)
+        (("satisfy p | halt", "satisfy O | halt"), 9, "reserved"),
+        # duplicate id
+        (("  - id: r2", "  - id: r1"), 10, "duplicate requirement id 'r1'"),
+        # unparseable sentence
+        (("sw shall always satisfy p | halt", "sw shall always p | halt"), 9, "expected"),
+        # duration not a whole number of ticks (period 100 ms)
+        (("within 1 second", "within 150 milliseconds"), 11, "not a whole number"),
+    ],
+)
+def test_bad_input_is_one_located_line(tmp_path, edit, line, needle):
+    cfg = write(tmp_path, CONFIG.replace(*edit))
+    r = cli("check", cfg)
+    assert r.returncode == 1, r.stdout + r.stderr
+    text = r.stdout + r.stderr
+    assert "Traceback" not in text
+    hits = [t for t in text.splitlines() if f"{cfg}:{line}" in t]
+    assert hits, text
+    assert needle in hits[0], hits
+
+
+def test_unparseable_sentence_points_at_column(tmp_path):
+    cfg = write(
+        tmp_path, CONFIG.replace("sw shall always satisfy p | halt", "sw shall always p | halt")
+    )
+    r = cli("check", cfg)
+    # 'text: ' starts at column 5; the bad token 'p' is the 17th character of the sentence
+    assert f"{cfg}:9:{11 + 16}:" in r.stdout + r.stderr
+
+
+def test_usage_error_exit_2():
+    r = cli("check")
+    assert r.returncode == 2
+
+
+@pytest.mark.ros
+def test_run_leaves_no_ros_log_directory_behind(tmp_path):
+    """Outside systemd (no ROS_LOG_DIR, no LOGS_DIRECTORY) run makes a temporary
+    directory for rclpy's own log files, and removes it at exit."""
+    from rosutil import Daemon
+
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    daemon = Daemon(tmp_path, env={"ROS_LOG_DIR": "", "LOGS_DIRECTORY": "", "TMPDIR": str(tmpdir)})
+    try:
+        daemon.wait_notify("READY=1", timeout=60)
+        made = list(tmpdir.glob("safety-supervisor-ros-log-*"))
+        assert len(made) == 1, daemon.explain()
+        daemon.terminate()
+    finally:
+        daemon.close()
+    assert list(tmpdir.glob("safety-supervisor-ros-log-*")) == []

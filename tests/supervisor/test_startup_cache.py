@@ -1,0 +1,251 @@
+"""The start-up cache (supervisor/cache.py) as systemd's ExecStartPre=check uses it:
+the real CLI with a STATE_DIRECTORY, the real compiler behind a wrapper that logs
+each compilation, real files in the cache."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SROBOT = ROOT / "config" / "srobot.yaml"
+
+
+def _wrapper(path: Path, log: Path, version: str = "wrapped cc 1") -> Path:
+    """A compiler that logs each compile (not ``--version``) and runs the real cc."""
+    real = shutil.which("cc") or shutil.which("gcc")
+    assert real is not None
+    path.write_text(
+        "#!/bin/sh\n"
+        f'if [ "$1" = --version ]; then echo "{version}"; exec {real} --version; fi\n'
+        f'echo compile >> "{log}"\n'
+        f'exec {real} "$@"\n'
+    )
+    path.chmod(0o755)
+    return path
+
+
+class Site:
+    """A state directory, a config and a logging compiler."""
+
+    def __init__(self, tmp: Path) -> None:
+        self.state = tmp / "state"
+        self.state.mkdir()
+        self.config = tmp / "supervisor.yaml"
+        shutil.copyfile(SROBOT, self.config)
+        self.log = tmp / "cc.log"
+        self.cc = _wrapper(tmp / "cc", self.log)
+
+    def check(self, *extra_env: tuple[str, str]) -> subprocess.CompletedProcess[str]:
+        env = {k: v for k, v in os.environ.items() if k != "SAFETY_SUPERVISOR_DEBUG"}
+        env.update(STATE_DIRECTORY=str(self.state), CC=str(self.cc), **dict(extra_env))
+        r = subprocess.run(
+            [sys.executable, "-m", "supervisor", "check", str(self.config)],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
+        )
+        assert "Traceback" not in r.stderr, r.stderr
+        return r
+
+    def compiles(self) -> int:
+        """Compiler runs since the last call."""
+        n = len(self.log.read_text().splitlines()) if self.log.exists() else 0
+        self.log.unlink(missing_ok=True)
+        return n
+
+    def entries(self) -> list[Path]:
+        return sorted(p for p in (self.state / "cache").iterdir() if p.is_dir())
+
+    def library(self) -> Path:
+        (entry,) = self.entries()
+        name = json.loads((entry / "monitor.json").read_text())["library"]
+        return entry / name
+
+
+@pytest.fixture
+def site(tmp_path: Path) -> Site:
+    s = Site(tmp_path)
+    r = s.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert s.compiles() > 0  # cold: built
+    return s
+
+
+def test_a_second_check_compiles_nothing_and_reports_the_stored_findings(site: Site) -> None:
+    (entry,) = site.entries()
+    findings = entry / "findings.json"
+    doc = json.loads(findings.read_text())
+    assert "consistency:" in doc["report"]
+    # Change the stored report (and its digest): the second check must print it,
+    # which it can only do if it took the findings from the cache.
+    doc["report"] = doc["report"].replace("consistency:", "consistency (from the cache):")
+    data = json.dumps(doc).encode()
+    findings.write_bytes(data)
+    (entry / "findings.json.sha256").write_text(hashlib.sha256(data).hexdigest())
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "consistency (from the cache):" in r.stdout
+    assert "monitor compiled and loaded" in r.stdout
+    assert site.compiles() == 0
+    assert site.entries() == [entry]
+
+
+def test_a_changed_config_is_a_miss(site: Site) -> None:
+    with site.config.open("a") as f:
+        f.write("# an edit that changes nothing but the file\n")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert site.compiles() > 0
+    assert len(site.entries()) == 2
+
+
+def test_a_changed_requirement_changes_the_c_and_is_a_miss(site: Site) -> None:
+    text = site.config.read_text()
+    changed = text.replace("classifier=1 xor classifier=2", "classifier=2 xor classifier=1", 1)
+    assert changed != text
+    site.config.write_text(changed)
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert site.compiles() > 0
+    assert len(site.entries()) == 2
+
+
+def test_another_compiler_version_is_a_miss(site: Site, tmp_path: Path) -> None:
+    site.cc = _wrapper(tmp_path / "cc", site.log, version="wrapped cc 2")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert site.compiles() > 0
+    assert len(site.entries()) == 2
+
+
+@pytest.mark.parametrize("part", ["cffi", "python"])
+def test_cffi_and_python_abi_are_in_the_key(
+    part: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # No second cffi or Python on this machine: the key is computed in-process
+    # with the one component swapped, everything else real.
+    from supervisor.analysis_report import open_cache, startup_key
+    from supervisor.pipeline import project_for
+
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
+    project = project_for(SROBOT)
+    _, before = startup_key(project, None, open_cache())
+    if part == "cffi":
+        from importlib import metadata
+
+        real = metadata.version
+        monkeypatch.setattr(
+            metadata, "version", lambda name: "0.0-other" if name == "cffi" else real(name)
+        )
+    else:
+        monkeypatch.setattr(sys.implementation, "cache_tag", "cpython-0", raising=False)
+    _, after = startup_key(project, None, open_cache())
+    assert before is not None and after is not None and before != after
+
+
+def test_a_damaged_library_is_rebuilt(site: Site) -> None:
+    lib = site.library()
+    lib.write_bytes(lib.read_bytes()[:100])  # a truncated file, digest unchanged
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "damaged; rebuilt" in r.stderr
+    assert site.compiles() > 0
+    r = site.check()  # and the rebuilt entry is good again
+    assert r.returncode == 0 and site.compiles() == 0, r.stderr
+    assert "damaged" not in r.stderr
+
+
+def test_a_library_without_its_digest_is_not_taken_for_good(site: Site) -> None:
+    # What a start killed between the library and its digest leaves.
+    lib = site.library()
+    lib.with_name(lib.name + ".sha256").unlink()
+    lib.write_bytes(b"half a library")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert site.compiles() > 0
+
+
+def test_damaged_findings_are_analysed_again(site: Site) -> None:
+    (entry,) = site.entries()
+    (entry / "findings.json").write_text('{"report": ')
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "damaged; rebuilt" in r.stderr
+    assert "consistency:" in r.stdout
+    assert json.loads((entry / "findings.json").read_text())["report"]
+
+
+def test_a_library_others_can_write_is_refused(site: Site) -> None:
+    lib = site.library()
+    lib.chmod(0o620)
+    before = lib.read_bytes()
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "is not this user's own; not used" in r.stderr
+    assert site.compiles() > 0
+    assert lib.read_bytes() == before  # refused, not taken over
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="giving a file to another user needs root")
+def test_an_entry_of_another_user_is_refused(site: Site) -> None:
+    (entry,) = site.entries()
+    os.chown(entry, 65534, 65534)
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "not this user's own" in r.stderr
+    assert site.compiles() > 0
+
+
+def test_a_cache_directory_others_can_write_is_not_used(site: Site) -> None:
+    cache = site.state / "cache"
+    cache.chmod(cache.stat().st_mode | stat.S_IWOTH)
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "not used" in r.stderr
+    assert site.compiles() > 0
+
+
+def test_without_a_state_directory_nothing_is_cached(tmp_path: Path) -> None:
+    s = Site(tmp_path)
+    env = {k: v for k, v in os.environ.items() if k not in ("STATE_DIRECTORY",)}
+    env["CC"] = str(s.cc)
+    r = subprocess.run(
+        [sys.executable, "-m", "supervisor", "check", str(s.config)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert s.compiles() > 0
+    assert not (s.state / "cache").exists()
+
+
+def test_the_parsers_tables_are_kept_and_damaged_ones_rebuilt(site: Site) -> None:
+    tables = sorted((site.state / "cache").glob("lark-*.tables"))
+    assert len(tables) == 2  # FRETISH and FRET's formula text
+    for t in tables:
+        t.write_bytes(t.read_bytes()[:100])
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stderr.strip() == "", r.stderr  # lark checks them and builds them again
+    assert all(t.stat().st_size > 1000 for t in tables)
+
+
+def test_parser_tables_others_can_write_are_not_loaded(site: Site) -> None:
+    (table, *_) = sorted((site.state / "cache").glob("lark-*.tables"))
+    table.write_bytes(b"not lark's")
+    table.chmod(0o666)
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert table.read_bytes() == b"not lark's"  # neither read nor replaced
