@@ -37,7 +37,6 @@ import shlex
 import shutil
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -47,6 +46,7 @@ from urllib.parse import unquote, urlparse
 import supervisor
 from monitors.errors import UserError
 from supervisor import data
+from supervisor.files import write_atomic
 from supervisor.names import OPERATORS_GROUP
 from supervisor.tools.ui.token import TOKEN_FILE, TOKEN_MODE, new_token
 
@@ -566,21 +566,6 @@ def format_next(plan: Plan) -> str:
     return "\n".join(["next:"] + [f" {i}. {t}" for i, t in enumerate(plan.next_steps, 1)])
 
 
-def _write_file(path: Path, content: bytes, mode: int) -> None:
-    """Atomically: a reader never sees half a unit file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(content)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run_step(step: Step) -> None:
     """Do one step; raises UserError naming it when it fails."""
     try:
@@ -592,7 +577,7 @@ def run_step(step: Step) -> None:
             step.mkdir.mkdir(mode=step.mode, exist_ok=True)
             os.chmod(step.mkdir, step.mode)  # mkdir's mode is masked by the umask
         elif step.write is not None:
-            _write_file(step.write, step.content, step.mode)
+            write_atomic(step.write, step.content, step.mode)
     except OSError as e:
         where = e.filename or (step.argv[0] if step.argv else "")
         raise UserError(f"{step.description}: {where}: {e.strerror or e}", file=PROG) from e
