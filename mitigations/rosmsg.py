@@ -96,16 +96,6 @@ def field_type(msg_class: type, path: str) -> str:
     raise AssertionError("unreachable")
 
 
-def check_field(msg_name: str, path: str, var_type: str) -> str:
-    """Validate that msg_name.path exists and can feed a variable of var_type."""
-    leaf = field_type(message_class(msg_name), path)
-    if leaf not in COMPATIBLE[var_type]:
-        raise UserError(
-            f"field '{path}' of {msg_name} is {leaf}, which cannot feed a {var_type} variable"
-        )
-    return leaf
-
-
 def get_field(msg: Any, path: str) -> Any:
     for part in path.split("."):
         msg = getattr(msg, part)

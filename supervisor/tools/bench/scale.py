@@ -42,7 +42,6 @@ from supervisor.tools.bench.session import Session
 from supervisor.tools.bench.throughput import daemon_summary, throughput
 
 SEED = 1
-RATE = 10_000.0
 CHECK_TIMEOUT_S = 1800.0
 READY_TIMEOUT_S = 900.0  # the daemon builds its monitor before READY=1
 ANALYSIS_PREFIXES = ("analysis:", "  consistency:", "  realizability:", "  findings:", "  skipped:")
