@@ -336,8 +336,7 @@ def _systemd_running() -> bool:
     return Path("/run/systemd/system").is_dir()  # sd_booted(3)
 
 
-def make_plan(args: argparse.Namespace) -> Plan:
-    """Every step of the installation, from the arguments and what exists now."""
+def _checked_user_and_prefix(args: argparse.Namespace) -> tuple[str, Path]:
     user: str = args.user
     if not re.fullmatch(r"[a-z_][a-z0-9_-]{0,31}", user):
         raise UserError(f"--user {user!r} is not a valid user name", file=PROG)
@@ -351,6 +350,12 @@ def make_plan(args: argparse.Namespace) -> Plan:
             file=PROG,
             hint=f"use e.g. {DEFAULT_PREFIX}",
         )
+    return user, prefix
+
+
+def make_plan(args: argparse.Namespace) -> Plan:
+    """Every step of the installation, from the arguments and what exists now."""
+    user, prefix = _checked_user_and_prefix(args)
     source = _source(args)
     config = Path(args.config) if args.config else _shipped(source, data.example(DEFAULT_CONFIG))
     try:
@@ -358,21 +363,41 @@ def make_plan(args: argparse.Namespace) -> Plan:
     except OSError as e:
         raise UserError(f"cannot read config: {e.strerror or e}", file=str(config)) from e
     python, python_note = choose_python(args.python)
-    unit_src, unit_text = _template(source, data.systemd_unit())
-    ui_src, ui_text = _template(source, data.systemd_unit().with_name(UI_UNIT_NAME))
-    rot_src, rot_text = _template(source, data.logrotate_snippet())
+    # unit, UI unit, logrotate snippet: read before anything is planned, so a broken
+    # installation is said first
+    templates = (
+        _template(source, data.systemd_unit()),
+        _template(source, data.systemd_unit().with_name(UI_UNIT_NAME)),
+        _template(source, data.logrotate_snippet()),
+    )
     venv = prefix / "venv"
-    exe = venv / "bin" / NAME
-    unit_dir, rot_dir = Path(args.unit_dir), Path(args.logrotate_dir)
     notes = [python_note] if python_note else []
+    extras, secrets = _config_extras(config)
+    steps = [
+        *_account_steps(user),
+        *_config_steps(config, config_bytes, extras),
+        *_venv_steps(python, venv, source),
+        *_unit_steps(templates, args, prefix, user),
+    ]
+    next_steps = _next_steps(venv / "bin" / NAME, user, secrets)
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        notes.append("no C compiler found: the daemon compiles its monitor at start; install gcc")
+    return Plan(steps, next_steps, notes)
 
-    steps: list[Step] = []
+
+def _account_steps(user: str) -> list[Step]:
+    """The service user and the operators' group."""
     try:
         pwd.getpwnam(user)
         user_skip: str | None = f"user {user} exists"
     except KeyError:
         user_skip = None
-    steps.append(
+    try:
+        grp.getgrnam(OPERATORS_GROUP)
+        group_skip: str | None = f"group {OPERATORS_GROUP} exists"
+    except KeyError:
+        group_skip = None
+    return [
         Step(
             f"create the system user {user}",
             argv=(
@@ -389,38 +414,32 @@ def make_plan(args: argparse.Namespace) -> Plan:
                 user,
             ),
             skip=user_skip,
-        )
-    )
-    try:
-        grp.getgrnam(OPERATORS_GROUP)
-        group_skip: str | None = f"group {OPERATORS_GROUP} exists"
-    except KeyError:
-        group_skip = None
-    steps.append(
+        ),
         Step(
             f"create the group {OPERATORS_GROUP}: its members may `safety-supervisor reset`",
             argv=("groupadd", "--system", OPERATORS_GROUP),
             skip=group_skip,
-        )
-    )
-    steps.append(
+        ),
+    ]
+
+
+def _config_steps(config: Path, config_bytes: bytes, extras: list[Path]) -> list[Step]:
+    """The config, the files it imports and the environment file; none overwritten."""
+    steps = [
         Step(
             f"create {CONFIG_DIR}",
             mkdir=CONFIG_DIR,
             mode=0o755,
             skip="exists" if CONFIG_DIR.is_dir() else None,
-        )
-    )
-    steps.append(
+        ),
         Step(
             "install the config",
             write=INSTALLED_CONFIG,
             content=config_bytes,
             origin=str(config),
             skip="exists, not overwritten" if INSTALLED_CONFIG.exists() else None,
-        )
-    )
-    extras, secrets = _config_extras(config)
+        ),
+    ]
     for rel in extras:
         src = config.parent / rel
         dst = CONFIG_DIR / rel
@@ -447,40 +466,45 @@ def make_plan(args: argparse.Namespace) -> Plan:
             skip="exists, not overwritten" if ENVIRONMENT_FILE.exists() else None,
         )
     )
-    steps.append(
+    return steps
+
+
+def _venv_steps(python: Path, venv: Path, source: Source) -> list[Step]:
+    return [
         Step(
             f"create the venv {venv}",
             argv=(str(python), "-m", "venv", str(venv)),
             skip="exists" if (venv / "bin" / "python").exists() else None,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install safety-supervisor into the venv from {source.what}",
             argv=(str(venv / "bin" / "python"), "-m", "pip", "install", "--upgrade", source.pip),
-        )
-    )
-    unit = render_unit(unit_text, prefix=str(prefix), user=user).encode()
-    steps.append(
+        ),
+    ]
+
+
+def _unit_steps(
+    templates: tuple[tuple[Path, str], ...], args: argparse.Namespace, prefix: Path, user: str
+) -> list[Step]:
+    """The two units, the operator page's token, the logrotate snippet, daemon-reload."""
+    (unit_src, unit_text), (ui_src, ui_text), (rot_src, rot_text) = templates
+    unit_dir, rot_dir = Path(args.unit_dir), Path(args.logrotate_dir)
+    # The page's resets need this token; the UI (the service user) reads it, root
+    # hands it to operators.  Never overwritten: operators may have it already.
+    token_skip = "exists, not overwritten" if TOKEN_FILE.exists() else None
+    return [
         Step(
-            f"install the unit (venv {venv}, user {user})",
+            f"install the unit (venv {prefix / 'venv'}, user {user})",
             write=unit_dir / UNIT_NAME,
-            content=unit,
+            content=render_unit(unit_text, prefix=str(prefix), user=user).encode(),
             origin=str(unit_src),
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install the operator page's unit (safety-supervisor ui, user {user})",
             write=unit_dir / UI_UNIT_NAME,
             content=render_unit(ui_text, prefix=str(prefix), user=user).encode(),
             origin=str(ui_src),
-        )
-    )
-    # The page's resets need this token; the UI (the service user) reads it, root
-    # hands it to operators.  Never overwritten: operators may have it already.
-    token_skip = "exists, not overwritten" if TOKEN_FILE.exists() else None
-    steps.append(
+        ),
         Step(
             "create the operator page's token",
             write=TOKEN_FILE,
@@ -488,63 +512,47 @@ def make_plan(args: argparse.Namespace) -> Plan:
             mode=TOKEN_MODE,
             origin="256 random bits",
             skip=token_skip,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"let the service user {user} read the token",
             argv=("chown", f"root:{user}", str(TOKEN_FILE)),
             skip=token_skip,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install the logrotate snippet (user {user})",
             write=rot_dir / NAME,
             content=render_logrotate(rot_text, user=user).encode(),
             origin=str(rot_src),
-        )
-    )
-    steps.append(
+        ),
         Step(
             "make systemd read the unit",
             argv=("systemctl", "daemon-reload"),
             skip=None if _systemd_running() else "systemd is not running on this machine",
-        )
-    )
+        ),
+    ]
 
+
+def _next_steps(exe: Path, user: str, secrets: list[str]) -> list[str]:
+    """What the administrator does after the installation."""
     check = f"{exe} check {INSTALLED_CONFIG}"
-    next_steps = [
+    ssh_files = ", ".join(secrets) if secrets else f"{CONFIG_DIR}/id_ed25519, known_hosts"
+    return [
         f"Edit {INSTALLED_CONFIG}: topics, requirements, mitigations; then test it: {check}",
         f"Set the robot's ROS_DOMAIN_ID (and ROS_AUTOMATIC_DISCOVERY_RANGE) in {ENVIRONMENT_FILE}.",
-    ]
-    ssh_files = ", ".join(secrets) if secrets else f"{CONFIG_DIR}/id_ed25519, known_hosts"
-    next_steps.append(
         f"For ssh mitigations, install the private key and known_hosts ({ssh_files}) "
         f"readable by the service only: chown root:{user} FILE; chmod 0640 FILE "
-        "(known_hosts: ssh-keyscan HOST, then compare the fingerprint with the host's)."
-    )
-    next_steps.append(
+        "(known_hosts: ssh-keyscan HOST, then compare the fingerprint with the host's).",
         f"Start it now and at boot: systemctl enable --now {UNIT_NAME}; watch it: "
-        f"systemctl status {UNIT_NAME}; journalctl -u {UNIT_NAME} -f"
-    )
-    next_steps.append(
+        f"systemctl status {UNIT_NAME}; journalctl -u {UNIT_NAME} -f",
         f"Let operators reset latched mitigations: usermod -aG {OPERATORS_GROUP} USER "
-        "(then `safety-supervisor reset` as that user, after logging in again)."
-    )
-    next_steps.append(
+        "(then `safety-supervisor reset` as that user, after logging in again).",
         f"The operator page (optional): systemctl enable --now {UI_UNIT_NAME}; it listens on "
         "127.0.0.1:8321 (from elsewhere: ssh -L 8321:127.0.0.1:8321 ROBOT); its resets need "
-        f"the token in {TOKEN_FILE} (sudo cat it once per operator)."
-    )
-    next_steps.append(
+        f"the token in {TOKEN_FILE} (sudo cat it once per operator).",
         f"After editing the config: systemctl reload {UNIT_NAME} (returns once the new "
         "config is in force; a config that fails check is refused with its reason and the "
-        "running monitor stays in place)."
-    )
-    if not (shutil.which("cc") or shutil.which("gcc")):
-        notes.append("no C compiler found: the daemon compiles its monitor at start; install gcc")
-    return Plan(steps, next_steps, notes)
+        "running monitor stays in place).",
+    ]
 
 
 # ------------------------------------------------------------------ output / execution
