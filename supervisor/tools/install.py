@@ -38,7 +38,6 @@ import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
@@ -239,6 +238,8 @@ def _installed_source() -> Source:
     """What pip installed the running package from (PEP 610's direct_url.json):
     the service gets the same build.  Without that record it came from an index,
     so the index gives the same version again."""
+    from importlib import metadata  # only here: the CLI imports this module for its parser
+
     try:
         dist = metadata.distribution(NAME)
     except metadata.PackageNotFoundError:

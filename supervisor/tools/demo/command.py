@@ -20,7 +20,7 @@ import signal
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.tools.children import ros_env
 from supervisor.tools.demo.config import (
@@ -30,8 +30,10 @@ from supervisor.tools.demo.config import (
     requirement_ids,
 )
 from supervisor.tools.demo.errors import DemoError
-from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
 from supervisor.tools.demo.state import DemoState
+
+if TYPE_CHECKING:
+    from supervisor.tools.demo.session import Run
 
 DEFAULT_FAULT_RATE = 0.01  # the thesis's 1 % (sec. 5.3.2)
 DEFAULT_RATE_HZ = 10.0
@@ -120,6 +122,10 @@ def add_parser(sub: Any) -> None:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    # The session (processes, the log's reader) only when a demo runs: the CLI
+    # imports this module for its parser (docs/BENCHMARKS.md, "Start-up").
+    from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
+
     example = EXAMPLES[args.example]
     for option in ROBOT_OPTIONS:  # the other example's robot has no such knob
         if getattr(args, option) is not None and option not in example.options:
