@@ -120,3 +120,17 @@ def test_one_atomic_write() -> None:
         and node.func.value.id == "os"
     ]
     assert not found, found
+
+
+def test_one_ros_type_lookup() -> None:
+    # mitigations/rosmsg.py writes type names for the actions, the inputs and replay;
+    # the recorder's and replay's type resolution uses it rather than a copy.
+    from mitigations import rosmsg
+    from supervisor.inputs import rostypes
+    from supervisor.tools.replay import sources, storage
+
+    assert rostypes.normalise_type is rosmsg.normalise_type
+    assert storage.normalise_type is rosmsg.normalise_type
+    assert sources.package_hint is rosmsg.package_hint
+    assert rosmsg.normalise_type("std_msgs::msg::Int64") == "std_msgs/msg/Int64"
+    assert rosmsg.message_class("std_msgs/Int64") is rosmsg.message_class("std_msgs/msg/Int64")
