@@ -19,6 +19,7 @@ import shutil
 import signal
 import sys
 import tempfile
+from collections.abc import Container
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -121,21 +122,29 @@ def add_parser(sub: Any) -> None:
     )
 
 
+def _robot_options(args: argparse.Namespace, allowed: Container[str]) -> bool:
+    """The simulated robot's options: only those of the example's robot (said
+    otherwise), the others at their defaults."""
+    for option in ROBOT_OPTIONS:  # the other example's robot has no such knob
+        if getattr(args, option) is not None and option not in allowed:
+            flag = "--" + option.replace("_", "-")
+            _err(f"{flag} is not an option of --example {args.example}")
+            return False
+    if args.fault_rate is None:
+        args.fault_rate = DEFAULT_FAULT_RATE
+    if args.rate_hz is None:
+        args.rate_hz = DEFAULT_RATE_HZ
+    return True
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     # The session (processes, the log's reader) only when a demo runs: the CLI
     # imports this module for its parser (docs/BENCHMARKS.md, "Start-up").
     from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
 
     example = EXAMPLES[args.example]
-    for option in ROBOT_OPTIONS:  # the other example's robot has no such knob
-        if getattr(args, option) is not None and option not in example.options:
-            flag = "--" + option.replace("_", "-")
-            _err(f"{flag} is not an option of --example {args.example}")
-            return 2
-    if args.fault_rate is None:
-        args.fault_rate = DEFAULT_FAULT_RATE
-    if args.rate_hz is None:
-        args.rate_hz = DEFAULT_RATE_HZ
+    if not _robot_options(args, example.options):
+        return 2
     shipped = example.config
     if not shipped.exists():
         _err(f"{shipped} not found (an incomplete installation: reinstall safety-supervisor)")
