@@ -51,7 +51,7 @@ class Engine:
         self._queues: dict[str, queue.SimpleQueue[Request | None]] = {}
         self._threads: list[threading.Thread] = []
         for name, action in self.actions.items():
-            if getattr(action, "inline", False):
+            if action.inline:
                 continue  # run by submit() in the caller's thread: no worker needed
             q: queue.SimpleQueue[Request | None] = queue.SimpleQueue()
             self._queues[name] = q
@@ -74,7 +74,7 @@ class Engine:
                     latency_ms=0.0,
                     stage=request.stage,
                 )
-            elif getattr(action, "inline", False):
+            elif action.inline:
                 # A publish takes microseconds: done here, right after the violation
                 # record is written (and fsynced, under before_action), instead of
                 # paying a thread handoff before the halt.

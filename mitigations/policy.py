@@ -21,7 +21,7 @@ Vocabulary:
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -234,10 +234,3 @@ class RequirementPolicy:
         self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
         self.reset_due_ns = None
         return True, "latch released" if was else "reset"
-
-
-def policies_for(
-    configs: Sequence[tuple[PolicyConfig, Sequence[str], Sequence[str]]],
-) -> list[RequirementPolicy]:
-    """One policy per requirement: (config, on_violation, repeatable actions)."""
-    return [RequirementPolicy(c, tuple(on), tuple(rep)) for c, on, rep in configs]

@@ -1,8 +1,12 @@
-"""ROS 2 message types by name, and dotted field paths into them.
+"""ROS 2 message types by name, and dotted field paths into them: the one type
+lookup of the actions, the inputs (``supervisor/inputs/``, whose ``rostypes.py``
+resolves a recording's types with the names written as here) and the tools.
 
 Used by ``check`` (an unknown type or field is a config error, not a run-time
 crash) and by the node (to read a field and to build a message from a mapping).
-Only rosidl's generated Python classes are needed, so this imports no rclpy.
+Only rosidl's generated Python classes are needed, so this imports no rclpy.  It
+lives in ``mitigations`` because the publish action needs it and a package may use
+only those below it (docs/ARCHITECTURE.md).
 """
 
 from __future__ import annotations
@@ -34,11 +38,28 @@ COMPATIBLE = {
 }
 
 
-def message_class(name: str) -> type:
-    """'std_msgs/msg/Int64' (also 'std_msgs/Int64', 'std_msgs::msg::Int64') -> class."""
+def normalise_type(name: str) -> str:
+    """'std_msgs/Int64', 'std_msgs::msg::Int64' -> 'std_msgs/msg/Int64'."""
     parts = [p for p in name.replace("::", "/").split("/") if p]
     if len(parts) == 2:
         parts = [parts[0], "msg", parts[1]]
+    return "/".join(parts)
+
+
+def debian_package(pkg: str) -> str:
+    """The Jazzy package that installs ROS package ``pkg`` ('std_msgs' -> ros-jazzy-std-msgs)."""
+    return f"ros-jazzy-{pkg.replace('_', '-')}"
+
+
+def package_hint(name: str) -> str:
+    """Which package would provide type ``name`` ('test_msgs/srv/X' -> ros-jazzy-test-msgs)."""
+    pkg = name.split("/", 1)[0]
+    return f"install {debian_package(pkg)} (the package {pkg})"
+
+
+def message_class(name: str) -> type:
+    """'std_msgs/msg/Int64' (also 'std_msgs/Int64', 'std_msgs::msg::Int64') -> class."""
+    parts = normalise_type(name).split("/")
     if len(parts) != 3 or parts[1] not in ("msg", "srv", "action"):
         raise UserError(
             f"'{name}' is not a ROS 2 message type", hint="write it as package/msg/Name"
@@ -49,7 +70,7 @@ def message_class(name: str) -> type:
     except ImportError:
         raise UserError(
             f"ROS 2 package '{pkg}' is not installed (message type '{name}')",
-            hint=f"install ros-jazzy-{pkg.replace('_', '-')}",
+            hint=f"install {debian_package(pkg)}",
         ) from None
     klass = getattr(module, cls, None)
     if klass is None or not hasattr(klass, "get_fields_and_field_types"):
@@ -73,16 +94,6 @@ def field_type(msg_class: type, path: str) -> str:
             raise UserError(f"field '{'.'.join(parts[: i + 1])}' is {t}, not a message with fields")
         klass = message_class(t)
     raise AssertionError("unreachable")
-
-
-def check_field(msg_name: str, path: str, var_type: str) -> str:
-    """Validate that msg_name.path exists and can feed a variable of var_type."""
-    leaf = field_type(message_class(msg_name), path)
-    if leaf not in COMPATIBLE[var_type]:
-        raise UserError(
-            f"field '{path}' of {msg_name} is {leaf}, which cannot feed a {var_type} variable"
-        )
-    return leaf
 
 
 def get_field(msg: Any, path: str) -> Any:

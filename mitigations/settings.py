@@ -4,13 +4,17 @@ The config loader walks the YAML and hands each mitigation's mapping to
 :func:`parse_mitigation`; the actions receive the typed settings it returns and
 trust them.  A bad setting raises :class:`SettingsError` naming the key of the
 mitigation's mapping it is about, so the loader can point at its FILE:LINE.
-The policy dataclasses live here too, since :mod:`mitigations.policy` runs them;
-their validation needs the config's variables and mitigations, so it is the
-loader's (``supervisor.config``).
+A requirement's ``policy:`` is here too: :func:`parse_policy` checks it against
+the names of the config's mitigations and the types of its variables, which the
+loader passes in, and :mod:`mitigations.policy` runs the :class:`PolicyConfig`
+it returns.
 """
 
 from __future__ import annotations
 
+import difflib
+import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -266,7 +270,8 @@ POLICY_KEYS = {
     "confirm",
     "repeat_ms",
 }
-RESET_MODES = ("never", "after_mitigation", "after_ms")
+# How ``reset:`` is written: one of these words, or ``{after_ms: N}``.
+RESET_WORDS = ("never", "after_mitigation")
 
 
 @dataclass(frozen=True)
@@ -292,8 +297,197 @@ class PolicyConfig:
     debounce_ms: float = 0.0
     cooldown_ms: float = 0.0
     latch: bool = False
-    reset: str = "never"  # one of RESET_MODES
+    reset: str = "never"  # one of RESET_WORDS, or "after_ms"
     reset_after_ms: float | None = None
     escalate: Escalation | None = None
     confirm: Confirm | None = None
     repeat_ms: float = 1000.0  # latch: re-publish period
+
+
+# The longest duration of a policy, in ms: the config's bound on every duration.
+MAX_MS = MAX_SECONDS * 1000
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+
+
+def parse_policy(
+    requirement: str,
+    pol: Mapping[str, Any],
+    *,
+    mitigations: Mapping[str, object],
+    variables: Mapping[str, str | None],
+) -> PolicyConfig:
+    """A requirement's ``policy:`` mapping -> its PolicyConfig (validated).
+
+    ``mitigations`` are the config's mitigations by name (escalation names them);
+    ``variables`` maps each variable to its monitor type, None for a define
+    (confirmation reads a topic variable). A bad setting raises SettingsError
+    whose ``key`` is the policy's key and, for a key inside a nested mapping
+    (``reset``, ``escalate``, ``confirm``), whose ``setting`` is that key.
+    """
+    what = f"policy of '{requirement}'"
+    out: dict[str, Any] = {}
+    if "debounce_steps" in pol:
+        v = pol["debounce_steps"]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise SettingsError(
+                f"{what}: debounce_steps must be a whole number >= 1", "debounce_steps"
+            )
+        out["debounce_steps"] = v
+    for key in ("debounce_ms", "cooldown_ms"):
+        if key in pol:
+            out[key] = _duration(pol, key, what, positive=False)
+    if "repeat_ms" in pol:
+        out["repeat_ms"] = _duration(pol, "repeat_ms", what)
+    if "latch" in pol:
+        if not isinstance(pol["latch"], bool):
+            raise SettingsError(f"{what}: latch must be true or false", "latch")
+        out["latch"] = pol["latch"]
+    if "reset" in pol:
+        out.update(_reset(pol["reset"], what))
+    if out.get("latch"):
+        if out.get("reset") == "never":
+            raise SettingsError(
+                f"{what}: latch with reset: never cannot be released",
+                "reset",
+                hint="a latched requirement is judged afresh after its mitigation so an "
+                "operator reset can see that it holds again; drop 'reset' or use "
+                "after_mitigation",
+            )
+        out.setdefault("reset", "after_mitigation")
+    if "escalate" in pol:
+        out["escalate"] = _escalation(pol["escalate"], what, mitigations)
+    if "confirm" in pol:
+        out["confirm"] = _confirm(pol["confirm"], what, variables)
+    return PolicyConfig(**out)
+
+
+def _reset(v: Any, what: str) -> dict[str, Any]:
+    if isinstance(v, dict) and set(v) == {"after_ms"}:
+        after = _duration(v, "after_ms", f"{what}.reset", key="reset")
+        return {"reset": "after_ms", "reset_after_ms": after}
+    if v in RESET_WORDS:
+        return {"reset": v}
+    raise SettingsError(
+        f"{what}: reset must be never, after_mitigation or {{after_ms: N}}, got '{v}'", "reset"
+    )
+
+
+def _escalation(esc: Any, what: str, mitigations: Mapping[str, object]) -> Escalation:
+    if not isinstance(esc, dict) or set(esc) != {"after_ms", "actions"}:
+        raise SettingsError(
+            f"{what}: escalate needs exactly after_ms and actions",
+            "escalate",
+            hint="e.g. escalate: {after_ms: 500, actions: [power_off]}",
+        )
+    actions = esc["actions"]
+    if isinstance(actions, str):
+        actions = [actions]
+    elif not isinstance(actions, list) or not all(isinstance(x, str) for x in actions):
+        raise SettingsError(
+            "'actions' must be a list of mitigation names", "escalate", setting="actions"
+        )
+    for name in actions:
+        if name not in mitigations:
+            raise SettingsError(
+                f"{what}: escalate names undefined mitigation '{name}'",
+                "escalate",
+                hint=_suggest(name, mitigations),
+            )
+    # An empty after_ms (``after_ms:``) escalates at once, as 0 does.
+    after = (
+        0.0
+        if esc["after_ms"] is None
+        else _duration(esc, "after_ms", f"{what}.escalate", positive=False, key="escalate")
+    )
+    return Escalation(float(after), tuple(str(a) for a in actions))
+
+
+def _confirm(c: Any, what: str, variables: Mapping[str, str | None]) -> Confirm:
+    if not isinstance(c, dict) or set(c) != {"variable", "equals", "within_ms"}:
+        raise SettingsError(
+            f"{what}: confirm needs exactly variable, equals and within_ms",
+            "confirm",
+            hint="e.g. confirm: {variable: halt, equals: true, within_ms: 200}",
+        )
+    name = str(c["variable"])
+    vtype = variables.get(name)
+    if vtype is None:
+        raise SettingsError(
+            f"{what}: confirm variable '{name}' is not a topic variable",
+            "confirm",
+            hint=_suggest(name, variables),
+        )
+    equals = _typed_value(c["equals"], vtype, name)
+    within = _duration(c, "within_ms", f"{what}.confirm", key="confirm")
+    return Confirm(name, equals, float(within))
+
+
+def _suggest(name: str, known: Mapping[str, object]) -> str | None:
+    close = difflib.get_close_matches(name, list(known), n=1)
+    return f"did you mean '{close[0]}'?" if close else None
+
+
+def _shown(v: Any) -> str:
+    """A value as an error shows it: long numbers and texts cut short."""
+    text = str(v) if not isinstance(v, int) or abs(v) < 10**30 else f"{str(v)[:20]}..."
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _finite(v: Any, what: str, key: str | None, setting: str | None) -> float:
+    """``v`` as a finite float: true/false, text that is no number, nan/inf and
+    integers beyond a double are errors."""
+    x = math.nan
+    if not isinstance(v, bool):
+        try:
+            x = float(v)
+        except (TypeError, ValueError, OverflowError):
+            raise SettingsError(
+                f"{what} must be a number, got '{_shown(v)}'", key, setting=setting
+            ) from None
+    if not math.isfinite(x):
+        raise SettingsError(
+            f"{what} must be a finite number, got '{_shown(v)}'", key, setting=setting
+        )
+    return x
+
+
+def _duration(
+    d: Mapping[str, Any], name: str, what: str, *, positive: bool = True, key: str | None = None
+) -> float:
+    """``d[name]``, a duration in ms: finite, never negative, at most MAX_MS and
+    positive unless told otherwise. ``key`` is the policy's key when ``d`` is a
+    mapping nested under it."""
+    v = d[name]
+    setting = name if key is not None else None
+    key = key or name
+    x = _finite(v, f"{what}.{name}", key, setting)
+    if positive and x <= 0:
+        raise SettingsError(f"{what}.{name} must be positive", key, setting=setting)
+    if x < 0:
+        raise SettingsError(f"{what}.{name} must not be negative", key, setting=setting)
+    if x > MAX_MS:
+        raise SettingsError(
+            f"{what}.{name} must be at most {MAX_MS:g}, got {_shown(v)}",
+            key,
+            setting=setting,
+            hint="durations are in milliseconds" if name.endswith("_ms") else None,
+        )
+    return x
+
+
+def _typed_value(v: Any, vtype: str, name: str) -> Any:
+    """Confirmation's ``equals`` as a value of the variable's monitor type."""
+    s = _shown(v).strip()
+    if vtype == "bool":
+        if s.lower() in ("true", "1"):
+            return True
+        if s.lower() in ("false", "0"):
+            return False
+    elif vtype == "int64":
+        if re.fullmatch(r"-?\d{1,19}", s) and INT64_MIN <= int(s) <= INT64_MAX:
+            return int(s)
+    else:
+        return _finite(v, f"variable '{name}': equals", "confirm", "equals")
+    raise SettingsError(
+        f"variable '{name}': equals '{_shown(v)}' is not a {vtype}", "confirm", setting="equals"
+    )

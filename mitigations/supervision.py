@@ -55,7 +55,6 @@ class Supervision:
         self.policies = list(policies)
         self.sink = sink
         self.active: set[int] = set()  # requirements whose policy has live state
-        self.reports = 0
 
     def after_step(self, result: Step | None) -> None:
         if result is None or not (result.violated or self.active):
@@ -108,7 +107,6 @@ class Supervision:
         for eff in effects:
             if isinstance(eff, Report):
                 assert result is not None
-                self.reports += 1
                 self.sink.report(i, result, eff.policy_state)
             elif isinstance(eff, Act):
                 self.sink.act(i, eff.actions, eff.stage, t_ns)

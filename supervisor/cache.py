@@ -26,6 +26,8 @@ import stat
 import sys
 from pathlib import Path
 
+from supervisor.files import write_atomic
+
 SUBDIR = "cache"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _NAME = re.compile(r"[A-Za-z0-9_.-]{1,200}")
@@ -151,30 +153,11 @@ class Cache:
             if not _ours(path.parent.lstat(), stat.S_IFDIR):
                 _warn(f"{path.parent} is not this user's own; not stored")
                 return None
-            self._write(path, data)
-            self._write(path.with_name(name + ".sha256"), hashlib.sha256(data).hexdigest().encode())
+            write_atomic(path, data)
+            write_atomic(
+                path.with_name(name + ".sha256"), hashlib.sha256(data).hexdigest().encode()
+            )
         except OSError as e:
             _warn(f"{path}: {e.strerror}; not stored")
             return None
         return path
-
-    @staticmethod
-    def _write(path: Path, data: bytes) -> None:
-        """Temporary file, fsync, rename, fsync of the directory: whole or absent."""
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(data)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
-            raise
-        dfd = os.open(path.parent, os.O_RDONLY | os.O_DIRECTORY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)

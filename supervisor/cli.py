@@ -41,7 +41,7 @@ from supervisor.tools.reset import cmd_reset
 from supervisor.tools.ui.command import add_parser as add_ui_parser
 from supervisor.tools.ui.command import cmd_ui
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAIL = 0, 1  # and 2, a usage error, is argparse's own
 
 
 def _out(text: str = "") -> None:

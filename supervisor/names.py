@@ -15,6 +15,8 @@ from pathlib import Path
 
 NODE_NAME = "safety_supervisor"
 VIOLATIONS_TOPIC = "/safety_supervisor/violations"  # std_msgs/String, one JSON record each
+# std_msgs/String, every log record with markers: in the recorder's bags (run --record)
+RECORDS_TOPIC = "/safety_supervisor/records"
 HEARTBEAT_TOPIC = "/safety_supervisor/heartbeat"  # std_msgs/UInt64, from the loop
 RESET_SERVICE = "/safety_supervisor/reset"  # std_srvs/Trigger: opt-in (ros.reset_service)
 # std_msgs/String, JSON: each requirement's state, inputs, health (docs/reference/

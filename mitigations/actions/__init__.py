@@ -54,7 +54,7 @@ def build_action(
 
         return CommandAction(name, s)
     if isinstance(s, LogSettings):
-        from mitigations.actions.log import RecordAction
+        from mitigations.actions.log import LogAction
 
-        return RecordAction(name, s)
+        return LogAction(name, s)
     raise TypeError(f"mitigation '{name}': no action for {type(s).__name__}")

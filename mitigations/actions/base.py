@@ -29,6 +29,9 @@ class Outcome:
 class Action(Protocol):
     name: str  # the mitigation's name in the config (e.g. power_off)
     kind: str  # publish | ssh | command | log
+    # True only for what takes microseconds (a publish): the engine then runs it on
+    # the monitoring loop, right after the violation record, with no thread handoff.
+    inline: bool
 
     def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome: ...
 
@@ -107,6 +110,7 @@ class RetryingAction:
     retries: int
     backoff_s: float
     where: str
+    inline = False  # retries wait: never on the monitoring loop
 
     def run(self, cancel: threading.Event, on_attempt: Callable[[Outcome], None]) -> Outcome:
         return run_with_retries(

@@ -9,8 +9,9 @@ from mitigations.actions.base import Outcome
 from mitigations.settings import LogSettings
 
 
-class RecordAction:
+class LogAction:
     kind = "log"
+    inline = False  # the engine's record of it is all it does; made off the loop like any other
 
     def __init__(self, name: str, settings: LogSettings) -> None:
         self.name = name

@@ -31,7 +31,6 @@ from monitors.errors import UserError
 BOOL_OPS = ("&", "|", "xor", "->", "<->")
 REL_OPS = ("=", "!=", "<", "<=", ">", ">=")
 ARITH_OPS = ("+", "-", "*", "/", "mod", "^")
-UNARY_TEMPORAL = ("Y", "Z", "H", "O")
 # Arithmetic functions and their arities.  abs, min and max keep an int64 type
 # when every argument is int64; the others are C's double functions.
 ARITH_FUNCTIONS: dict[str, int] = {
@@ -47,7 +46,6 @@ FRET_FUNCTION_NAMES = {
     "absReal": "abs", "absInt": "abs", "minReal": "min", "minInt": "min",
     "maxReal": "max", "maxInt": "max",
 }  # fmt: skip
-BINARY_TEMPORAL = ("S", "T")
 # FRET's previous-value functions for numbers (preBool is a formula, see
 # monitors/frontend/parse.py): a number's value at the previous tick, init at the first.
 PRE_FUNCTIONS = {"preInt": "int64", "preReal": "double"}

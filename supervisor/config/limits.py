@@ -66,10 +66,6 @@ class Limits:
         return int(self.monitor_memory_mb * MB)
 
     @property
-    def analysis_memory_bytes(self) -> int:
-        return int(self.analysis_memory_mb * MB)
-
-    @property
     def replay_chunk_bytes(self) -> int:
         return int(self.replay_chunk_mb * MB)
 

@@ -1,17 +1,22 @@
 """The ``requirements:``, ``requirements_from:`` and ``requirement_defaults:`` sections.
 
 Requirement texts are only collected here; the pipeline parses and formalizes
-them.  Each requirement's ``policy:`` is checked here too, since it names the
-config's mitigations and variables (the settings themselves are
-:mod:`mitigations.settings`').
+them.  Each requirement's ``policy:`` is checked by :mod:`mitigations.settings`,
+given the config's mitigations and variables; this module points its errors at
+their lines.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
-from mitigations.settings import POLICY_KEYS, Confirm, Escalation, Mitigation, PolicyConfig
+from mitigations.settings import (
+    POLICY_KEYS,
+    Mitigation,
+    PolicyConfig,
+    SettingsError,
+    parse_policy,
+)
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.config.fields import (
@@ -21,10 +26,8 @@ from supervisor.config.fields import (
     error_at,
     file_names,
     mitigation_names,
-    number,
     relative_to,
     suggest,
-    typed_value,
 )
 from supervisor.config.fret import load_fret_export
 from supervisor.config.imported import control_at, is_c_identifier
@@ -210,94 +213,17 @@ def policy_config(
     variables: dict[str, Variable],
     file: str,
 ) -> PolicyConfig:
+    """``r``'s policy, validated by :func:`mitigations.settings.parse_policy`; an
+    error points at the line of the key it is about."""
     raw = r.policy
     if not raw:
         return PolicyConfig()
     pol = raw if isinstance(raw, LineDict) else as_linedict(raw, None, r.policy_line or r.id_line)
     pol.file = pol.file or r.file
-    what = f"policy of '{r.id}'"
-    out: dict[str, Any] = {}
-    if "debounce_steps" in pol:
-        v = pol["debounce_steps"]
-        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-            raise error_at(
-                f"{what}: debounce_steps must be a whole number >= 1", pol, "debounce_steps"
-            )
-        out["debounce_steps"] = v
-    for key in ("debounce_ms", "cooldown_ms"):
-        if key in pol:
-            out[key] = number(pol, key, what, positive=False)
-            if out[key] < 0:
-                raise error_at(f"{what}: {key} must not be negative", pol, key)
-    if "repeat_ms" in pol:
-        out["repeat_ms"] = number(pol, "repeat_ms", what)
-    if "latch" in pol:
-        if not isinstance(pol["latch"], bool):
-            raise error_at(f"{what}: latch must be true or false", pol, "latch")
-        out["latch"] = pol["latch"]
-    if "reset" in pol:
-        v = pol["reset"]
-        if isinstance(v, dict) and set(v) == {"after_ms"}:
-            out["reset"] = "after_ms"
-            out["reset_after_ms"] = number(as_linedict(v, pol), "after_ms", f"{what}.reset")
-        elif v in ("never", "after_mitigation"):
-            out["reset"] = v
-        else:
-            raise error_at(
-                f"{what}: reset must be never, after_mitigation or {{after_ms: N}}, got '{v}'",
-                pol,
-                "reset",
-            )
-    if out.get("latch"):
-        if out.get("reset") == "never":
-            raise error_at(
-                f"{what}: latch with reset: never cannot be released",
-                pol,
-                "reset",
-                "a latched requirement is judged afresh after its mitigation so an operator "
-                "reset can see that it holds again; drop 'reset' or use after_mitigation",
-            )
-        out.setdefault("reset", "after_mitigation")
-    if "escalate" in pol:
-        esc = as_linedict(pol["escalate"], pol)
-        if not isinstance(pol["escalate"], dict) or set(esc) != {"after_ms", "actions"}:
-            raise error_at(
-                f"{what}: escalate needs exactly after_ms and actions",
-                pol,
-                "escalate",
-                "e.g. escalate: {after_ms: 500, actions: [power_off]}",
-            )
-        actions = mitigation_names(esc["actions"], esc, "actions")
-        for name in actions:
-            if name not in mitigations:
-                raise error_at(
-                    f"{what}: escalate names undefined mitigation '{name}'",
-                    pol,
-                    "escalate",
-                    suggest(name, mitigations),
-                )
-        out["escalate"] = Escalation(
-            float(number(esc, "after_ms", f"{what}.escalate", positive=False) or 0.0),
-            tuple(actions),
-        )
-    if "confirm" in pol:
-        c = as_linedict(pol["confirm"], pol)
-        if not isinstance(pol["confirm"], dict) or set(c) != {"variable", "equals", "within_ms"}:
-            raise error_at(
-                f"{what}: confirm needs exactly variable, equals and within_ms",
-                pol,
-                "confirm",
-                "e.g. confirm: {variable: halt, equals: true, within_ms: 200}",
-            )
-        name = str(c["variable"])
-        var = variables.get(name)
-        if var is None or var.define is not None:
-            raise error_at(
-                f"{what}: confirm variable '{name}' is not a topic variable",
-                pol,
-                "confirm",
-                suggest(name, variables),
-            )
-        equals = typed_value(c["equals"], var.type, c, "equals", name)
-        out["confirm"] = Confirm(name, equals, float(number(c, "within_ms", f"{what}.confirm")))
-    return PolicyConfig(**out)
+    types = {name: (None if v.define is not None else v.type) for name, v in variables.items()}
+    try:
+        return parse_policy(r.id, pol, mitigations=mitigations, variables=types)
+    except SettingsError as e:
+        if e.key is not None and e.setting is not None:
+            raise error_at(e.message, as_linedict(pol[e.key], pol), e.setting, e.hint) from None
+        raise error_at(e.message, pol, e.key, e.hint) from None

@@ -25,7 +25,7 @@ import tempfile
 import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import rclpy
 from rclpy.context import Context
@@ -129,19 +129,99 @@ def open_recorder(cfg: Config, path: str | None, log: ViolationLog) -> Recorder 
     return recorder
 
 
+class _Signals:
+    """SIGTERM/SIGINT stop the daemon, SIGHUP reloads the config, SIGUSR1 reopens the
+    log; one that comes before the node exists is served once it does."""
+
+    def __init__(self, reload_session: Callable[[], Session]) -> None:
+        self.reload_session = reload_session
+        self.stop_requested = threading.Event()
+        self.node: SupervisorNode | None = None
+        self.early: set[int] = set()  # SIGHUP/SIGUSR1 before the node exists
+
+    def install(self) -> None:
+        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1):
+            signal.signal(sig, self.on_signal)
+
+    def on_signal(self, signum: int, _frame: Any) -> None:
+        node = self.node
+        if signum in (signal.SIGHUP, signal.SIGUSR1):
+            if node is None:
+                self.early.add(signum)
+            elif signum == signal.SIGHUP:
+                node.request_reload(self.reload_session)
+            else:
+                node.request_reopen()
+            return
+        self.stop_requested.set()
+        if node is not None:
+            node.stop()
+
+    def attach(self, node: SupervisorNode) -> None:
+        """From now on signals go to ``node``; those that came before, too."""
+        self.node = node
+        if self.stop_requested.is_set():
+            node.stop()
+        if signal.SIGUSR1 in self.early:
+            node.request_reopen()
+        if signal.SIGHUP in self.early:
+            node.request_reload(self.reload_session)
+
+
+def _ros_log_dir(stack: contextlib.ExitStack) -> None:
+    """rclpy writes its own log files; under ProtectSystem=strict only a few places
+    are writable.  A directory made here is removed at exit."""
+    if not os.environ.get("ROS_LOG_DIR"):
+        stack.callback(os.environ.pop, "ROS_LOG_DIR", None)
+        os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or stack.enter_context(
+            tempfile.TemporaryDirectory(prefix="safety-supervisor-ros-log-")
+        )
+
+
+def _open_log(
+    stack: contextlib.ExitStack, session: Session, config: str, log_path: str | None
+) -> ViolationLog:
+    """The violation log, open until ``stack`` closes."""
+    cfg = session.config
+    path = log_path or cfg.log_path
+    if not path:
+        raise UserError(
+            "no violation log configured", file=config, hint="set logging.violations or --log"
+        )
+    _ros_log_dir(stack)
+    return stack.enter_context(
+        ViolationLog(
+            path,
+            cfg.component,
+            cfg.sha256,
+            retry_buffer=cfg.log_retry_buffer,
+            durability=cfg.log_durability,
+        )
+    )
+
+
+def _log_start(log: ViolationLog, config: str, session: Session, skipped: list[str]) -> None:
+    """The start record, and what the validation could not judge or warned of."""
+    log.supervisor("start", config=str(config), pid=os.getpid())
+    for why in skipped:  # run validates as check does; say what it could not judge
+        log.supervisor("analysis_skipped", why=why)
+    for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
+        print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
+        log.supervisor("check_warning", detail=w)
+
+
 def run_daemon(
     config: str,
     log_path: str | None = None,
     build_dir: str | None = None,
     record: str | None = None,
-) -> int:
-    """Raises UserError for a bad config at start (exit 1 with FILE:LINE)."""
+) -> NoReturn:
+    """Raises UserError for a bad config at start (exit 1 with FILE:LINE); otherwise
+    ends the process once stopped (see :func:`_exit`)."""
     # A crash in native code (rclpy, the DDS) leaves every Python thread's stack
     # on stderr, so in the journal: the one clue a SIGSEGV at shutdown gives.
     faulthandler.enable(all_threads=True)
     notifier = Notifier(unset_environment=True)
-    stop_requested = threading.Event()
-    node: SupervisorNode | None = None
     build_root: Path
 
     logs: list[ViolationLog] = []  # the open log, for the reload thread's records
@@ -153,23 +233,8 @@ def run_daemon(
 
         return prepare_session(config, build_root, skipped)
 
-    early: set[int] = set()  # SIGHUP/SIGUSR1 before the node exists: served once it does
-
-    def on_signal(signum: int, _frame: Any) -> None:
-        if signum in (signal.SIGHUP, signal.SIGUSR1):
-            if node is None:
-                early.add(signum)
-            elif signum == signal.SIGHUP:
-                node.request_reload(reload_session)
-            else:
-                node.request_reopen()
-            return
-        stop_requested.set()
-        if node is not None:
-            node.stop()
-
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGUSR1):
-        signal.signal(sig, on_signal)
+    signals = _Signals(reload_session)
+    signals.install()
 
     with contextlib.ExitStack() as stack:
         if build_dir is None:
@@ -181,35 +246,9 @@ def run_daemon(
         skipped: list[str] = []
         session = prepare_session(config, build_root, skipped.append)
         cfg = session.config
-        path = log_path or cfg.log_path
-        if not path:
-            raise UserError(
-                "no violation log configured", file=config, hint="set logging.violations or --log"
-            )
-        # rclpy writes its own log files; under ProtectSystem=strict only a few
-        # places are writable.
-        # places are writable.  A directory made here is removed at exit.
-        if not os.environ.get("ROS_LOG_DIR"):
-            stack.callback(os.environ.pop, "ROS_LOG_DIR", None)
-            os.environ["ROS_LOG_DIR"] = os.environ.get("LOGS_DIRECTORY") or stack.enter_context(
-                tempfile.TemporaryDirectory(prefix="safety-supervisor-ros-log-")
-            )
-        log = stack.enter_context(
-            ViolationLog(
-                path,
-                cfg.component,
-                cfg.sha256,
-                retry_buffer=cfg.log_retry_buffer,
-                durability=cfg.log_durability,
-            )
-        )
+        log = _open_log(stack, session, config, log_path)
         logs.append(log)
-        log.supervisor("start", config=str(config), pid=os.getpid())
-        for why in skipped:  # run validates as check does; say what it could not judge
-            log.supervisor("analysis_skipped", why=why)
-        for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
-            print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
-            log.supervisor("check_warning", detail=w)
+        _log_start(log, config, session, skipped)
         # The operator's socket exists before READY=1 (docs/reference/ros-interfaces.md).
         control = open_control(cfg.control)
         stack.callback(control.close)
@@ -228,12 +267,7 @@ def run_daemon(
             reload=reload_session,  # `safety-supervisor reload` on the control socket
         )
         stack.callback(node.close)
-        if stop_requested.is_set():
-            node.stop()
-        if signal.SIGUSR1 in early:
-            node.request_reopen()
-        if signal.SIGHUP in early:
-            node.request_reload(reload_session)
+        signals.attach(node)
         n_req = len(session.requirements)
         log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
         notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")
@@ -247,10 +281,14 @@ def run_daemon(
             inputs=node.stop_stats(),
         )
     notifier.close()
-    # Everything is done (the stop record and the log closed, the recording and the
-    # temporary files gone, the node destroyed and the context shut down): exit
-    # without the interpreter's teardown, which would finalise rclpy's remaining
-    # native objects in no particular order (docs/reference/faults.md, "Stop").
+    _exit()
+
+
+def _exit() -> NoReturn:
+    """Everything is done (the stop record and the log closed, the recording and the
+    temporary files gone, the node destroyed and the context shut down): exit
+    without the interpreter's teardown, which would finalise rclpy's remaining
+    native objects in no particular order (docs/reference/faults.md, "Stop")."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
             stream.flush()

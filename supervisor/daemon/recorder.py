@@ -35,11 +35,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from supervisor.children import child_env, start
+from supervisor.names import RECORDS_TOPIC as RECORDS_TOPIC
 
 if TYPE_CHECKING:
     from supervisor.config.record import RecordConfig
 
-RECORDS_TOPIC = "/safety_supervisor/records"
 RECORDS_TYPE = "std_msgs/msg/String"
 # The input index of a queue entry that carries an input's offered QoS profiles (JSON:
 # {"input": i, "profiles": [...]}) rather than a message; -1 is a log record.

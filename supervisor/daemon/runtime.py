@@ -57,15 +57,6 @@ class InputSpec:
 
 
 @dataclass
-class Violation:
-    requirement: int  # index into the monitor's requirements
-    tick: int
-    t_ns: int
-    inputs: dict[str, Any]
-    stale: list[str]
-
-
-@dataclass
 class StepResult:
     tick: int
     t_ns: int

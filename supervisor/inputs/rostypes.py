@@ -4,7 +4,8 @@ types, in that order of trust unless the recording's differ from the installed o
 (docs/reference/commands.md, "replay": "Types").
 
 One implementation for the daemon's recorder (the types it describes in a bag) and
-for replay (the types it decodes a bag with)."""
+for replay (the types it decodes a bag with); type names are written as
+``mitigations/rosmsg.py``, the one type lookup, writes them."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ from typing import TYPE_CHECKING, Any
 
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.base import Nodetype
+
+from mitigations.rosmsg import normalise_type
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -44,12 +47,6 @@ def msg_search_prefixes() -> list[Path]:
     prefixes, and this Python's prefix (the ros-jazzy-* wheels install there)."""
     prefixes = [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(":") if p]
     return [*prefixes, Path(sys.prefix)]
-
-
-def package_hint(name: str) -> str:
-    """Which package would provide ``name`` ('test_msgs/srv/X' -> ros-jazzy-test-msgs)."""
-    pkg = name.split("/", 1)[0]
-    return f"install ros-jazzy-{pkg.replace('_', '-')} (the package {pkg})"
 
 
 def _names(node: tuple[Any, Any]) -> Iterable[str]:
@@ -228,14 +225,6 @@ def _bag_types(defs: Iterable[tuple[str, str, str]]) -> tuple[Fielddefs, set[str
         if typ in types:
             parsed.add(typ)
     return types, parsed
-
-
-def normalise_type(name: str) -> str:
-    """'std_msgs/Int64', 'std_msgs::msg::Int64' -> 'std_msgs/msg/Int64'."""
-    parts = [p for p in name.replace("::", "/").split("/") if p]
-    if len(parts) == 2:
-        parts = [parts[0], "msg", parts[1]]
-    return "/".join(parts)
 
 
 def _closure(name: str, *sources: Fielddefs, partial: bool = False) -> Fielddefs | None:

@@ -37,9 +37,7 @@ import shlex
 import shutil
 import subprocess
 import sys
-import tempfile
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Any
 from urllib.parse import unquote, urlparse
@@ -47,6 +45,7 @@ from urllib.parse import unquote, urlparse
 import supervisor
 from monitors.errors import UserError
 from supervisor import data
+from supervisor.files import write_atomic
 from supervisor.names import OPERATORS_GROUP
 from supervisor.tools.ui.token import TOKEN_FILE, TOKEN_MODE, new_token
 
@@ -239,6 +238,8 @@ def _installed_source() -> Source:
     """What pip installed the running package from (PEP 610's direct_url.json):
     the service gets the same build.  Without that record it came from an index,
     so the index gives the same version again."""
+    from importlib import metadata  # only here: the CLI imports this module for its parser
+
     try:
         dist = metadata.distribution(NAME)
     except metadata.PackageNotFoundError:
@@ -336,8 +337,7 @@ def _systemd_running() -> bool:
     return Path("/run/systemd/system").is_dir()  # sd_booted(3)
 
 
-def make_plan(args: argparse.Namespace) -> Plan:
-    """Every step of the installation, from the arguments and what exists now."""
+def _checked_user_and_prefix(args: argparse.Namespace) -> tuple[str, Path]:
     user: str = args.user
     if not re.fullmatch(r"[a-z_][a-z0-9_-]{0,31}", user):
         raise UserError(f"--user {user!r} is not a valid user name", file=PROG)
@@ -351,6 +351,12 @@ def make_plan(args: argparse.Namespace) -> Plan:
             file=PROG,
             hint=f"use e.g. {DEFAULT_PREFIX}",
         )
+    return user, prefix
+
+
+def make_plan(args: argparse.Namespace) -> Plan:
+    """Every step of the installation, from the arguments and what exists now."""
+    user, prefix = _checked_user_and_prefix(args)
     source = _source(args)
     config = Path(args.config) if args.config else _shipped(source, data.example(DEFAULT_CONFIG))
     try:
@@ -358,21 +364,41 @@ def make_plan(args: argparse.Namespace) -> Plan:
     except OSError as e:
         raise UserError(f"cannot read config: {e.strerror or e}", file=str(config)) from e
     python, python_note = choose_python(args.python)
-    unit_src, unit_text = _template(source, data.systemd_unit())
-    ui_src, ui_text = _template(source, data.systemd_unit().with_name(UI_UNIT_NAME))
-    rot_src, rot_text = _template(source, data.logrotate_snippet())
+    # unit, UI unit, logrotate snippet: read before anything is planned, so a broken
+    # installation is said first
+    templates = (
+        _template(source, data.systemd_unit()),
+        _template(source, data.systemd_unit().with_name(UI_UNIT_NAME)),
+        _template(source, data.logrotate_snippet()),
+    )
     venv = prefix / "venv"
-    exe = venv / "bin" / NAME
-    unit_dir, rot_dir = Path(args.unit_dir), Path(args.logrotate_dir)
     notes = [python_note] if python_note else []
+    extras, secrets = _config_extras(config)
+    steps = [
+        *_account_steps(user),
+        *_config_steps(config, config_bytes, extras),
+        *_venv_steps(python, venv, source),
+        *_unit_steps(templates, args, prefix, user),
+    ]
+    next_steps = _next_steps(venv / "bin" / NAME, user, secrets)
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        notes.append("no C compiler found: the daemon compiles its monitor at start; install gcc")
+    return Plan(steps, next_steps, notes)
 
-    steps: list[Step] = []
+
+def _account_steps(user: str) -> list[Step]:
+    """The service user and the operators' group."""
     try:
         pwd.getpwnam(user)
         user_skip: str | None = f"user {user} exists"
     except KeyError:
         user_skip = None
-    steps.append(
+    try:
+        grp.getgrnam(OPERATORS_GROUP)
+        group_skip: str | None = f"group {OPERATORS_GROUP} exists"
+    except KeyError:
+        group_skip = None
+    return [
         Step(
             f"create the system user {user}",
             argv=(
@@ -389,38 +415,32 @@ def make_plan(args: argparse.Namespace) -> Plan:
                 user,
             ),
             skip=user_skip,
-        )
-    )
-    try:
-        grp.getgrnam(OPERATORS_GROUP)
-        group_skip: str | None = f"group {OPERATORS_GROUP} exists"
-    except KeyError:
-        group_skip = None
-    steps.append(
+        ),
         Step(
             f"create the group {OPERATORS_GROUP}: its members may `safety-supervisor reset`",
             argv=("groupadd", "--system", OPERATORS_GROUP),
             skip=group_skip,
-        )
-    )
-    steps.append(
+        ),
+    ]
+
+
+def _config_steps(config: Path, config_bytes: bytes, extras: list[Path]) -> list[Step]:
+    """The config, the files it imports and the environment file; none overwritten."""
+    steps = [
         Step(
             f"create {CONFIG_DIR}",
             mkdir=CONFIG_DIR,
             mode=0o755,
             skip="exists" if CONFIG_DIR.is_dir() else None,
-        )
-    )
-    steps.append(
+        ),
         Step(
             "install the config",
             write=INSTALLED_CONFIG,
             content=config_bytes,
             origin=str(config),
             skip="exists, not overwritten" if INSTALLED_CONFIG.exists() else None,
-        )
-    )
-    extras, secrets = _config_extras(config)
+        ),
+    ]
     for rel in extras:
         src = config.parent / rel
         dst = CONFIG_DIR / rel
@@ -447,40 +467,45 @@ def make_plan(args: argparse.Namespace) -> Plan:
             skip="exists, not overwritten" if ENVIRONMENT_FILE.exists() else None,
         )
     )
-    steps.append(
+    return steps
+
+
+def _venv_steps(python: Path, venv: Path, source: Source) -> list[Step]:
+    return [
         Step(
             f"create the venv {venv}",
             argv=(str(python), "-m", "venv", str(venv)),
             skip="exists" if (venv / "bin" / "python").exists() else None,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install safety-supervisor into the venv from {source.what}",
             argv=(str(venv / "bin" / "python"), "-m", "pip", "install", "--upgrade", source.pip),
-        )
-    )
-    unit = render_unit(unit_text, prefix=str(prefix), user=user).encode()
-    steps.append(
+        ),
+    ]
+
+
+def _unit_steps(
+    templates: tuple[tuple[Path, str], ...], args: argparse.Namespace, prefix: Path, user: str
+) -> list[Step]:
+    """The two units, the operator page's token, the logrotate snippet, daemon-reload."""
+    (unit_src, unit_text), (ui_src, ui_text), (rot_src, rot_text) = templates
+    unit_dir, rot_dir = Path(args.unit_dir), Path(args.logrotate_dir)
+    # The page's resets need this token; the UI (the service user) reads it, root
+    # hands it to operators.  Never overwritten: operators may have it already.
+    token_skip = "exists, not overwritten" if TOKEN_FILE.exists() else None
+    return [
         Step(
-            f"install the unit (venv {venv}, user {user})",
+            f"install the unit (venv {prefix / 'venv'}, user {user})",
             write=unit_dir / UNIT_NAME,
-            content=unit,
+            content=render_unit(unit_text, prefix=str(prefix), user=user).encode(),
             origin=str(unit_src),
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install the operator page's unit (safety-supervisor ui, user {user})",
             write=unit_dir / UI_UNIT_NAME,
             content=render_unit(ui_text, prefix=str(prefix), user=user).encode(),
             origin=str(ui_src),
-        )
-    )
-    # The page's resets need this token; the UI (the service user) reads it, root
-    # hands it to operators.  Never overwritten: operators may have it already.
-    token_skip = "exists, not overwritten" if TOKEN_FILE.exists() else None
-    steps.append(
+        ),
         Step(
             "create the operator page's token",
             write=TOKEN_FILE,
@@ -488,63 +513,47 @@ def make_plan(args: argparse.Namespace) -> Plan:
             mode=TOKEN_MODE,
             origin="256 random bits",
             skip=token_skip,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"let the service user {user} read the token",
             argv=("chown", f"root:{user}", str(TOKEN_FILE)),
             skip=token_skip,
-        )
-    )
-    steps.append(
+        ),
         Step(
             f"install the logrotate snippet (user {user})",
             write=rot_dir / NAME,
             content=render_logrotate(rot_text, user=user).encode(),
             origin=str(rot_src),
-        )
-    )
-    steps.append(
+        ),
         Step(
             "make systemd read the unit",
             argv=("systemctl", "daemon-reload"),
             skip=None if _systemd_running() else "systemd is not running on this machine",
-        )
-    )
+        ),
+    ]
 
+
+def _next_steps(exe: Path, user: str, secrets: list[str]) -> list[str]:
+    """What the administrator does after the installation."""
     check = f"{exe} check {INSTALLED_CONFIG}"
-    next_steps = [
+    ssh_files = ", ".join(secrets) if secrets else f"{CONFIG_DIR}/id_ed25519, known_hosts"
+    return [
         f"Edit {INSTALLED_CONFIG}: topics, requirements, mitigations; then test it: {check}",
         f"Set the robot's ROS_DOMAIN_ID (and ROS_AUTOMATIC_DISCOVERY_RANGE) in {ENVIRONMENT_FILE}.",
-    ]
-    ssh_files = ", ".join(secrets) if secrets else f"{CONFIG_DIR}/id_ed25519, known_hosts"
-    next_steps.append(
         f"For ssh mitigations, install the private key and known_hosts ({ssh_files}) "
         f"readable by the service only: chown root:{user} FILE; chmod 0640 FILE "
-        "(known_hosts: ssh-keyscan HOST, then compare the fingerprint with the host's)."
-    )
-    next_steps.append(
+        "(known_hosts: ssh-keyscan HOST, then compare the fingerprint with the host's).",
         f"Start it now and at boot: systemctl enable --now {UNIT_NAME}; watch it: "
-        f"systemctl status {UNIT_NAME}; journalctl -u {UNIT_NAME} -f"
-    )
-    next_steps.append(
+        f"systemctl status {UNIT_NAME}; journalctl -u {UNIT_NAME} -f",
         f"Let operators reset latched mitigations: usermod -aG {OPERATORS_GROUP} USER "
-        "(then `safety-supervisor reset` as that user, after logging in again)."
-    )
-    next_steps.append(
+        "(then `safety-supervisor reset` as that user, after logging in again).",
         f"The operator page (optional): systemctl enable --now {UI_UNIT_NAME}; it listens on "
         "127.0.0.1:8321 (from elsewhere: ssh -L 8321:127.0.0.1:8321 ROBOT); its resets need "
-        f"the token in {TOKEN_FILE} (sudo cat it once per operator)."
-    )
-    next_steps.append(
+        f"the token in {TOKEN_FILE} (sudo cat it once per operator).",
         f"After editing the config: systemctl reload {UNIT_NAME} (returns once the new "
         "config is in force; a config that fails check is refused with its reason and the "
-        "running monitor stays in place)."
-    )
-    if not (shutil.which("cc") or shutil.which("gcc")):
-        notes.append("no C compiler found: the daemon compiles its monitor at start; install gcc")
-    return Plan(steps, next_steps, notes)
+        "running monitor stays in place).",
+    ]
 
 
 # ------------------------------------------------------------------ output / execution
@@ -566,21 +575,6 @@ def format_next(plan: Plan) -> str:
     return "\n".join(["next:"] + [f" {i}. {t}" for i, t in enumerate(plan.next_steps, 1)])
 
 
-def _write_file(path: Path, content: bytes, mode: int) -> None:
-    """Atomically: a reader never sees half a unit file."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(content)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run_step(step: Step) -> None:
     """Do one step; raises UserError naming it when it fails."""
     try:
@@ -592,7 +586,7 @@ def run_step(step: Step) -> None:
             step.mkdir.mkdir(mode=step.mode, exist_ok=True)
             os.chmod(step.mkdir, step.mode)  # mkdir's mode is masked by the umask
         elif step.write is not None:
-            _write_file(step.write, step.content, step.mode)
+            write_atomic(step.write, step.content, step.mode)
     except OSError as e:
         where = e.filename or (step.argv[0] if step.argv else "")
         raise UserError(f"{step.description}: {where}: {e.strerror or e}", file=PROG) from e

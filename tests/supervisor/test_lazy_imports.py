@@ -57,11 +57,37 @@ def loaded(
 
 def test_the_cli_and_its_help_load_none_of_them() -> None:
     code = "import supervisor.cli\nsupervisor.cli.build_parser().format_help()"
-    # --help needs neither ROS, the analyses' module nor the config parser either.
-    assert loaded(code, names=(*HEAVY, "rclpy", "supervisor.analysis_report", "lark")) == []
+    # --help needs neither ROS, the analyses' module nor the config parser either, nor
+    # the compiler, a demo's session or the installer's package metadata.
+    also = (
+        "rclpy",
+        "supervisor.analysis_report",
+        "lark",
+        "supervisor.pipeline",
+        "monitors.backends.build",
+        "supervisor.tools.demo.session",
+        "importlib.metadata",
+    )
+    assert loaded(code, names=(*HEAVY, *also)) == []
+
+
+def test_importing_the_cli_takes_well_under_a_second() -> None:
+    # A sanity bound, not the goal: bench --startup prints the figure against its
+    # 150 ms goal (docs/BENCHMARKS.md, "Start-up"); a shared CI machine may be slow.
+    r = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", "import supervisor.cli"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    rows = [line.split("|") for line in r.stderr.splitlines() if line.count("|") == 2]
+    cumulative_us = {row[2].strip(): int(row[1]) for row in rows if row[1].strip().isdigit()}
+    assert cumulative_us["supervisor.cli"] < 1_000_000, cumulative_us["supervisor.cli"]
 
 
 def test_the_daemon_core_loads_none_of_them() -> None:
+    assert loaded("import supervisor.daemon.core") == []
     assert loaded("import supervisor.daemon.process") == []
 
 

@@ -10,11 +10,6 @@ from __future__ import annotations
 import z3
 
 
-class OutOfMemory(Exception):
-    """z3 reached the analyses' memory limit (``memory_mb``); its context is not used
-    again after that (docs/reference/faults.md)."""
-
-
 def is_memout(e: z3.Z3Exception) -> bool:
     """z3's own report of its ``max_memory`` limit (a solver parameter, in MB)."""
     return "memory" in str(e.value if hasattr(e, "value") else e)

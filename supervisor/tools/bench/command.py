@@ -78,6 +78,10 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "latency_trials": 1000,
         "record_rates": "20000",
         "ui_rates": "20000",
+        # Longer than the throughput runs' 5 s: the kill is halfway, and the restarted
+        # UI needs its start (importing rclpy), the clients' retry (1 s) and DDS
+        # discovery of the daemon (about 2 s) before status reaches the clients again,
+        # all while the publisher is still running.
         "ui_seconds": 10.0,
         "replay_messages": 1_000_000,
         "scan_reductions": 20_000,

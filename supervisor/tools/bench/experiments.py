@@ -17,7 +17,7 @@ from supervisor.tools.bench.recording import recording_overhead
 from supervisor.tools.bench.replay import replay_bench
 from supervisor.tools.bench.scale import scale_bench
 from supervisor.tools.bench.scan import scan_bench
-from supervisor.tools.bench.session import session
+from supervisor.tools.bench.session import Session, session
 from supervisor.tools.bench.soak import soak_bench
 from supervisor.tools.bench.throughput import throughput
 from supervisor.tools.bench.ui import ui_load
@@ -43,15 +43,7 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
     with session(args.domain_id) as s:
         results["domain_id"] = s.domain_id
         if not args.skip_throughput:
-            results["throughput"] = []
-            wd = args.watchdog_usec
-            for burst in (0, *args.burst):
-                for rate in args.rates:
-                    how = f" in bursts of {burst} rounds" if burst else ""
-                    say(f"throughput at {rate:g} msg/s{how} for {args.seconds:g} s")
-                    results["throughput"].append(
-                        throughput(s, plan, rate, args.seconds, args.naive, burst=burst, wd_usec=wd)
-                    )
+            results["throughput"] = _throughput_rows(s, plan, args, say)
         if not args.skip_record:
             results["recording"] = [
                 recording_overhead(s, plan, rate, args.seconds, say, wd_usec=args.watchdog_usec)
@@ -105,6 +97,23 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
             )
     results["loadavg_after"] = _loadavg()
     return results
+
+
+def _throughput_rows(
+    s: Session, plan: Plan, args: argparse.Namespace, say: Callable[[str], None]
+) -> list[dict[str, Any]]:
+    """One throughput run per rate, evenly paced and then in each burst size."""
+    rows = []
+    for burst in (0, *args.burst):
+        for rate in args.rates:
+            how = f" in bursts of {burst} rounds" if burst else ""
+            say(f"throughput at {rate:g} msg/s{how} for {args.seconds:g} s")
+            rows.append(
+                throughput(
+                    s, plan, rate, args.seconds, args.naive, burst=burst, wd_usec=args.watchdog_usec
+                )
+            )
+    return rows
 
 
 def _loadavg() -> str:

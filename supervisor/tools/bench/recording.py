@@ -23,7 +23,6 @@ from supervisor.tools.bench.session import Daemon, Helper, Session, cpu_seconds
 from supervisor.tools.bench.throughput import throughput
 
 GOAL_PCT = 10.0
-RATES = (20_000.0,)
 SAMPLE_S = 0.01
 
 

@@ -22,8 +22,6 @@ from supervisor.tools.bench.plan import SROBOT_VIOLATING, Plan
 
 RECORDED_RATE = 20_000  # msg/s of the bags' receive times (the daemon's 20k goal)
 VIOLATE_EVERY = 1000  # ticks between two violating rounds in the "violations" case
-MESSAGES = 1_000_000
-QUICK_MESSAGES = 200_000
 SCAN_CONFIG = """\
 component: Scan
 step: {policy: on_message}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from supervisor.tools.bench.latency import TESSLA_MEAN_MS, THESIS_MEAN_MS
@@ -339,189 +340,242 @@ def format_markdown(r: dict[str, Any]) -> str:
         f"| RMW | {r['rmw']} |",
         f"| ROS_DOMAIN_ID | {r.get('domain_id')} |",
     ]
-    if "throughput" in r:
+    for key, section in _MD_SECTIONS:
+        if key in r:
+            out += section(r)
+    return "\n".join(out) + "\n"
+
+
+def _md_throughput(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Throughput and overhead section."""
+    out = [
+        "",
+        "## Throughput and overhead (eq. 1)",
+        "",
+        "| burst | offered msg/s | sent | achieved msg/s | receiver | received | loss % "
+        "| msg/s | CPU s | CPU us/msg | overhead % | ping gap ms | lost: gaps / before "
+        "first / after last |",
+        "| ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+        "| --- |",
+    ]
+    for row in r["throughput"]:
+        loss = row["daemon_loss"]
+        for name, rc in row["receivers"].items():
+            daemon = name == "daemon"
+            out.append(
+                f"| {row.get('burst') or '-'} | {row['offered']:g} | {row['sent']} "
+                f"| {row['achieved']:.0f} | {name} | {rc['received']} | {rc['loss_pct']:.2f} "
+                f"| {rc['msg_per_s']:.0f} | {rc['cpu_s']:.2f} "
+                f"| {_f(rc['cpu_us_per_msg'], '.1f')} "
+                f"| {_f(row['overhead_pct']) if daemon else ''} "
+                f"| {_f(row.get('longest_ping_gap_ms'), '.0f') if daemon else ''} "
+                + (
+                    f"| {loss['gaps']} / {loss['before_first']} / {loss['after_last']} |"
+                    if daemon
+                    else "| |"
+                )
+            )
+    return out
+
+
+def _md_recording(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Recording overhead section."""
+    out = [
+        "",
+        "## Recording overhead (run --record)",
+        "",
+        "| offered msg/s | record | sent | received | lost | CPU us/msg | CPU us/msg to exit "
+        "| written | dropped | MB on disk | CPU difference % |",
+        "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for row in r["recording"]:
+        for label in ("off", "on"):
+            side = row[label]
+            rec = side["record"] or {}
+            diff = (
+                f"{_f(row['cpu_diff_pct'], '+.1f')} (to exit "
+                f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')}; goal {row['goal_pct']:g})"
+                if label == "on"
+                else ""
+            )
+            out.append(
+                f"| {row['offered']:g} | {label} | {side['sent']} | {side['received']} "
+                f"| {side['lost']} | {_f(side['cpu_us_per_msg'], '.1f')} "
+                f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {rec.get('written', '')} "
+                f"| {rec.get('dropped', '')} | {_f(rec.get('mb_on_disk'), '.1f')} | {diff} |"
+            )
+    return out
+
+
+def _md_ui(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s UI load section."""
+    out: list[str] = []
+    for row in r["ui"]:
+        n = row["clients"]
         out += [
             "",
-            "## Throughput and overhead (eq. 1)",
+            f"## UI load (`ui` with {n} clients on /events, {row['offered']:g} msg/s, "
+            f"{row['seconds']:g} s)",
             "",
-            "| burst | offered msg/s | sent | achieved msg/s | receiver | received | loss % "
-            "| msg/s | CPU s | CPU us/msg | overhead % | ping gap ms | lost: gaps / before "
-            "first / after last |",
-            "| ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-            "| --- |",
-        ]
-        for row in r["throughput"]:
-            loss = row["daemon_loss"]
-            for name, rc in row["receivers"].items():
-                daemon = name == "daemon"
-                out.append(
-                    f"| {row.get('burst') or '-'} | {row['offered']:g} | {row['sent']} "
-                    f"| {row['achieved']:.0f} | {name} | {rc['received']} | {rc['loss_pct']:.2f} "
-                    f"| {rc['msg_per_s']:.0f} | {rc['cpu_s']:.2f} "
-                    f"| {_f(rc['cpu_us_per_msg'], '.1f')} "
-                    f"| {_f(row['overhead_pct']) if daemon else ''} "
-                    f"| {_f(row.get('longest_ping_gap_ms'), '.0f') if daemon else ''} "
-                    + (
-                        f"| {loss['gaps']} / {loss['before_first']} / {loss['after_last']} |"
-                        if daemon
-                        else "| |"
-                    )
-                )
-    if "recording" in r:
-        out += [
-            "",
-            "## Recording overhead (run --record)",
-            "",
-            "| offered msg/s | record | sent | received | lost | CPU us/msg | CPU us/msg to exit "
-            "| written | dropped | MB on disk | CPU difference % |",
-            "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-        ]
-        for row in r["recording"]:
-            for label in ("off", "on"):
-                side = row[label]
-                rec = side["record"] or {}
-                diff = (
-                    f"{_f(row['cpu_diff_pct'], '+.1f')} (to exit "
-                    f"{_f(row['cpu_diff_pct_to_exit'], '+.1f')}; goal {row['goal_pct']:g})"
-                    if label == "on"
-                    else ""
-                )
-                out.append(
-                    f"| {row['offered']:g} | {label} | {side['sent']} | {side['received']} "
-                    f"| {side['lost']} | {_f(side['cpu_us_per_msg'], '.1f')} "
-                    f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {rec.get('written', '')} "
-                    f"| {rec.get('dropped', '')} | {_f(rec.get('mb_on_disk'), '.1f')} | {diff} |"
-                )
-    if "ui" in r:
-        for row in r["ui"]:
-            n = row["clients"]
-            out += [
-                "",
-                f"## UI load (`ui` with {n} clients on /events, {row['offered']:g} msg/s, "
-                f"{row['seconds']:g} s)",
-                "",
-                "| case | sent | received | lost | CPU us/msg | CPU difference % | events per "
-                "client | while publishing | longest gap s | ui CPU ms/s |",
-                "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-            ]
-            for c in row["cases"]:
-                ui = c["ui"] or {}
-                cpu = ui.get("ui_cpu_ms_per_s") or ui.get("ui_cpu_ms_per_s_until_kill")
-                out.append(
-                    f"| {_ui_case(c, n)} | {c['sent']} | {c['received']} | {c['lost']} "
-                    f"| {_f(c['cpu_us_per_msg'], '.1f')} | {_f(c['cpu_diff_pct'], '+.1f')} "
-                    f"| {_spread(ui.get('events'), 'g')} | {_spread(ui.get('events_in_run'), 'g')} "
-                    f"| {_f(ui.get('longest_gap_s'), '.2f')} | {_f(cpu, '.1f')} |"
-                )
-            out += ["", _restart_text(row["cases"][2]["ui"]).strip()]
-            out += [f"\n{line.strip()}" for line in _chromium_text(row)]
-    if "scan" in r:
-        sc = r["scan"]
-        out += [
-            "",
-            f"## LaserScan beside the stream ({sc['readings']} readings at {sc['hz']:g} Hz, "
-            f"reduce: min and age_of; {sc['offered']:g} msg/s, {sc['seconds']:g} s)",
-            "",
-            "| daemon | sent | received | lost | loss % | scans sent | scans taken "
-            "| CPU us/msg | CPU us/msg to exit | violations |",
+            "| case | sent | received | lost | CPU us/msg | CPU difference % | events per "
+            "client | while publishing | longest gap s | ui CPU ms/s |",
             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
         ]
-        for label, side in _scan_rows(sc):
+        for c in row["cases"]:
+            ui = c["ui"] or {}
+            cpu = ui.get("ui_cpu_ms_per_s") or ui.get("ui_cpu_ms_per_s_until_kill")
             out.append(
-                f"| {label} | {side['sent']} | {side['received']} | {side['lost']} "
-                f"| {side['loss_pct']:.2f} | {side['scans_sent']} | {side['scans_received']} "
-                f"| {_f(side['cpu_us_per_msg'], '.1f')} "
-                f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {side['violations']} |"
+                f"| {_ui_case(c, n)} | {c['sent']} | {c['received']} | {c['lost']} "
+                f"| {_f(c['cpu_us_per_msg'], '.1f')} | {_f(c['cpu_diff_pct'], '+.1f')} "
+                f"| {_spread(ui.get('events'), 'g')} | {_spread(ui.get('events_in_run'), 'g')} "
+                f"| {_f(ui.get('longest_gap_s'), '.2f')} | {_f(cpu, '.1f')} |"
             )
-        out += [
-            "",
-            f"CPU per message with the scan {_f(sc['cpu_diff_pct'], '+.1f')} %, loss "
-            f"{sc['loss_pct_diff']:+.2f} points, CPU added per scan taken "
-            f"{_f(sc['cpu_us_per_scan_added'], '.0f')} us (one run each).",
-            "",
-            f"| in this process, {sc['reduction']['scans']} scans | p50 us | p90 us | p99 us "
-            "| max us | mean us |",
-            "| --- | ---: | ---: | ---: | ---: | ---: |",
-        ]
-        for label, st in _reduction_rows(sc):
-            out.append(
-                f"| {label} | {st['p50']:.2f} | {st['p90']:.2f} | {st['p99']:.2f} "
-                f"| {st['max']:.2f} | {st['mean']:.2f} |"
-            )
-    if "scale" in r:
-        sc = r["scale"]
-        ref = sc["reference"]
-        out += [
-            "",
-            f"## Scaling (generated configs over 50 inputs, seed {sc['seed']}; daemon at "
-            f"{sc['offered']:g} msg/s for {sc['seconds']:g} s)",
-            "",
-            "| " + " | ".join(SCALE_HEAD) + " |",
-            "| " + " | ".join("---:" for _ in SCALE_HEAD) + " |",
-        ]
-        out += ["| " + " | ".join(cells) + " |" for cells in _scale_rows(sc)]
-        for row in sc["rows"]:
-            c = row["check"]
-            out += ["", f"`check` of {row['requirements']}: {_check_text(c)}; `{c['last']}`", ""]
-            out += ["```", *c["analysis"], "```"] if c["analysis"] else []
-        out += [
-            "",
-            f"The daemon on `{ref['config']}` ({ref['topics']} topics) at {ref['offered']:g} "
-            f"msg/s: RSS {_mb(ref['rss_start_kb'])} MB once ready, {_mb(ref['rss_end_kb'])} MB "
-            f"at the end (HWM {_mb(ref['hwm_end_kb'])} MB), CPU "
-            f"{_f(ref['cpu_us_per_msg'], '.1f')} us/msg, lost {ref['lost']}.",
-        ]
-    if "soak" in r:
-        out += ["", "## Soak", "", *_format_soak(r["soak"])]
-    if "latency" in r:
-        lat = r["latency"]
-        out += [
-            "",
-            f"## Latency: trigger published -> halt received ({lat['trials']} trials)",
-            "",
-            "| what | n | p50 ms | p90 ms | p99 ms | max ms | mean ms | missed |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
-        ]
-        d = lat["daemon"]
-        before = lat.get("daemon_before_action")
-        rows = [("bare rclpy echo", lat["echo"]), ("safety-supervisor (after_publish)", d)]
-        if before is not None:
-            rows.append(("safety-supervisor (before_action)", before))
-        rows += [
-            ("daemon: trigger -> violation record", d["trigger_to_record_ms"]),
-            ("daemon: detection -> halt published", d["detect_to_publish_ms"]),
-        ]
-        if before is not None:
-            rows.append(("before_action: detection -> halt", before["detect_to_publish_ms"]))
-        rows.append((f"fsync of {lat['fsync']['bytes']} bytes", lat["fsync"]))
-        for label, st in rows:
-            out.append(
-                f"| {label} | {st.get('n', '')} | {_f(st['p50'], '.3f')} | {_f(st['p90'], '.3f')} "
-                f"| {_f(st['p99'], '.3f')} | {_f(st['max'], '.3f')} | {_f(st['mean'], '.3f')} "
-                f"| {st.get('missed', '')} |"
-            )
-        out += ["", *_durability_goals(lat)]
-        out += _breakdown_markdown(lat)
-    if "replay" in r:
-        rep = r["replay"]
-        out += [
-            "",
-            f"## Replay throughput ({rep['messages']} messages per bag)",
-            "",
-            "| case | messages | ticks | violations | seconds | msg/s | bag MB |",
-            "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
-        ]
-        for c in rep["cases"]:
-            out.append(
-                f"| {c['case']} | {c['messages']} | {c['ticks']} | {c['violations']} "
-                f"| {c['seconds']:.3f} | {c['rate']:.0f} | {c['bag_mb']:.1f} |"
-            )
-        if rep.get("by_storage"):
-            out += ["", "| storage (bulk stepping) | msg/s |", "| --- | --- |"]
-            out += [f"| {_STORAGE[k]} | {_rate_range(v)} |" for k, v in rep["by_storage"].items()]
-        out += ["", "| monitor alone | per second |", "| --- | ---: |"]
-        out += [f"| {k} | {v:.0f} |" for k, v in rep["monitor"].items()]
-    return "\n".join(out) + "\n"
+        out += ["", _restart_text(row["cases"][2]["ui"]).strip()]
+        out += [f"\n{line.strip()}" for line in _chromium_text(row)]
+    return out
+
+
+def _md_scan(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s a LaserScan beside the stream section."""
+    out: list[str] = []
+    sc = r["scan"]
+    out += [
+        "",
+        f"## LaserScan beside the stream ({sc['readings']} readings at {sc['hz']:g} Hz, "
+        f"reduce: min and age_of; {sc['offered']:g} msg/s, {sc['seconds']:g} s)",
+        "",
+        "| daemon | sent | received | lost | loss % | scans sent | scans taken "
+        "| CPU us/msg | CPU us/msg to exit | violations |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for label, side in _scan_rows(sc):
+        out.append(
+            f"| {label} | {side['sent']} | {side['received']} | {side['lost']} "
+            f"| {side['loss_pct']:.2f} | {side['scans_sent']} | {side['scans_received']} "
+            f"| {_f(side['cpu_us_per_msg'], '.1f')} "
+            f"| {_f(side['cpu_us_per_msg_to_exit'], '.1f')} | {side['violations']} |"
+        )
+    out += [
+        "",
+        f"CPU per message with the scan {_f(sc['cpu_diff_pct'], '+.1f')} %, loss "
+        f"{sc['loss_pct_diff']:+.2f} points, CPU added per scan taken "
+        f"{_f(sc['cpu_us_per_scan_added'], '.0f')} us (one run each).",
+        "",
+        f"| in this process, {sc['reduction']['scans']} scans | p50 us | p90 us | p99 us "
+        "| max us | mean us |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for label, st in _reduction_rows(sc):
+        out.append(
+            f"| {label} | {st['p50']:.2f} | {st['p90']:.2f} | {st['p99']:.2f} "
+            f"| {st['max']:.2f} | {st['mean']:.2f} |"
+        )
+    return out
+
+
+def _md_scale(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Scaling section."""
+    out: list[str] = []
+    sc = r["scale"]
+    ref = sc["reference"]
+    out += [
+        "",
+        f"## Scaling (generated configs over 50 inputs, seed {sc['seed']}; daemon at "
+        f"{sc['offered']:g} msg/s for {sc['seconds']:g} s)",
+        "",
+        "| " + " | ".join(SCALE_HEAD) + " |",
+        "| " + " | ".join("---:" for _ in SCALE_HEAD) + " |",
+    ]
+    out += ["| " + " | ".join(cells) + " |" for cells in _scale_rows(sc)]
+    for row in sc["rows"]:
+        c = row["check"]
+        out += ["", f"`check` of {row['requirements']}: {_check_text(c)}; `{c['last']}`", ""]
+        out += ["```", *c["analysis"], "```"] if c["analysis"] else []
+    out += [
+        "",
+        f"The daemon on `{ref['config']}` ({ref['topics']} topics) at {ref['offered']:g} "
+        f"msg/s: RSS {_mb(ref['rss_start_kb'])} MB once ready, {_mb(ref['rss_end_kb'])} MB "
+        f"at the end (HWM {_mb(ref['hwm_end_kb'])} MB), CPU "
+        f"{_f(ref['cpu_us_per_msg'], '.1f')} us/msg, lost {ref['lost']}.",
+    ]
+    return out
+
+
+def _md_soak(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Soak section."""
+    out = ["", "## Soak", "", *_format_soak(r["soak"])]
+    return out
+
+
+def _md_latency(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Latency section."""
+    out: list[str] = []
+    lat = r["latency"]
+    out += [
+        "",
+        f"## Latency: trigger published -> halt received ({lat['trials']} trials)",
+        "",
+        "| what | n | p50 ms | p90 ms | p99 ms | max ms | mean ms | missed |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    d = lat["daemon"]
+    before = lat.get("daemon_before_action")
+    rows = [("bare rclpy echo", lat["echo"]), ("safety-supervisor (after_publish)", d)]
+    if before is not None:
+        rows.append(("safety-supervisor (before_action)", before))
+    rows += [
+        ("daemon: trigger -> violation record", d["trigger_to_record_ms"]),
+        ("daemon: detection -> halt published", d["detect_to_publish_ms"]),
+    ]
+    if before is not None:
+        rows.append(("before_action: detection -> halt", before["detect_to_publish_ms"]))
+    rows.append((f"fsync of {lat['fsync']['bytes']} bytes", lat["fsync"]))
+    for label, st in rows:
+        out.append(
+            f"| {label} | {st.get('n', '')} | {_f(st['p50'], '.3f')} | {_f(st['p90'], '.3f')} "
+            f"| {_f(st['p99'], '.3f')} | {_f(st['max'], '.3f')} | {_f(st['mean'], '.3f')} "
+            f"| {st.get('missed', '')} |"
+        )
+    out += ["", *_durability_goals(lat)]
+    out += _breakdown_markdown(lat)
+    return out
+
+
+def _md_replay(r: dict[str, Any]) -> list[str]:
+    """The Markdown of ``bench --out``'s Replay throughput section."""
+    out: list[str] = []
+    rep = r["replay"]
+    out += [
+        "",
+        f"## Replay throughput ({rep['messages']} messages per bag)",
+        "",
+        "| case | messages | ticks | violations | seconds | msg/s | bag MB |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for c in rep["cases"]:
+        out.append(
+            f"| {c['case']} | {c['messages']} | {c['ticks']} | {c['violations']} "
+            f"| {c['seconds']:.3f} | {c['rate']:.0f} | {c['bag_mb']:.1f} |"
+        )
+    if rep.get("by_storage"):
+        out += ["", "| storage (bulk stepping) | msg/s |", "| --- | --- |"]
+        out += [f"| {_STORAGE[k]} | {_rate_range(v)} |" for k, v in rep["by_storage"].items()]
+    out += ["", "| monitor alone | per second |", "| --- | ---: |"]
+    out += [f"| {k} | {v:.0f} |" for k, v in rep["monitor"].items()]
+    return out
+
+
+# The sections of ``bench --out``'s Markdown, in their order.
+_MD_SECTIONS: tuple[tuple[str, Callable[[dict[str, Any]], list[str]]], ...] = (
+    ("throughput", _md_throughput),
+    ("recording", _md_recording),
+    ("ui", _md_ui),
+    ("scan", _md_scan),
+    ("scale", _md_scale),
+    ("soak", _md_soak),
+    ("latency", _md_latency),
+    ("replay", _md_replay),
+)
 
 
 def _format_throughput(rows: list[dict[str, Any]]) -> list[str]:

@@ -33,6 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from supervisor.children import child_env, start
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.numbers import shown as _f
 from supervisor.tools.bench.plan import Plan
@@ -41,7 +42,6 @@ from supervisor.tools.bench.session import Session
 from supervisor.tools.bench.throughput import daemon_summary, throughput
 
 SEED = 1
-RATE = 10_000.0
 CHECK_TIMEOUT_S = 1800.0
 READY_TIMEOUT_S = 900.0  # the daemon builds its monitor before READY=1
 ANALYSIS_PREFIXES = ("analysis:", "  consistency:", "  realizability:", "  findings:", "  skipped:")
@@ -71,22 +71,16 @@ def fd_count(pid: int) -> int | None:
 def run_check(config: Path, timeout: float = CHECK_TIMEOUT_S) -> dict[str, Any]:
     """``safety-supervisor check CONFIG`` in a subprocess: wall time, exit status, peak
     RSS, the analysis report's lines and the last line."""
-    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     argv = [sys.executable, "-m", "supervisor", "check", str(config)]
     t0 = time.perf_counter()
-    p = subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env=env,
-        cwd=config.parent,
+    p = start(
+        argv, env=child_env(), cwd=config.parent, stdout=subprocess.PIPE, stderr=subprocess.STDOUT
     )
     timer = threading.Timer(timeout, p.kill)
     timer.start()
     try:
         assert p.stdout is not None
-        out = p.stdout.read()
+        out = p.stdout.read().decode(errors="replace")
         p.stdout.close()
         # wait4: this child's own rusage (its peak RSS), not the largest of every child
         _, status, usage = os.wait4(p.pid, 0)

@@ -99,7 +99,6 @@ class Generated:
     timings: dict[str, int] = field(default_factory=dict)  # kind -> requirements
     scopes: dict[str, int] = field(default_factory=dict)
     qualifiers: dict[str, int] = field(default_factory=dict)
-    redraws: int = 0
 
     def write(self, path: Path) -> Path:
         path.write_text(self.text)
@@ -250,7 +249,6 @@ def generate(n: int, seed: int = 1, n_variables: int = N_VARIABLES) -> Generated
             text, scope, quals = _sentence(d, timing, scoped, extra)
             if _nominal_ok(text, zero):
                 break
-            out.redraws += 1
         else:
             raise RuntimeError(f"no requirement {i} ({timing[1]}) holds at zero in {TRIES} draws")
         out.timings[timing[0]] = out.timings.get(timing[0], 0) + 1

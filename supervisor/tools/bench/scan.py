@@ -33,7 +33,6 @@ from supervisor.tools.bench.publisher import scan_message
 from supervisor.tools.bench.session import Session
 from supervisor.tools.bench.throughput import daemon_summary, throughput
 
-RATE = 10_000.0
 COPIES = 64  # deserialised scans the reader cycles through (a fresh message each time)
 WARMUP = 200
 

@@ -2,6 +2,9 @@
 
 Measured as systemd sees it, over several runs each (min, median, max):
 
+- ``import supervisor.cli`` as ``python -X importtime`` counts it (the module's
+  cumulative time, without the interpreter's own start): what every command imports
+  before it parses its arguments;
 - ``safety-supervisor --help``, the lightest command (the imports every command pays);
 - ``check CONFIG`` (ExecStartPre) with an empty start-up cache (cold) and with the
   cache a previous check filled (warm);
@@ -31,7 +34,13 @@ from typing import Any
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.session import Daemon, session
 
-GOALS_S = {"help": 0.3, "run_warm": 1.0, "run_cold": 3.0, "replay_warm": 1.5}
+GOALS_S = {
+    "import_cli": 0.15,
+    "help": 0.3,
+    "run_warm": 1.0,
+    "run_cold": 3.0,
+    "replay_warm": 1.5,
+}
 READY_TIMEOUT_S = 120.0
 
 
@@ -50,6 +59,19 @@ def _timed(argv: list[str], env: dict[str, str]) -> float:
         last = (r.stderr.strip().splitlines() or r.stdout.strip().splitlines() or ["?"])[-1]
         raise BenchError(f"{' '.join(argv[-2:])} failed (exit {r.returncode}): {last}")
     return dt
+
+
+def cli_import_seconds(env: dict[str, str]) -> float:
+    """``import supervisor.cli``'s cumulative time by ``python -X importtime``."""
+    argv = [sys.executable, "-X", "importtime", "-c", "import supervisor.cli"]
+    r = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
+    # stderr lines: "import time: <self us> | <cumulative us> | <indented module>"
+    for line in r.stderr.splitlines():
+        fields = line.split("|")
+        if len(fields) == 3 and fields[2].strip() == "supervisor.cli":
+            return int(fields[1]) / 1e6
+    last = (r.stderr.strip().splitlines() or ["?"])[-1]
+    raise BenchError(f"import supervisor.cli failed (exit {r.returncode}): {last}")
 
 
 def _summary(samples: list[float]) -> dict[str, Any]:
@@ -82,6 +104,8 @@ def run_startup(
             d.chmod(0o700)
             return d
 
+        say(f"import supervisor.cli x{runs}")
+        out["import_cli"] = _summary([cli_import_seconds(env) for _ in range(runs)])
         say(f"--help x{runs}")
         out["help"] = _summary([_timed([*cli, "--help"], env) for _ in range(runs)])
 
@@ -162,6 +186,7 @@ def _tiny_replay(directory: Path) -> list[str]:
 
 
 ROWS = (
+    ("import_cli", "import supervisor.cli", "import_cli"),
     ("help", "--help", "help"),
     ("check_cold", "check, empty cache", None),
     ("check_warm", "check, cache filled", None),

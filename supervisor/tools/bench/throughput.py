@@ -41,42 +41,10 @@ def throughput(
     how long its start may take (it builds its monitor: minutes for a large set)."""
     work = Path(tempfile.mkdtemp(prefix=f"throughput-{rate:g}-{burst}-", dir=s.tmp))
     config = plan.write_config(work / "config.yaml", work / "violations.jsonl", latency=False)
-    spec = json.dumps(plan.topics)
-    # The baselines take the scan too (bench --scan), as the daemon does.
-    scan = plan.scan
-    keys = ("name", "topic", "msg", "field")
-    everything = json.dumps([*plan.topics, {k: scan[k] for k in keys}]) if scan else spec
     record_dir = work / "record"
     extra = ("--record", str(record_dir)) if record else ()
     daemon = s.daemon(config, work, wd_usec, extra)
-    baselines = {
-        "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", everything, workdir=work)
-    }
-    if naive:
-        baselines["rclpy executor"] = s.child(
-            "rclpy executor", "executor", "--spec", everything, workdir=work
-        )
-    pub = s.child(
-        "publisher",
-        "publisher",
-        "--spec",
-        spec,
-        "--values",
-        json.dumps(plan.nominal),
-        "--rate",
-        str(rate),
-        "--seconds",
-        str(seconds),
-        "--receivers",
-        str(1 + len(baselines)),
-        "--diagnostics",
-        "--daemon-node",
-        plan.daemon_node,
-        "--burst",
-        str(burst),
-        *(("--scan", json.dumps(scan)) if scan else ()),
-        workdir=work,
-    )
+    baselines, pub = _start_clients(s, plan, work, rate, seconds, naive=naive, burst=burst)
     everyone = (daemon, pub, *baselines.values())
     try:
         daemon.wait_ready(ready_timeout)
@@ -127,34 +95,99 @@ def throughput(
         "daemon_counted_lost": sum(int(c.get("lost", 0)) for c in stop["inputs"].values()),
         "daemon_loss": daemon_loss(sent, stop["inputs"]),
         "record": None,
-        "receivers": {},
     }
     if record:
         on_disk = sum(p.stat().st_size for p in record_dir.rglob("*") if p.is_file())
         out["record"] = {**(closed or {}), "mb_on_disk": on_disk / 1e6}
-    for name, per_topic in received.items():
-        n = sum(int(per_topic.get(t, 0)) for t in sent)
-        cpu = cpu1[name] - cpu0[name]
-        out["receivers"][name] = {
-            "received": n,
-            "received_per_topic": per_topic,
-            "loss_pct": 100.0 * (total_sent - n) / total_sent,
-            "msg_per_s": n / done["seconds"],
-            "cpu_s": cpu,
-            "cpu_us_per_msg": 1e6 * cpu / n if n else None,
-        }
+    out["receivers"] = _receivers(received, sent, done["seconds"], cpu0, cpu1)
     # The daemon's CPU up to its exit: its shutdown too (the recorder's last writes).
     d = out["receivers"]["daemon"]
     d["cpu_s_to_exit"] = cpu_exit - cpu0["daemon"]
     n = d["received"]
     d["cpu_us_per_msg_to_exit"] = 1e6 * d["cpu_s_to_exit"] / n if n else None
+    _overhead(out, list(baselines))
+    return out
+
+
+def _receivers(
+    received: dict[str, dict[str, Any]],
+    sent: dict[str, int],
+    seconds: float,
+    cpu0: dict[str, float],
+    cpu1: dict[str, float],
+) -> dict[str, dict[str, Any]]:
+    """Each receiver's count, loss, rate and CPU over the publishing window."""
+    total_sent = sum(sent.values())
+    out = {}
+    for name, per_topic in received.items():
+        n = sum(int(per_topic.get(t, 0)) for t in sent)
+        cpu = cpu1[name] - cpu0[name]
+        out[name] = {
+            "received": n,
+            "received_per_topic": per_topic,
+            "loss_pct": 100.0 * (total_sent - n) / total_sent,
+            "msg_per_s": n / seconds,
+            "cpu_s": cpu,
+            "cpu_us_per_msg": 1e6 * cpu / n if n else None,
+        }
+    return out
+
+
+def _start_clients(
+    s: Session,
+    plan: Plan,
+    work: Path,
+    rate: float,
+    seconds: float,
+    *,
+    naive: bool,
+    burst: int,
+) -> tuple[dict[str, Helper], Helper]:
+    """The plain rclpy receivers (by name) and the publisher, started."""
+    spec = json.dumps(plan.topics)
+    # The baselines take the scan too (bench --scan), as the daemon does.
+    scan = plan.scan
+    keys = ("name", "topic", "msg", "field")
+    everything = json.dumps([*plan.topics, {k: scan[k] for k in keys}]) if scan else spec
+    baselines = {
+        "rclpy wait-set": s.child("rclpy wait-set", "waitset", "--spec", everything, workdir=work)
+    }
+    if naive:
+        baselines["rclpy executor"] = s.child(
+            "rclpy executor", "executor", "--spec", everything, workdir=work
+        )
+    pub = s.child(
+        "publisher",
+        "publisher",
+        "--spec",
+        spec,
+        "--values",
+        json.dumps(plan.nominal),
+        "--rate",
+        str(rate),
+        "--seconds",
+        str(seconds),
+        "--receivers",
+        str(1 + len(baselines)),
+        "--diagnostics",
+        "--daemon-node",
+        plan.daemon_node,
+        "--burst",
+        str(burst),
+        *(("--scan", json.dumps(scan)) if scan else ()),
+        workdir=work,
+    )
+    return baselines, pub
+
+
+def _overhead(out: dict[str, Any], baselines: list[str]) -> None:
+    """Eq. 1 of the thesis against the fastest plain receiver; the publishing window
+    is the same for every receiver."""
     fastest = max(baselines, key=lambda k: out["receivers"][k]["received"])
     p_standalone = out["receivers"][fastest]["msg_per_s"]
     p_monitor = out["receivers"]["daemon"]["msg_per_s"]
     out["fastest_baseline"] = fastest
-    # Eq. 1 of the thesis; the publishing window is the same for both receivers.
     out["overhead_pct"] = 100.0 * (p_standalone - p_monitor) / p_monitor if p_monitor else None
-    return out
 
 
 def daemon_summary(row: dict[str, Any]) -> dict[str, Any]:

@@ -44,13 +44,7 @@ from supervisor.tools.bench.throughput import throughput
 from supervisor.tools.children import Child
 
 GOAL_PCT = 10.0
-RATES = (20_000.0,)
 CLIENTS = 10
-# Longer than the throughput runs' 5 s: the kill is halfway, and the restarted UI
-# needs its start (importing rclpy), the clients' retry (1 s) and DDS discovery of
-# the daemon (about 2 s) before status reaches the clients again, all while the
-# publisher is still running.
-SECONDS = 10.0
 HOST = "127.0.0.1"
 CHROMIUM = "/usr/bin/chromium"  # Debian's, as tests/system/test_ui.py uses
 READ_TIMEOUT_S = 30.0  # longer than the server's keepalive (10 s): only a dead stream trips it

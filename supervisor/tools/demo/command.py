@@ -19,8 +19,9 @@ import shutil
 import signal
 import sys
 import tempfile
+from collections.abc import Container
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.tools.children import ros_env
 from supervisor.tools.demo.config import (
@@ -30,8 +31,10 @@ from supervisor.tools.demo.config import (
     requirement_ids,
 )
 from supervisor.tools.demo.errors import DemoError
-from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
 from supervisor.tools.demo.state import DemoState
+
+if TYPE_CHECKING:
+    from supervisor.tools.demo.session import Run
 
 DEFAULT_FAULT_RATE = 0.01  # the thesis's 1 % (sec. 5.3.2)
 DEFAULT_RATE_HZ = 10.0
@@ -119,17 +122,29 @@ def add_parser(sub: Any) -> None:
     )
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    example = EXAMPLES[args.example]
+def _robot_options(args: argparse.Namespace, allowed: Container[str]) -> bool:
+    """The simulated robot's options: only those of the example's robot (said
+    otherwise), the others at their defaults."""
     for option in ROBOT_OPTIONS:  # the other example's robot has no such knob
-        if getattr(args, option) is not None and option not in example.options:
+        if getattr(args, option) is not None and option not in allowed:
             flag = "--" + option.replace("_", "-")
             _err(f"{flag} is not an option of --example {args.example}")
-            return 2
+            return False
     if args.fault_rate is None:
         args.fault_rate = DEFAULT_FAULT_RATE
     if args.rate_hz is None:
         args.rate_hz = DEFAULT_RATE_HZ
+    return True
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    # The session (processes, the log's reader) only when a demo runs: the CLI
+    # imports this module for its parser (docs/BENCHMARKS.md, "Start-up").
+    from supervisor.tools.demo.session import LogTail, Notify, Run, pick_domain
+
+    example = EXAMPLES[args.example]
+    if not _robot_options(args, example.options):
+        return 2
     shipped = example.config
     if not shipped.exists():
         _err(f"{shipped} not found (an incomplete installation: reinstall safety-supervisor)")

@@ -57,7 +57,6 @@ class DemoState:
     walk: int = 0
     walk_classes: Counter = field(default_factory=Counter)
     cycle: dict[str, Any] = field(default_factory=dict)
-    cycles: int = 0
     state_changes: int = 0
     faults: int = 0
     faults_fixed: int = 0  # the supervisor's uv_off cut a stuck UV light
@@ -115,7 +114,6 @@ class DemoState:
             self.add(f"walk {self.walk}: {who} comes closer", t)
         elif kind == "cycle":
             self.cycle = ev
-            self.cycles += 1
         elif kind == "state":
             self.state_changes += 1
         elif kind == "fault":

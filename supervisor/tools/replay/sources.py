@@ -52,14 +52,13 @@ import yaml
 from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
-from mitigations.rosmsg import COMPATIBLE
+from mitigations.rosmsg import COMPATIBLE, package_hint
 from monitors.errors import UserError
 from monitors.untrusted import Untrusted, load_json, printable, read_regular
 from supervisor.config.model import Config, Variable
 from supervisor.daemon.cdr import PRIMITIVES, FieldPlan, field_plan
 from supervisor.inputs.paths import ReadError
 from supervisor.inputs.readers import SKIP, arrival_only, make_reader, plain_field
-from supervisor.inputs.rostypes import package_hint
 from supervisor.names import VIOLATIONS_TOPIC
 from supervisor.tools.replay.mcap import Mcap
 from supervisor.tools.replay.sqlite import Sqlite

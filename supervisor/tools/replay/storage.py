@@ -16,16 +16,14 @@ from typing import Any, BinaryIO, Literal
 import numpy as np
 from rosbags.typesys.store import Typestore
 
+# type names are written as the one type lookup writes them (mitigations/rosmsg.py)
+from mitigations.rosmsg import normalise_type as normalise_type
 from monitors.errors import UserError
 from monitors.untrusted import Untrusted, inflate, printable
-
-# one type resolution for replay and the recorder (supervisor/inputs/rostypes.py)
-from supervisor.inputs.rostypes import normalise_type as normalise_type
-from supervisor.names import VIOLATIONS_TOPIC
+from supervisor.names import RECORDS_TOPIC, VIOLATIONS_TOPIC
 
 # The daemon's JSON records on ROS: the full record stream (with markers) and the
 # violations topic (docs/reference/ros-interfaces.md); both std_msgs/msg/String.
-RECORDS_TOPIC = "/safety_supervisor/records"
 RECORD_TOPICS = (RECORDS_TOPIC, VIOLATIONS_TOPIC)
 STRING = "std_msgs/msg/String"
 CHUNK = 100_000

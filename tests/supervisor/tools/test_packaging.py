@@ -22,6 +22,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
 
 import pytest
@@ -500,7 +501,7 @@ def _installed_plan(
 ) -> install.Plan:
     """The plan when the running package is an installed copy, not a checkout."""
     monkeypatch.setattr(install, "_running_checkout", lambda: None)
-    monkeypatch.setattr(install.metadata, "distribution", lambda name: _Dist(direct_url))
+    monkeypatch.setattr(metadata, "distribution", lambda name: _Dist(direct_url))
     return install.make_plan(_args(tmp_path))
 
 
@@ -547,9 +548,7 @@ def test_plan_from_a_vanished_wheel_is_a_one_line_error(
 ) -> None:
     gone = tmp_path / "gone" / "safety_supervisor-0.1.0-py3-none-any.whl"
     monkeypatch.setattr(install, "_running_checkout", lambda: None)
-    monkeypatch.setattr(
-        install.metadata, "distribution", lambda name: _Dist({"url": gone.as_uri()})
-    )
+    monkeypatch.setattr(metadata, "distribution", lambda name: _Dist({"url": gone.as_uri()}))
     assert install.main(["--dry-run", "--python", str(_fake_python(tmp_path))]) == 1
     err = capsys.readouterr().err
     assert f"installed from {gone}, which is gone" in err and "--source" in err
