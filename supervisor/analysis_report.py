@@ -22,7 +22,10 @@ from monitors.verify.analysis import (
     Analysis,
     Example,
     Finding,
+    Limit,
+    Remedy,
     Req,
+    Skip,
     VarInfo,
     activation,
 )
@@ -35,6 +38,13 @@ ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
 MAX_K = 100_000  # ticks; far past what the analyses' memory limit lets run
 LABEL = {"error": "ERROR", "warning": "warning", "info": "info"}
 BUDGET_KEY = "limits.analysis_budget_s"
+# Each limit of the analyses as the user sets it (docs/reference/config.md).
+SETTING = {
+    Limit.TRACE_LENGTH: "analysis.k",
+    Limit.SOLVER_TIMEOUT: "analysis.timeout_s",
+    Limit.TIME_BUDGET: BUDGET_KEY,
+    Limit.MEMORY: "limits.analysis_memory_mb",
+}
 
 
 # ------------------------------------------------------------------ settings
@@ -195,7 +205,7 @@ class Validation:
             f"analysis: {f.kind} ({ids}): {f.message}",
             file=cfg.path,
             line=min((n for n in lines if n is not None), default=None),
-            hint=f"{f.fix}; `safety-supervisor check` prints the trace",
+            hint=f"{fix_text(f)}; `safety-supervisor check` prints the trace",
         )
 
 
@@ -241,7 +251,8 @@ _FINDING_KEYS = ("kind", "severity", "requirements", "message", "fix")
 
 
 def _finding_json(f: Finding) -> dict[str, Any]:
-    return {key: getattr(f, key) for key in _FINDING_KEYS}
+    """A finding without its trace, its fix worded (the start-up cache, the child)."""
+    return {**{key: getattr(f, key) for key in _FINDING_KEYS}, "fix": fix_text(f)}
 
 
 def open_cache() -> Cache | None:
@@ -411,9 +422,42 @@ def _child_main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     checked = validate(args.config, args.k)
     findings = checked.analysis.findings if checked.analysis is not None else []
-    keys = ("kind", "severity", "requirements", "message", "fix")
-    print(json.dumps([{key: getattr(f, key) for key in keys} for f in findings]), flush=True)
+    print(json.dumps([_finding_json(f) for f in findings]), flush=True)
     return 0
+
+
+# ------------------------------------------------------------------ reasons
+
+
+def remedy_text(r: Remedy) -> str:
+    """What to raise, in the user's terms."""
+    if r.limit is Limit.TRACE_LENGTH and r.at_least is not None:
+        return f"analyse longer traces: --k {r.at_least} or more"
+    return f"raise {SETTING[r.limit]}"
+
+
+def fix_text(f: Finding) -> str:
+    """The finding's "what to change": the limit to raise first, then the fix."""
+    if f.remedy is None:
+        return f.fix
+    return f"{remedy_text(f.remedy)}, or {f.fix}" if f.fix else remedy_text(f.remedy)
+
+
+def _shorter_or_larger(limit: Limit) -> str:
+    if limit is Limit.TRACE_LENGTH:
+        return "a shorter k (analysis.k, --k)"
+    return f"a larger {SETTING[limit]}"
+
+
+def skip_text(s: Skip) -> str:
+    """Why an analysis was skipped, with what would let it run and the setting of
+    the limit it reached."""
+    out = s.reason
+    if s.remedies:
+        what = " or ".join(_shorter_or_larger(r) for r in s.remedies)
+        only_k = s.remedies == (Limit.TRACE_LENGTH,)
+        out += f"; {what} {'analyses shorter traces' if only_k else 'analyses it'}"
+    return f"{out} ({SETTING[s.limit]})"
 
 
 # ------------------------------------------------------------------ text
@@ -469,7 +513,7 @@ def format_finding(f: Finding, variables: dict[str, VarInfo]) -> list[str]:
     if f.trace:
         out.append(f"  trace: {f.trace_note}" if f.trace_note else "  trace:")
         out.extend(format_trace(f.trace, f.verdicts, variables))
-    out.append(f"  what to change: {f.fix}")
+    out.append(f"  what to change: {fix_text(f)}")
     return out
 
 
@@ -500,14 +544,8 @@ def skipped_lines(a: Analysis) -> list[str]:
     """One line per reason the time budget skipped or cut analyses short, naming them."""
     by_why: dict[str, list[str]] = {}
     for name, why in a.skipped.items():
-        by_why.setdefault(why, []).append(name)
-    return [f"  skipped:       {', '.join(ns)}: {_with_setting(why)}" for why, ns in by_why.items()]
-
-
-def _with_setting(why: str) -> str:
-    """A reason with the setting that changes it: the time budget's unless the reason
-    names its own (the memory limit's)."""
-    return why if "(limits." in why else f"{why} ({BUDGET_KEY})"
+        by_why.setdefault(skip_text(why), []).append(name)
+    return [f"  skipped:       {', '.join(ns)}: {why}" for why, ns in by_why.items()]
 
 
 def format_example(ex: Example | None, what: str, variables: dict[str, VarInfo]) -> list[str]:
@@ -528,7 +566,7 @@ def explain_lines(a: Analysis, rid: str) -> list[str]:
         out.append(f"  analysis:  no findings (traces of {a.k} ticks)")
     sat, viol = a.examples(rid)
     if "examples" in a.skipped:
-        out.append(f"  analysis:  skipped: {_with_setting(a.skipped['examples'])}")
+        out.append(f"  analysis:  skipped: {skip_text(a.skipped['examples'])}")
         return out
     out.extend(format_example(sat, "satisfied by", a.variables))
     out.extend(format_example(viol, "violated by", a.variables))
