@@ -11,8 +11,9 @@ from pathlib import Path
 
 from monitors.ir.formula import parse_formula
 from monitors.verify.analysis import Analysis, Finding, Limit, Remedy, Req, Skip, VarInfo, analyse
-from supervisor.analysis_report import fix_text, project_requirements, skip_text
+from supervisor.analysis_report import fix_text, skip_text
 from supervisor.pipeline import project_for
+from supervisor.validation import project_requirements
 
 ROOT = Path(__file__).resolve().parents[1]
 # How the supervisor names the analyses' limits: config keys and the option.

@@ -15,9 +15,10 @@ from monitors.backends.c99 import state_bytes
 from monitors.errors import UserError
 from monitors.ir.formula import parse_formula
 from monitors.verify.analysis import Req, VarInfo, analyse
-from supervisor.analysis_report import analyse_project, format_analysis, skip_text
+from supervisor.analysis_report import format_analysis, skip_text
 from supervisor.config import load_config
 from supervisor.pipeline import build_project, compile_project
+from supervisor.validation import analyse_project
 
 AS_LIMIT = 1 << 30  # the CLI runs under a 1 GB address-space limit
 
