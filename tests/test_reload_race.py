@@ -123,3 +123,53 @@ def test_findings_for_another_config_are_refused(
     checked = Aside(read_config(config)).result()
     assert checked.skipped == f"the analyses' process judged another config (sha256 {sha256(BAD)})"
     assert checked.errors == [] and checked.project.config.sha256 == sha256(GOOD)
+
+
+def _analyses_child_of(pid: int) -> bool:
+    """Whether ``pid`` has a child process running the analyses."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes()
+        except OSError:
+            continue  # gone meanwhile
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        if ppid == pid and b"analysis" in cmdline:
+            return True
+    return False
+
+
+@pytest.mark.ros
+def test_a_daemon_reloaded_while_the_file_is_saved_again_runs_and_records_one_config(
+    tmp_path: Path,
+) -> None:
+    # The real daemon and SIGHUP. The edit lands once the daemon has started the
+    # analyses' child, so after the daemon's read: /proc is polled, as no event
+    # says that a process started another.
+    import signal
+    import time
+
+    from rosutil import Daemon
+
+    config = tmp_path / "c.yaml"
+    config.write_text(CLEAN)  # small: analysed in the daemon itself
+    d = Daemon(tmp_path, config)
+    try:
+        d.wait_notify("READY=1", timeout=120)
+        config.write_text(GOOD)
+        d.proc.send_signal(signal.SIGHUP)
+        deadline = time.monotonic() + 60
+        while not _analyses_child_of(d.proc.pid):
+            assert time.monotonic() < deadline, d.explain()
+            assert d.proc.poll() is None, d.explain()
+            time.sleep(0.005)
+        config.write_text(BAD)
+        d.wait_record(lambda r: r.get("what") == "reload", "the reload record", timeout=120)
+        [reload] = [r for r in d.records() if r.get("what") == "reload"]
+        assert reload["ok"] is True, reload.get("why")
+        assert reload["config_sha256"] == sha256(GOOD), reload
+        d.terminate()
+    finally:
+        d.close()
