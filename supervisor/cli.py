@@ -98,7 +98,8 @@ def cmd_explain(args: argparse.Namespace) -> int:
     unknown = wanted - {r.id for r in project.requirements}
     if unknown:
         project.config.requirement(sorted(unknown)[0])  # raises with the list of ids
-    from supervisor.analysis_report import analyse_project, explain_lines
+    from supervisor.analysis_report import explain_lines
+    from supervisor.validation import analyse_project
 
     analysis = analyse_project(project, args.k)
     status = EXIT_OK
@@ -201,8 +202,9 @@ def _print_variables(project: object) -> None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     from monitors.backends.load import load_monitor
-    from supervisor.analysis_report import format_analysis, validate
+    from supervisor.analysis_report import format_analysis
     from supervisor.pipeline import monitor_library
+    from supervisor.validation import validate
 
     t0 = time.perf_counter()
     checked = validate(args.config, args.k)  # the same validation as run and reload
@@ -282,11 +284,14 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 
 def k_arg(text: str) -> int:
-    """``--k``: the analyses' module is imported only when the option is used, so
-    ``--help`` stays light (docs/BENCHMARKS.md, "Start-up")."""
-    from supervisor.analysis_report import k_arg as parse
-
-    return parse(text)
+    """argparse type of ``--k``: a trace length of at least one tick (else usage error)."""
+    try:
+        k = int(text)
+    except ValueError:
+        k = 0
+    if k < 1:
+        raise argparse.ArgumentTypeError(f"--k needs a whole number of ticks >= 1, not '{text}'")
+    return k
 
 
 def build_parser() -> argparse.ArgumentParser:

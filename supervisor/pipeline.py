@@ -30,7 +30,7 @@ from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_na
 from monitors.ir.typecheck import check_bool, type_of
 from monitors.verify.interpret import verdicts
 from supervisor.cache import Cache
-from supervisor.config import Config, RequirementEntry, Variable, load_config
+from supervisor.config import Config, ConfigSource, RequirementEntry, Variable, load_config
 from supervisor.config.ros import reset_service_warning
 from supervisor.inputs.readers import check_input
 
@@ -344,8 +344,9 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
     return Project(cfg, reqs, errors + m_errors, cfg.notes + warnings + m_warnings)
 
 
-def project_for(path: str | Path, *, ros: bool = True) -> Project:
-    return build_project(load_config(path), ros=ros)
+def project_for(source: str | Path | ConfigSource, *, ros: bool = True) -> Project:
+    """The project of a config file, or of its bytes as already read (ConfigSource)."""
+    return build_project(load_config(source), ros=ros)
 
 
 def monitor_library(

@@ -6,12 +6,13 @@ mitigation and policy settings a Config carries are :mod:`mitigations.settings`'
 """
 
 from supervisor.config.fret import load_fret_export
-from supervisor.config.load import load_config
+from supervisor.config.load import ConfigSource, load_config, read_config
 from supervisor.config.model import Config, RequirementEntry, RosConfig, StepConfig, Variable
 from supervisor.config.ogma import load_ogma_variables
 
 __all__ = [
     "Config",
+    "ConfigSource",
     "RequirementEntry",
     "RosConfig",
     "StepConfig",
@@ -19,4 +20,5 @@ __all__ = [
     "load_config",
     "load_fret_export",
     "load_ogma_variables",
+    "read_config",
 ]

@@ -11,12 +11,14 @@ mitigations and variables used elsewhere).
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass
 from pathlib import Path
 
 from monitors.errors import UserError
 from monitors.ir.functions import expand_functions
+from supervisor.config.analysis import load_analysis
 from supervisor.config.control import load_control
-from supervisor.config.fields import as_mapping, check_keys, error_at
+from supervisor.config.fields import check_keys, error_at
 from supervisor.config.functions import load_functions
 from supervisor.config.imported import decode, read_bytes
 from supervisor.config.limits import MAX_CONFIG_BYTES, load_limits
@@ -50,13 +52,36 @@ TOP_KEYS = {
 }
 
 
-def load_config(path: str | Path) -> Config:
-    path = Path(path)
-    file = str(path)
-    # Capped before parsing, a regular file only, UTF-8 with the bad byte located
-    # (docs/reference/config.md, "Limits").
-    raw_bytes = read_bytes(path, "config", MAX_CONFIG_BYTES)
-    doc = load_yaml(path, decode(raw_bytes, file))
+@dataclass(frozen=True)
+class ConfigSource:
+    """The config file's bytes as read once, with their SHA-256: what a start or a
+    reload loads, validates and compiles, and what the analyses' child process is
+    given, so that nothing downstream reads the file again and sees another edit
+    (docs/ARCHITECTURE.md, "The stages")."""
+
+    path: str  # for error positions and the files it imports, relative to it
+    data: bytes
+    sha256: str
+
+    @classmethod
+    def of(cls, path: str | Path, data: bytes) -> ConfigSource:
+        return cls(str(Path(path)), data, hashlib.sha256(data).hexdigest())
+
+
+def read_config(path: str | Path) -> ConfigSource:
+    """The file at ``path``, read once: capped before parsing, a regular file only
+    (docs/reference/config.md, "Limits")."""
+    return ConfigSource.of(path, read_bytes(path, "config", MAX_CONFIG_BYTES))
+
+
+def load_config(source: str | Path | ConfigSource) -> Config:
+    """The Config of a file (read here) or of a :class:`ConfigSource` already read."""
+    if not isinstance(source, ConfigSource):
+        source = read_config(source)
+    path = Path(source.path)
+    file = source.path
+    # UTF-8 with the bad byte located.
+    doc = load_yaml(path, decode(source.data, file))
     if not isinstance(doc, dict):
         raise UserError(
             "the config must be a YAML mapping (component:, variables:, requirements:, ...)",
@@ -96,14 +121,15 @@ def load_config(path: str | Path) -> Config:
     for r in requirements:
         r.policy_config = policy_config(r, mitigations, variables, file)
     check_trigger(step, variables, doc)
-    analysis = as_mapping(doc.get("analysis") or {}, doc, "analysis", "analysis")
     ros = load_ros(doc)
     control = load_control(doc, path)
     limits = load_limits(doc)
     record = load_record(doc)
+    # Last: its errors came after every other section's when the analyses judged it.
+    analysis = load_analysis(doc, file)
     return Config(
         path=file,
-        sha256=hashlib.sha256(raw_bytes).hexdigest(),
+        sha256=source.sha256,
         component=str(component),
         step=step,
         variables=variables,
@@ -115,7 +141,7 @@ def load_config(path: str | Path) -> Config:
         log_retry_buffer=log_retry_buffer,
         log_durability=log_durability,
         on_stale=on_stale,
-        analysis=dict(analysis),
+        analysis=analysis,
         ros=ros,
         control=control,
         limits=limits,

@@ -13,6 +13,7 @@ from mitigations.settings import Mitigation, PolicyConfig
 from monitors.errors import UserError
 from monitors.ir.formula import Formula
 from monitors.ir.functions import Function
+from supervisor.config.analysis import AnalysisConfig
 from supervisor.config.limits import Limits
 from supervisor.config.record import RecordConfig
 from supervisor.names import NODE_NAME
@@ -125,7 +126,7 @@ class Config:
     log_path: str | None
     recent: int
     on_stale: list[str]
-    analysis: dict[str, Any]
+    analysis: AnalysisConfig
     ros: RosConfig = field(default_factory=RosConfig)
     control: ControlConfig = field(default_factory=ControlConfig)
     # functions: the definitions of the functions FRET passes through its formulas

@@ -33,8 +33,8 @@ from rclpy.context import Context
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import load_monitor
 from monitors.errors import UserError
-from supervisor.analysis_report import Aside
-from supervisor.config import Config
+from supervisor.analysis_child import Aside
+from supervisor.config import Config, read_config
 from supervisor.config.record import RecordConfig
 from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
@@ -66,8 +66,10 @@ def prepare_session(
     """Validate ``config`` as ``check`` does (the same analyses, in a child process)
     and compile it into a loaded Session; raises UserError.  ``skipped`` hears why the analyses did not
     run in full, for the log (docs/reference/log.md)."""
+    # Read once: the monitor, the analyses and the session's hash are of the same
+    # bytes however the file changes meanwhile (supervisor/analysis_child.py).
     # The analyses run in a child (z3's memory stays there) while the monitor compiles.
-    aside = Aside(config)
+    aside = Aside(read_config(config))
     err = aside.project.first_error()
     if err is not None:
         raise err

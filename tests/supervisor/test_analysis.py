@@ -19,9 +19,10 @@ import pytest
 from monitors.ir.formula import parse_formula
 from monitors.verify.analysis import Analysis, Req, VarInfo, analyse
 from monitors.verify.interpret import verdicts
-from supervisor.analysis_report import analyse_project, format_analysis
+from supervisor.analysis_report import format_analysis
 from supervisor.pipeline import project_for
 from supervisor.tools.bench.analysis import generated
+from supervisor.validation import analyse_project
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data" / "analysis"

@@ -134,8 +134,8 @@ def test_cffi_and_python_abi_are_in_the_key(
 ) -> None:
     # No second cffi or Python on this machine: the key is computed in-process
     # with the one component swapped, everything else real.
-    from supervisor.analysis_report import open_cache, startup_key
     from supervisor.pipeline import project_for
+    from supervisor.validation import open_cache, startup_key
 
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     project = project_for(SROBOT)

@@ -48,7 +48,16 @@ from monitors.verify.analysis.requirements import (
     default_k,
     range_formula,
 )
-from monitors.verify.analysis.results import SEVERITIES, Analysis, Example, Finding, Trace
+from monitors.verify.analysis.results import (
+    SEVERITIES,
+    Analysis,
+    Example,
+    Finding,
+    Limit,
+    Remedy,
+    Skip,
+    Trace,
+)
 
 # The solver (z3) loads when the analyses run, not when their results are read: a
 # start from the start-up cache never imports it (docs/BENCHMARKS.md, "Start-up").
@@ -68,7 +77,10 @@ __all__ = [
     "Analysis",
     "Example",
     "Finding",
+    "Limit",
+    "Remedy",
     "Req",
+    "Skip",
     "Trace",
     "VarInfo",
     "activation",

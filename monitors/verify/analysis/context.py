@@ -82,7 +82,7 @@ class Context:
     ) -> None:
         self.k = k
         self.memory_mb = memory_mb
-        self.per_call_ms = int(timeout_s * 1000)  # analysis.timeout_s, one solver call
+        self.per_call_ms = int(timeout_s * 1000)  # one solver call
         self.deadline = deadline  # time.monotonic() when the analyses' budget runs out
         self.vars = vars_
         self.types = {v.name: v.type for v in vars_.values()}
@@ -117,7 +117,7 @@ class Context:
 
     @property
     def timeout_ms(self) -> int:
-        """The next solver call's timeout: analysis.timeout_s, cut to what is left of the
+        """The next solver call's timeout: ``timeout_s``, cut to what is left of the
         budget; OutOfTime once nothing is left (every solver call starts here)."""
         if self.deadline is None:
             return self.per_call_ms

@@ -16,7 +16,7 @@ from monitors.verify.analysis.arena import (
 )
 from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.exists_forall import exists_forall
-from monitors.verify.analysis.results import Finding
+from monitors.verify.analysis.results import Finding, Limit, Remedy
 from monitors.verify.analysis.wording import and_list, first_false, ticks
 from monitors.verify.bmc import Row, fresh_row, pure_invariant, tick_encoding
 
@@ -188,7 +188,8 @@ class Game:
                     "there are outputs satisfying the guarantees, but those outputs may depend "
                     "on future inputs; whether a controller that only knows past and present "
                     f"inputs exists was not decided within {ctx.per_call_ms / 1000:g} s",
-                    "raise analysis.timeout_s, or lower the time bounds / k",
+                    "lower the time bounds / k",
+                    remedy=Remedy(Limit.SOLVER_TIMEOUT),
                 )
             )
             return (
@@ -234,7 +235,8 @@ class Game:
                 tuple(self.guarantees),
                 f"realizability ({what}) not decided: z3 gave up within "
                 f"{self.ctx.per_call_ms / 1000:g} s (double arithmetic is the usual cause)",
-                "raise analysis.timeout_s, or give the double variables ranges",
+                "give the double variables ranges",
+                remedy=Remedy(Limit.SOLVER_TIMEOUT),
             )
         )
 

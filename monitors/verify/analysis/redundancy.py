@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from monitors.ir.formula import max_bound
 from monitors.verify.analysis.context import Context
-from monitors.verify.analysis.results import Finding
+from monitors.verify.analysis.results import Finding, Limit, Remedy
 from monitors.verify.analysis.wording import and_list
 from monitors.verify.bmc import pure_invariant
 
@@ -28,7 +28,8 @@ def redundancy(ctx: Context, findings: list[Finding], skip: set[str]) -> None:
                     (rid,),
                     f"{rid} cannot be violated on traces of {k} ticks (its time bound is "
                     f"{max_bound(r.formula)}), so the analyses say little about it",
-                    f"analyse longer traces: --k {max_bound(r.formula) + 2} or more",
+                    "",
+                    remedy=Remedy(Limit.TRACE_LENGTH, at_least=max_bound(r.formula) + 2),
                 )
             )
             continue

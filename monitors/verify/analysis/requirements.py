@@ -10,7 +10,7 @@ from monitors.frontend.parse import Requirement
 from monitors.ir.formula import TRUE, BinOp, Const, Formula, O, Var, Y, and_, max_bound, not_
 from monitors.ir.formula import H as H_
 
-DEFAULT_TIMEOUT_S = 10.0  # seconds per solver call (analysis.timeout_s)
+DEFAULT_TIMEOUT_S = 10.0  # seconds per solver call
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from monitors.verify.analysis.requirements import (
     default_k,
     range_formula,
 )
-from monitors.verify.analysis.results import SEVERITIES, Analysis, Finding
+from monitors.verify.analysis.results import SEVERITIES, Analysis, Finding, Limit, Skip
 from monitors.verify.analysis.solvers import is_memout
 from monitors.verify.analysis.vacuity import vacuity
 from monitors.verify.bmc import OutOfTime, encoding_cells
@@ -32,9 +32,7 @@ ANALYSES = ("consistency", "realizability", "vacuity", "redundancy")
 # tools/bench/analysis.py); an unrolling estimated to need more than the whole
 # budget at this rate is not started.
 CELLS_PER_S = 200_000
-# Said after a reason that is the memory limit's (the budget's reasons get theirs from
-# the report): the setting that raises it.
-MEMORY_KEY = " (limits.analysis_memory_mb)"
+BUDGET, MEMORY = Limit.TIME_BUDGET, Limit.MEMORY
 
 
 def analyse(
@@ -57,10 +55,10 @@ def analyse(
         raise ValueError("k must be at least 1")
     deadline = None if budget_s is None else time.monotonic() + budget_s
     seconds: dict[str, float] = {}
-    skipped: dict[str, str] = {}
+    skipped: dict[str, Skip] = {}
     t0 = time.perf_counter()
 
-    def give_up(why: str) -> Analysis:
+    def give_up(why: Skip) -> Analysis:
         skipped.update({name: why for name in (*ANALYSES, "examples") if name not in skipped})
         seconds["total"] = time.perf_counter() - t0
         return Analysis(
@@ -73,21 +71,24 @@ def analyse(
         cells = encoding_cells(formulas, k)
         if cells > budget_s * CELLS_PER_S:
             return give_up(
-                f"unrolling traces of k = {k} ticks builds about {cells:.2g} solver terms, "
-                f"about {cells / CELLS_PER_S:.2g} s against a time budget of {budget_s:g} s; "
-                "a shorter k (analysis.k, --k) analyses shorter traces"
+                Skip(
+                    f"unrolling traces of k = {k} ticks builds about {cells:.2g} solver terms, "
+                    f"about {cells / CELLS_PER_S:.2g} s against a time budget of {budget_s:g} s",
+                    BUDGET,
+                    (Limit.TRACE_LENGTH,),
+                )
             )
     try:
         ctx = Context(reqs, vars_, k, timeout_s, deadline, memory_mb)
     except OutOfTime:
         return give_up(
-            f"the time budget of {budget_s:g} s ran out while unrolling traces of k = {k} ticks"
+            Skip(
+                f"the time budget of {budget_s:g} s ran out while unrolling traces of k = {k} ticks",
+                BUDGET,
+            )
         )
     except TooLarge as e:
-        return give_up(
-            f"{e} (traces of k = {k} ticks); a shorter k (analysis.k, --k) or a larger "
-            "limits.analysis_budget_s analyses it"
-        )
+        return give_up(Skip(f"{e} (traces of k = {k} ticks)", BUDGET, (Limit.TRACE_LENGTH, BUDGET)))
     findings: list[Finding] = []
     for rid, why in ctx.unsupported.items():
         findings.append(
@@ -123,21 +124,23 @@ def analyse(
         nonlocal memout
         t = time.perf_counter()
         if memout:
-            skipped[name] = f"{reached} before it{MEMORY_KEY}"
+            skipped[name] = Skip(f"{reached} before it", MEMORY)
             return default
         if deadline is not None and time.monotonic() >= deadline:
-            skipped[name] = f"the time budget of {budget_s:g} s ran out before it"
+            skipped[name] = Skip(f"the time budget of {budget_s:g} s ran out before it", BUDGET)
             return default
         try:
             return run()
         except OutOfTime:
-            skipped[name] = f"stopped: the time budget of {budget_s:g} s ran out during it"
+            skipped[name] = Skip(
+                f"stopped: the time budget of {budget_s:g} s ran out during it", BUDGET
+            )
             return default
         except z3.Z3Exception as e:
             if not is_memout(e):
                 raise
             memout = True
-            skipped[name] = f"stopped: {reached}{MEMORY_KEY}"
+            skipped[name] = Skip(f"stopped: {reached}", MEMORY)
             return default
         finally:
             seconds[name] = time.perf_counter() - t
@@ -156,17 +159,20 @@ def analyse(
     vacuous = step("vacuity", lambda: vacuity(ctx, findings, bool(consistent)), set())
     if consistent:
         step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
-    undecided = skipped.get("consistency") or (
+    # z3 giving up within its time per call is reported against the budget too: a
+    # larger one gives the later analyses the time to try again.
+    undecided = skipped.get("consistency") or Skip(
         f"consistency was not decided: the time budget of {budget_s:g} s ran out during it"
         if deadline is not None and time.monotonic() >= deadline
-        else "consistency was not decided (z3 gave up)"
+        else "consistency was not decided (z3 gave up)",
+        BUDGET,
     )
     if consistent is None and "redundancy" not in skipped:
         skipped["redundancy"] = undecided
     if consistent is None and "realizability" not in skipped:
         skipped["realizability"] = undecided
     if memout:  # explain's example traces would ask the same solver
-        skipped["examples"] = f"{reached}{MEMORY_KEY}"
+        skipped["examples"] = Skip(reached, MEMORY)
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])

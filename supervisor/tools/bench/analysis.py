@@ -62,13 +62,12 @@ def generated(
 
 
 def from_config(path: str | Path) -> tuple[list[Req], list[VarInfo], int | None, float]:
-    from supervisor.analysis_report import analysis_settings, project_requirements
     from supervisor.pipeline import project_for
+    from supervisor.validation import project_requirements
 
     project = project_for(path, ros=False)
-    k, timeout, _ = analysis_settings(project.config)
     reqs, vars_ = project_requirements(project)
-    return reqs, vars_, k, timeout
+    return reqs, vars_, project.config.analysis.k, project.config.analysis.timeout_s
 
 
 def report(name: str, a: Analysis, wall: float) -> None:

@@ -10,10 +10,10 @@ from typing import Any
 from monitors.ir.formula import Formula, Past, Pre, Since, subterms
 from monitors.verify.analysis import range_formula
 from monitors.verify.bmc import Encoder, Unsupported, fresh_rows
-from supervisor.analysis_report import project_requirements
 from supervisor.pipeline import Project
 from supervisor.tools.inject.fields import field_domains
 from supervisor.tools.inject.schedule import observed, schedule_of, span, topics_of
+from supervisor.validation import project_requirements
 
 WARMUP = 5  # copies of the first tick before the injection (10 Hz)
 

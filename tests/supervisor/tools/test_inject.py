@@ -21,11 +21,11 @@ import pytest
 from rosutil import ROOT, ROS_ENV, SROBOT, Daemon, variant
 
 from monitors.verify.interpret import verdicts
-from supervisor.analysis_report import project_requirements
 from supervisor.cli import main as cli_main
 from supervisor.pipeline import project_for
 from supervisor.tools.inject.plan import Planner
 from supervisor.tools.inject.target import WARMUP
+from supervisor.validation import project_requirements
 
 SROBOT_IDS = [
     "classifier_assumption",
