@@ -29,10 +29,21 @@ def test_localhost_gets_a_udp_profile_in_place_of_rmws_shared_memory(tmp_path: P
     }
 
 
+def test_the_units_udp_choice_is_honoured_under_localhost(tmp_path: Path) -> None:
+    # the unit's FASTDDS_BUILTIN_TRANSPORTS=UDPv4, which rmw ignores under LOCALHOST
+    unit = {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
+    assert udp_settings(unit, tmp_path) is None  # Fast DDS applies it itself
+    assert udp_settings({**LOCALHOST, **unit}, tmp_path) == {
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
+        "FASTRTPS_DEFAULT_PROFILES_FILE": "PROFILE",
+    }
+
+
 @pytest.mark.parametrize(
     "choice",
     [
         {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"},
+        {"FASTDDS_BUILTIN_TRANSPORTS": "SHM"},
         {"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/fastdds.xml"},
         {"FASTDDS_DEFAULT_PROFILES_FILE": "/etc/fastdds.xml"},
         {"ROS_DISCOVERY_SERVER": "127.0.0.1:11811"},
@@ -70,7 +81,10 @@ def _shm_ports(pid: int) -> set[str]:
 
 
 @pytest.mark.ros
-@pytest.mark.parametrize("operator", [{}, {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}])
+@pytest.mark.parametrize(
+    "operator",
+    [{}, {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}, {"FASTDDS_BUILTIN_TRANSPORTS": "DEFAULT"}],
+)
 def test_daemon_under_localhost_is_udp_only_and_hears_a_shared_memory_robot(
     tmp_path: Path, operator: dict[str, str]
 ) -> None:
@@ -86,9 +100,9 @@ def test_daemon_under_localhost_is_udp_only_and_hears_a_shared_memory_robot(
             assert _shm_ports(os.getpid()), "this robot node should have shared memory"
             Robot(node).warm_up(d, S0)  # the daemon steps on what the robot published
             ports = _shm_ports(d.proc.pid)
-            if operator:
+            if operator.get("FASTDDS_BUILTIN_TRANSPORTS") == "DEFAULT":
                 assert ports, "the operator's FASTDDS_BUILTIN_TRANSPORTS=DEFAULT was overridden"
-            else:
+            else:  # none, or the unit's UDPv4
                 assert not ports, f"the daemon has shared-memory ports: {sorted(ports)}"
             d.terminate()
     finally:

@@ -10,10 +10,11 @@ environment says nothing, for its own process only (its children, the mitigation
 commands, inherit the operator's environment unchanged).
 
 ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` needs more: rmw_fastrtps 8.4 then
-configures the participant's transports itself (shared memory and UDP, whatever the
-environment says), so the daemon asks rmw for the system default range and gives
-Fast DDS what rmw would have given, less the shared memory, in an XML profile:
-discovery over unicast only, with 127.0.0.1 as the initial peer.
+configures the participant's transports itself (shared memory and UDP, whatever
+``FASTDDS_BUILTIN_TRANSPORTS`` says, the unit's ``UDPv4`` too), so the daemon asks rmw
+for the system default range and gives Fast DDS what rmw would have given, less the
+shared memory, in an XML profile: discovery over unicast only, with 127.0.0.1 as the
+initial peer.
 """
 
 from __future__ import annotations
@@ -28,7 +29,6 @@ from pathlib import Path
 # of transports, XML profiles, discovery server or static peers.
 FASTDDS_RMWS = ("", "rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
 OPERATOR_CHOICES = (
-    "FASTDDS_BUILTIN_TRANSPORTS",
     "FASTRTPS_DEFAULT_PROFILES_FILE",
     "FASTDDS_DEFAULT_PROFILES_FILE",
     "ROS_DISCOVERY_SERVER",
@@ -72,6 +72,9 @@ def udp_settings(environ: Mapping[str, str], cwd: Path) -> dict[str, str] | None
     for the XML profile's path), or None where the daemon leaves Fast DDS alone."""
     if environ.get("RMW_IMPLEMENTATION", "") not in FASTDDS_RMWS:
         return None
+    transports = environ.get("FASTDDS_BUILTIN_TRANSPORTS", "")
+    if transports not in ("", "UDPv4"):  # e.g. DEFAULT: shared memory wanted
+        return None
     if any(environ.get(k) for k in OPERATOR_CHOICES) or (cwd / DEFAULT_PROFILES).exists():
         return None
     if environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE") == "LOCALHOST":
@@ -79,6 +82,8 @@ def udp_settings(environ: Mapping[str, str], cwd: Path) -> dict[str, str] | None
             "ROS_AUTOMATIC_DISCOVERY_RANGE": "SYSTEM_DEFAULT",
             "FASTRTPS_DEFAULT_PROFILES_FILE": "PROFILE",
         }
+    if transports:  # UDPv4 already, as the unit sets
+        return None
     return {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
 
