@@ -6,6 +6,7 @@ memory and UDP, as this test process's) still reach it."""
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -72,6 +73,20 @@ def test_udp_only_restores_the_environment(tmp_path: Path, monkeypatch: pytest.M
         assert "<useBuiltinTransports>false</useBuiltinTransports>" in profile.read_text()
     assert env == LOCALHOST  # the daemon's children get the operator's environment
     assert not profile.exists()
+
+
+def test_no_temporary_directory_leaves_rmw_its_choice(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "missing"))
+    env = dict(LOCALHOST)
+    with udp_only(env) as settings:
+        assert settings is None
+        assert env == LOCALHOST
+    warning = capsys.readouterr().err
+    assert warning.startswith("safety-supervisor: WARNING: DDS transports left to rmw"), warning
+    assert warning.count("\n") == 1, warning  # one line, no traceback
 
 
 def _shm_ports(pid: int) -> set[str]:

@@ -25,6 +25,8 @@ import tempfile
 from collections.abc import Iterator, Mapping, MutableMapping
 from pathlib import Path
 
+from supervisor.daemon.core import warn
+
 # Where the daemon leaves Fast DDS alone: another RMW, or the operator's own choice
 # of transports, XML profiles, discovery server or static peers.
 FASTDDS_RMWS = ("", "rmw_fastrtps_cpp", "rmw_fastrtps_dynamic_cpp")
@@ -87,24 +89,37 @@ def udp_settings(environ: Mapping[str, str], cwd: Path) -> dict[str, str] | None
     return {"FASTDDS_BUILTIN_TRANSPORTS": "UDPv4"}
 
 
+def _cwd() -> Path | None:
+    try:
+        return Path.cwd()
+    except OSError:  # removed under the daemon: no profile file there either
+        return None
+
+
 @contextlib.contextmanager
 def udp_only(environ: MutableMapping[str, str] | None = None) -> Iterator[dict[str, str] | None]:
     """Within: the settings of :func:`udp_settings` in ``environ`` (os.environ), for
     rclpy's init and the first node (the participant reads them then); restored on
     exit, so children get the operator's environment.  Yields what was set."""
     env = os.environ if environ is None else environ
-    settings = udp_settings(env, Path.cwd())
+    cwd = _cwd()
+    settings = udp_settings(env, cwd) if cwd is not None else None
     if settings is None:
         yield None
         return
     saved = {k: env.get(k) for k in settings}
     with contextlib.ExitStack() as stack:
         if "FASTRTPS_DEFAULT_PROFILES_FILE" in settings:
-            tmp = Path(
-                stack.enter_context(tempfile.TemporaryDirectory(prefix="safety-supervisor-dds-"))
-            )
-            profile = tmp / "localhost-udp.xml"
-            profile.write_text(LOCALHOST_UDP_PROFILE)
+            try:
+                tmp = stack.enter_context(
+                    tempfile.TemporaryDirectory(prefix="safety-supervisor-dds-")
+                )
+                profile = Path(tmp) / "localhost-udp.xml"
+                profile.write_text(LOCALHOST_UDP_PROFILE)
+            except OSError as e:  # no writable temporary directory: rmw's choice, as before
+                warn(f"DDS transports left to rmw_fastrtps (shared memory included): {e}")
+                yield None
+                return
             settings["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
         try:
             env.update(settings)
