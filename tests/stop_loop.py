@@ -89,7 +89,10 @@ def ros_loop(n: int, env: dict[str, str], kill_peers: bool) -> list[dict[str, An
 
     name = f"safety_supervisor_loop_{os.getpid()}"
     tmp = Path(tempfile.mkdtemp(prefix="stop-loop-"))  # kept if a stop failed
-    config = variant(tmp, ("component: sRobot", f"component: sRobot\nros:\n  node_name: {name}"))
+    # Its own control socket: the default one is per ROS_DOMAIN_ID, which another
+    # run on this machine may have drawn too.
+    own = f"component: sRobot\ncontrol:\n  socket: {tmp}/control.sock\nros:\n  node_name: {name}"
+    config = variant(tmp, ("component: sRobot", own))
     flood = [sys.executable, str(Path(__file__).resolve().parent / "flood.py")]
     out: list[dict[str, Any]] = []
     with ros_node("stop_loop_observer") as observer:
