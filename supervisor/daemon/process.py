@@ -40,6 +40,7 @@ from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
 from supervisor.daemon.session import Session, build_session
+from supervisor.daemon.transport import udp_only
 from supervisor.pipeline import monitor_library
 
 if TYPE_CHECKING:  # rosbags loads only when recording is on
@@ -256,18 +257,21 @@ def run_daemon(
         stack.callback(control.close)
         log.supervisor("control_socket", socket=control.path, group=control.group)
         recorder = open_recorder(cfg, record, log)
-        ctx = init_ros()
-        stack.callback(_shutdown_ros, ctx)
-        node = SupervisorNode(
-            session,
-            log,
-            context=ctx,
-            notifier=notifier,
-            watchdog_s=watchdog_interval(),
-            control=control,
-            recorder=recorder,
-            reload=reload_session,  # `safety-supervisor reload` on the control socket
-        )
+        # UDP only unless the operator chose: no shared-memory ports to crash on
+        # at stop (supervisor/daemon/transport.py; docs/reference/faults.md, "Stop").
+        with udp_only():
+            ctx = init_ros()
+            stack.callback(_shutdown_ros, ctx)
+            node = SupervisorNode(
+                session,
+                log,
+                context=ctx,
+                notifier=notifier,
+                watchdog_s=watchdog_interval(),
+                control=control,
+                recorder=recorder,
+                reload=reload_session,  # `safety-supervisor reload` on the control socket
+            )
         stack.callback(node.close)
         signals.attach(node)
         n_req = len(session.requirements)

@@ -82,8 +82,8 @@ ENVIRONMENT_TEMPLATE = """\
 #ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
 #
 # The unit makes Fast DDS use UDP only: its shared memory transport does not
-# work between processes of different users (LOCALHOST above turns shared
-# memory back on).  To use shared memory anyway:
+# work between processes of different users (the daemon keeps UDP only under
+# LOCALHOST too).  To use shared memory anyway:
 #FASTDDS_BUILTIN_TRANSPORTS=DEFAULT
 """
 

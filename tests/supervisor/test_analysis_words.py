@@ -15,7 +15,7 @@ from supervisor.analysis_report import fix_text, skip_text
 from supervisor.pipeline import project_for
 from supervisor.validation import project_requirements
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # How the supervisor names the analyses' limits: config keys and the option.
 APPLICATION_WORDS = re.compile(r"analysis\.|limits\.|--k\b|analysis_budget_s|analysis_memory_mb")
 
