@@ -201,20 +201,6 @@ class SupervisorNode:
         """Reopen the violation log (logrotate); safe from a signal handler."""
         self.reloader.request_reopen()
 
-    def operator_reset(
-        self,
-        *,
-        via: str,
-        caller: dict[str, Any] | None,
-        now: int | None = None,
-        requirement: str | None = None,
-        client: str | None = None,
-    ) -> tuple[bool, str, str | None]:
-        """:meth:`Resets.operator_reset`, from the loop's thread only."""
-        return self.resets.operator_reset(
-            via=via, caller=caller, now=now, requirement=requirement, client=client
-        )
-
     def _poke(self) -> None:
         """Wake the loop from another thread; a no-op once :meth:`close` began."""
         with self._wake_lock:
