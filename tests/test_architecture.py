@@ -83,3 +83,37 @@ def test_architecture_tables_match_the_tree() -> None:
     named = _table_paths(ROOT / "docs" / "ARCHITECTURE.md")
     unnamed = sorted(p for p in packages if p not in named)
     assert not unnamed, f"docs/ARCHITECTURE.md does not describe: {unnamed}"
+
+
+# The daemon's ROS side: the node and the parts it composes, and what they hand
+# their figures to (docs/ARCHITECTURE.md, supervisor/daemon/).
+NODE_PARTS = (
+    "node",
+    "receive",
+    "graph",
+    "interfaces",
+    "resets",
+    "reload",
+    "loss",
+    "status",
+    "process",
+)
+
+
+def test_the_daemons_ros_side_talks_to_the_core_only() -> None:
+    """No part of the node reads or drives the runtime itself: what it needs goes
+    through Core, so the core stays the one place that decides."""
+    import ast
+
+    hits = []
+    for name in NODE_PARTS:
+        path = ROOT / "supervisor" / "daemon" / f"{name}.py"
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for node in ast.walk(tree):
+            reached = isinstance(node, ast.Attribute) and node.attr == "runtime"
+            imported = (
+                isinstance(node, ast.ImportFrom) and node.module == "supervisor.daemon.runtime"
+            )
+            if reached or imported:
+                hits.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not hits, "reaches past Core into Runtime: " + ", ".join(hits)

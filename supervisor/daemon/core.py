@@ -1,6 +1,6 @@
 """The monitoring core: messages and time in, records and actions out.
 
-No rclpy here.  The receive loop (supervisor/daemon/node.py) and ``replay``
+No rclpy here.  The receive loop (supervisor/daemon/receive.py) and ``replay``
 (supervisor/tools/replay) drive the same Core, so what the daemon decides online
 is what replay decides offline from the same messages and receive times
 (docs/reference/commands.md, "replay").
@@ -198,7 +198,9 @@ class Core:
         return refused
 
     def swap(self, new: Session) -> None:
-        """Go on with ``new`` (a reloaded config); kept policies stay active."""
+        """Go on with ``new`` (a reloaded config); kept policies stay active.  Its
+        runtime takes over the latest values, counts and tick (Runtime.adopt)."""
+        new.runtime.adopt(self.session.runtime)
         self.session = new
         self.supervision = Supervision(new.runtime, new.policies, self)
         self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
@@ -207,6 +209,42 @@ class Core:
         self._due = 0
         if self.now is not None:
             self._mark("reload", self.now, config=new.config.path)
+
+    # ------------------------------------------------------------ for the node
+    # The daemon's ROS side (node.py and its parts) talks to the core only: what
+    # it shows or counts of the runtime goes through these.
+
+    @property
+    def tick(self) -> int:
+        """Steps taken so far (kept across a reload)."""
+        return self.session.runtime.tick
+
+    def step_due(self, t: int) -> int | None:
+        """When the next timer-driven step is due (periodic timer, synchronized skew)."""
+        return self.session.runtime.due(t)
+
+    def input_stats(self) -> dict[str, dict[str, Any]]:
+        """Per input: messages, rejected, nan, future, lost, own, stale, last_ns."""
+        return self.session.runtime.input_stats()
+
+    def stale_inputs(self) -> list[str]:
+        return self.session.runtime.stale_inputs()
+
+    def snapshot(self) -> dict[str, Any]:
+        """Each input's latest value."""
+        return self.session.runtime.snapshot()
+
+    def missing_inputs(self) -> list[str]:
+        """Inputs without a value yet: nothing is stepped until each has one."""
+        return self.session.runtime.missing_inputs()
+
+    def count_own(self, name: str) -> None:
+        """The daemon's own message came back on input ``name``'s topic (loss.py)."""
+        self.session.runtime.count_own(name)
+
+    def count_lost(self, name: str, n: int) -> None:
+        """``n`` messages of input ``name`` never arrived (a sequence gap; loss.py)."""
+        self.session.runtime.count_lost(name, n)
 
     def _mark(self, what: str, t: int, **fields: Any) -> None:
         if self._marker is not None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,3 +129,58 @@ class RecordingPublisher:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.inner, name)
+
+
+class LossReports:
+    """What the daemon says of lost messages: one ``input_lost`` record per input
+    that lost messages since the last report, the count since the last
+    ``/diagnostics``, and the ``stop`` record's per-input figures."""
+
+    def __init__(self, log: Any, warn: Callable[[str], None]) -> None:
+        self.log = log
+        self.warn = warn
+        self._reported: dict[str, int] = {}  # per input: lost total last logged
+        self._at_diagnostics: dict[str, int] = {}  # per input: lost total last on /diagnostics
+
+    def report(
+        self,
+        stats: dict[str, dict[str, Any]],
+        inputs: Iterable[tuple[str, str | None, SequenceStreams | None]],
+    ) -> None:
+        """``stats``: the core's input_stats(); ``inputs``: (name, topic, streams) each."""
+        for name, topic, streams in inputs:
+            total = stats[name]["lost"]
+            new = total - self._reported.get(name, 0)
+            if new <= 0:
+                continue
+            self._reported[name] = total
+            self.warn(f"input '{name}': {new} messages lost ({total} so far) on {topic}")
+            self.log.supervisor(
+                "input_lost",
+                input=name,
+                topic=topic,
+                lost=new,
+                total=total,
+                by_publisher=streams.by_publisher() if streams else [],
+            )
+
+    def since_diagnostics(self, name: str, total: int) -> int:
+        """Messages of input ``name`` lost since the last /diagnostics (``total`` so far)."""
+        recent = total - self._at_diagnostics.get(name, 0)
+        self._at_diagnostics[name] = total
+        return recent
+
+
+def stop_stats(
+    stats: dict[str, dict[str, Any]], streams: dict[str, SequenceStreams | None]
+) -> dict[str, dict[str, Any]]:
+    """Per input, for the ``stop`` record: the counts, and per publisher stream
+    the first and last number heard, received and lost: what a publisher sent
+    outside them is not counted as lost, but whoever knows what it sent can
+    (docs/reference/ros-interfaces.md#lost-messages)."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, st in stats.items():
+        out[name] = {k: st[k] for k in ("messages", "rejected", "nan", "lost", "own")}
+        seqs = streams.get(name)
+        out[name]["by_publisher"] = seqs.by_publisher() if seqs else []
+    return out

@@ -281,7 +281,7 @@ def run_daemon(
         notifier.stopping(status="stopping")
         log.supervisor(
             "stop",
-            ticks=node.session.runtime.tick,
+            ticks=node.core.tick,
             violations=node.core.violations,
             reloads=node.reloads,
             inputs=node.stop_stats(),

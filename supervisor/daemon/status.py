@@ -19,7 +19,7 @@ from typing import Any
 
 from mitigations.policy import RequirementPolicy
 from mitigations.violationlog.format import json_safe
-from supervisor.daemon.session import Session
+from supervisor.daemon.core import Core
 
 SCHEMA = 1
 ACTIONS_KEPT = 5  # per requirement, the latest
@@ -90,26 +90,27 @@ class StatusBoard:
 
     def document(
         self,
-        session: Session,
-        policies: list[RequirementPolicy],
+        core: Core,
         *,
         now_ns: int,
-        violations: int,
         reloads: int,
         recording: bool,
         watchdog_s: float | None,
         control_socket: str | None,
     ) -> dict[str, Any]:
+        session = core.session
+        policies = session.policies
+        violations = core.violations
         cfg = session.config
-        rt = session.runtime
-        stats = rt.input_stats()
+        stats = core.input_stats()
+        tick = core.tick
         received = sum(st["messages"] + st["rejected"] for st in stats.values())
         tick_rate = receive_rate = 0.0
         if self._prev is not None and now_ns > self._prev[0]:
             dt = (now_ns - self._prev[0]) / 1e9
-            tick_rate = (rt.tick - self._prev[1]) / dt
+            tick_rate = (tick - self._prev[1]) / dt
             receive_rate = (received - self._prev[2]) / dt
-        self._prev = (now_ns, rt.tick, received)
+        self._prev = (now_ns, tick, received)
         if self.started_mono is None:
             self.started_mono = now_ns
         with self._lock:
@@ -117,7 +118,7 @@ class StatusBoard:
             dropped, self._dropped = self._dropped, 0
             actions = {k: list(v) for k, v in self._actions.items()}
             last = dict(self._last_violation)
-        stale = set(rt.stale_inputs())
+        stale = set(core.stale_inputs())
         types = {v.name: v for v in cfg.inputs}
         requirements = []
         for i, r in enumerate(session.requirements):
@@ -137,7 +138,7 @@ class StatusBoard:
                 }
             )
         inputs = []
-        latest = rt.snapshot()
+        latest = core.snapshot()
         for name, st in stats.items():
             v = types.get(name)
             last_ns = st["last_ns"]
@@ -164,7 +165,7 @@ class StatusBoard:
             "now": _iso(int(datetime.now(UTC).timestamp() * 1e9)),
             "uptime_s": round((now_ns - self.started_mono) / 1e9, 3),
             "policy": cfg.step.policy,
-            "ticks": rt.tick,
+            "ticks": tick,
             "tick_rate_hz": round(tick_rate, 2),
             "receive_rate_hz": round(receive_rate, 2),
             "received": received,

@@ -70,7 +70,7 @@ def breakdown(
     )
     after = durability == "after_publish"
     if after:
-        log.defer_thread = threading.get_ident()  # as the daemon's loop (node.py)
+        log.defer_thread = threading.get_ident()  # as the daemon's loop (receive.py)
     stages = STAGES_AFTER_PUBLISH if after else STAGES
     ctx = Context()
     rclpy.init(context=ctx, domain_id=_private_domain())

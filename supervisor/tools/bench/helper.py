@@ -2,7 +2,7 @@
 the spec's topics, QoS, an rclpy node, and the wait-set loop.
 
 The wait-set loop uses the same private rclpy API as the daemon's receive loop
-(``supervisor/daemon/node.py``) but is written out here on purpose: a baseline
+(``supervisor/daemon/receive.py``) but is written out here on purpose: a baseline
 that imported the daemon's code would not be a baseline.
 """
 

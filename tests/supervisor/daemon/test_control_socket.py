@@ -425,9 +425,10 @@ def test_a_dead_control_thread_is_restarted_then_stops_the_watchdog(
 
     from mitigations.violationlog.writer import ViolationLog
     from monitors.backends.load import compile_spec
-    from supervisor.daemon.node import CONTROL_RESTARTS, SupervisorNode
+    from supervisor.daemon.node import SupervisorNode
     from supervisor.daemon.notify import Notifier
     from supervisor.daemon.process import _shutdown_ros, init_ros
+    from supervisor.daemon.resets import CONTROL_RESTARTS
     from supervisor.daemon.session import build_session
     from supervisor.pipeline import project_for
 

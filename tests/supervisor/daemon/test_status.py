@@ -76,9 +76,13 @@ def test_the_document_of_a_session(tmp_path: Path):
     core.fields([("halted", False)], 1 * MS)
     core.fields([("speed", 3.5)], 2 * MS)  # fast, not halted: latched; limit debouncing
     doc = board.document(
-        session, session.policies, now_ns=3 * MS, violations=core.violations, reloads=0,
-        recording=False, watchdog_s=None, control_socket="/tmp/c.sock",
-    )  # fmt: skip
+        core,
+        now_ns=3 * MS,
+        reloads=0,
+        recording=False,
+        watchdog_s=None,
+        control_socket="/tmp/c.sock",
+    )
     reqs = {r["id"]: r for r in doc["requirements"]}
     assert reqs["halt_when_fast"]["state"] == "latched"
     assert reqs["halt_when_fast"]["actions"][0]["action"] == "note"
@@ -88,9 +92,8 @@ def test_the_document_of_a_session(tmp_path: Path):
     assert [e["event"] for e in doc["events"]] == ["violation", "mitigation", "reset"]
     core.advance(300 * MS)  # both inputs go stale
     doc = board.document(
-        session, session.policies, now_ns=300 * MS, violations=core.violations, reloads=0,
-        recording=False, watchdog_s=None, control_socket=None,
-    )  # fmt: skip
+        core, now_ns=300 * MS, reloads=0, recording=False, watchdog_s=None, control_socket=None
+    )
     reqs = {r["id"]: r for r in doc["requirements"]}
     assert sorted(reqs["halt_when_fast"]["stale_inputs"]) == ["halted", "speed"]  # via 'fast'
     assert [e["what"] for e in doc["events"]] == ["input_stale", "input_stale"]
