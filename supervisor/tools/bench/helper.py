@@ -86,15 +86,21 @@ def reliable(durability: str = "volatile", depth: int = DEPTH) -> Any:
 
 
 @contextlib.contextmanager
-def ros_node(name: str) -> Iterator[Any]:
+def ros_node(name: str, *, as_daemon: bool = False) -> Iterator[Any]:
+    """A node in its own context.  ``as_daemon``: on the daemon's DDS transport (UDP
+    only unless the environment chooses; supervisor/daemon/transport.py), so a
+    baseline standing in for the daemon is reached the way the daemon is."""
     import rclpy
     from rclpy.context import Context
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
 
+    from supervisor.daemon.transport import udp_only
+
     ctx = Context()
-    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    node = Node(name, context=ctx)
+    with udp_only() if as_daemon else contextlib.nullcontext():
+        rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+        node = Node(name, context=ctx)
     try:
         yield node
     finally:
