@@ -1,4 +1,7 @@
-"""The command line as a user runs it: real subprocesses, real files, real compiler."""
+"""The command line as a user runs it: real files, real compiler, and real
+subprocesses for each exit path (success, bad config, usage error); the other
+error lines are read from the CLI's main in this process, which returns the exit
+code a subprocess would get (supervisor/__main__.py)."""
 
 import json
 import os
@@ -8,6 +11,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
+
+from supervisor.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 SROBOT = ROOT / "config" / "srobot.yaml"
@@ -41,6 +46,19 @@ requirements:
 mitigations:
   stop: {publish: {topic: /stop, msg: std_msgs/msg/Bool, value: {data: true}}}
 """
+
+
+def cli_here(capsys, monkeypatch, *args) -> tuple[int, str, str]:
+    """``safety-supervisor ARGS`` in this process: its exit code, stdout and stderr.
+    Without SAFETY_SUPERVISOR_DEBUG, as for users: an internal error is then exit 3
+    with one line, as it would be in a subprocess."""
+    monkeypatch.delenv("SAFETY_SUPERVISOR_DEBUG", raising=False)
+    try:
+        code = main([str(a) for a in args])
+    except SystemExit as e:  # argparse's usage errors
+        code = e.code if isinstance(e.code, int) else 1
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
 
 
 def write(tmp_path, text):
@@ -112,9 +130,9 @@ def test_quoted_and_keyword_like_names_check_and_explain(tmp_path):
     )
 
 
-def test_explain_unknown_requirement():
-    r = cli("explain", SROBOT, "state_req999")
-    assert r.returncode == 1 and "no requirement 'state_req999'" in r.stderr
+def test_explain_unknown_requirement(capsys, monkeypatch):
+    code, _, err = cli_here(capsys, monkeypatch, "explain", SROBOT, "state_req999")
+    assert code == 1 and "no requirement 'state_req999'" in err
 
 
 def test_compile_writes_sources_library_manifest(tmp_path):
@@ -153,24 +171,35 @@ def test_compile_writes_sources_library_manifest(tmp_path):
         (("within 1 second", "within 150 milliseconds"), 11, "not a whole number"),
     ],
 )
-def test_bad_input_is_one_located_line(tmp_path, edit, line, needle):
+def test_bad_input_is_one_located_line(tmp_path, capsys, monkeypatch, edit, line, needle):
     cfg = write(tmp_path, CONFIG.replace(*edit))
-    r = cli("check", cfg)
-    assert r.returncode == 1, r.stdout + r.stderr
-    text = r.stdout + r.stderr
+    code, out, err = cli_here(capsys, monkeypatch, "check", cfg)
+    text = out + err
+    assert code == 1, text
     assert "Traceback" not in text
     hits = [t for t in text.splitlines() if f"{cfg}:{line}" in t]
     assert hits, text
     assert needle in hits[0], hits
 
 
-def test_unparseable_sentence_points_at_column(tmp_path):
+def test_bad_config_in_a_subprocess_is_one_located_line(tmp_path):
+    """The bad-config exit path as users meet it; the cases above check the lines."""
+    cfg = write(tmp_path, CONFIG.replace("satisfy p | halt", "satisfy p | hault"))
+    r = cli("check", cfg)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "Traceback" not in r.stdout + r.stderr
+    hits = [t for t in (r.stdout + r.stderr).splitlines() if f"{cfg}:9" in t]
+    assert hits and "undeclared variable 'hault'" in hits[0], r.stdout + r.stderr
+
+
+def test_unparseable_sentence_points_at_column(tmp_path, capsys, monkeypatch):
     cfg = write(
         tmp_path, CONFIG.replace("sw shall always satisfy p | halt", "sw shall always p | halt")
     )
-    r = cli("check", cfg)
+    code, out, err = cli_here(capsys, monkeypatch, "check", cfg)
+    assert code == 1, out + err
     # 'text: ' starts at column 5; the bad token 'p' is the 17th character of the sentence
-    assert f"{cfg}:9:{11 + 16}:" in r.stdout + r.stderr
+    assert f"{cfg}:9:{11 + 16}:" in out + err
 
 
 def test_usage_error_exit_2():
