@@ -19,6 +19,25 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def user_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One ``$XDG_CACHE_HOME`` for the whole run, in and out of this process: replay
+    keeps its monitors and parser tables there (supervisor/cache.py, ``open_user``),
+    so a spec compiles once per run, and never in or from the user's own
+    ~/.cache.  Tests of that cache set their own."""
+    home = tmp_path_factory.mktemp("xdg-cache")
+    home.chmod(0o700)
+    with pytest.MonkeyPatch.context() as mp:
+        if "PIP_CACHE_DIR" not in os.environ:  # pip's wheels stay where they were
+            base = os.environ.get("XDG_CACHE_HOME", "")
+            mp.setenv(
+                "PIP_CACHE_DIR",
+                str(Path(base if os.path.isabs(base) else Path.home() / ".cache") / "pip"),
+            )
+        mp.setenv("XDG_CACHE_HOME", str(home))
+        yield home
+
+
 @pytest.fixture
 def sshd(tmp_path: Path) -> Iterator[Sshd]:
     """A real OpenSSH sshd on 127.0.0.1 (see tests/sshd.py), stopped after the test."""
