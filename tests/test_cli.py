@@ -1,8 +1,8 @@
 """The command line as a user runs it: real files, real compiler, and real
 subprocesses for each exit path (success, bad config, usage error); the other
-error lines are read from the CLI's main in this process, which returns the exit
-code a subprocess would get (supervisor/__main__.py)."""
+error lines are read from the CLI's main in this process (conftest.py, ``cli_main``)."""
 
+import io
 import json
 import os
 import subprocess
@@ -11,8 +11,6 @@ import textwrap
 from pathlib import Path
 
 import pytest
-
-from supervisor.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 SROBOT = ROOT / "config" / "srobot.yaml"
@@ -48,30 +46,20 @@ mitigations:
 """
 
 
-def cli_here(capsys, monkeypatch, *args) -> tuple[int, str, str]:
-    """``safety-supervisor ARGS`` in this process: its exit code, stdout and stderr.
-    Without SAFETY_SUPERVISOR_DEBUG, as for users: an internal error is then exit 3
-    with one line, as it would be in a subprocess."""
-    monkeypatch.delenv("SAFETY_SUPERVISOR_DEBUG", raising=False)
-    try:
-        code = main([str(a) for a in args])
-    except SystemExit as e:  # argparse's usage errors
-        code = e.code if isinstance(e.code, int) else 1
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
 def write(tmp_path, text):
     p = tmp_path / "cfg.yaml"
     p.write_text(textwrap.dedent(text))
     return p
 
 
-def test_formalize_arguments_and_json_stdin():
-    r = cli("formalize", "sw shall always satisfy p")
+def test_formalize_arguments_and_json_stdin(cli_main, monkeypatch):
+    r = cli_main("formalize", "sw shall always satisfy p")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "(H p)"
-    r = cli("formalize", "--json", stdin="sw shall always satisfy p\nsw will always satisfy q\n")
+    monkeypatch.setattr(
+        "sys.stdin", io.StringIO("sw shall always satisfy p\nsw will always satisfy q\n")
+    )
+    r = cli_main("formalize", "--json")
     assert r.returncode == 1
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert rows[0] == {"text": "sw shall always satisfy p", "formula": "(H p)", "error": None}
@@ -86,8 +74,8 @@ def test_check_srobot_config_compiles():
     assert "13 requirements ok" in lines[-1]
 
 
-def test_explain_shows_formula_reading_variables_handler():
-    r = cli("explain", SROBOT, "state_req103")
+def test_explain_shows_formula_reading_variables_handler(cli_main):
+    r = cli_main("explain", SROBOT, "state_req103")
     assert r.returncode == 0, r.stderr
     out = r.stdout
     assert "state_req103" in out and "(H ((classifier = 1) -> ((! dgt_3) -> (OpState = 3))))" in out
@@ -130,13 +118,13 @@ def test_quoted_and_keyword_like_names_check_and_explain(tmp_path):
     )
 
 
-def test_explain_unknown_requirement(capsys, monkeypatch):
-    code, _, err = cli_here(capsys, monkeypatch, "explain", SROBOT, "state_req999")
-    assert code == 1 and "no requirement 'state_req999'" in err
+def test_explain_unknown_requirement(cli_main):
+    r = cli_main("explain", SROBOT, "state_req999")
+    assert r.returncode == 1 and "no requirement 'state_req999'" in r.stderr
 
 
-def test_compile_writes_sources_library_manifest(tmp_path):
-    r = cli("compile", SROBOT, "-o", tmp_path / "out")
+def test_compile_writes_sources_library_manifest(tmp_path, cli_main):
+    r = cli_main("compile", SROBOT, "-o", tmp_path / "out")
     assert r.returncode == 0, r.stdout + r.stderr
     out = tmp_path / "out"
     assert (out / "monitor.c").exists() and (out / "monitor.h").exists()
@@ -171,11 +159,11 @@ def test_compile_writes_sources_library_manifest(tmp_path):
         (("within 1 second", "within 150 milliseconds"), 11, "not a whole number"),
     ],
 )
-def test_bad_input_is_one_located_line(tmp_path, capsys, monkeypatch, edit, line, needle):
+def test_bad_input_is_one_located_line(tmp_path, cli_main, edit, line, needle):
     cfg = write(tmp_path, CONFIG.replace(*edit))
-    code, out, err = cli_here(capsys, monkeypatch, "check", cfg)
-    text = out + err
-    assert code == 1, text
+    r = cli_main("check", cfg)
+    text = r.stdout + r.stderr
+    assert r.returncode == 1, text
     assert "Traceback" not in text
     hits = [t for t in text.splitlines() if f"{cfg}:{line}" in t]
     assert hits, text
@@ -192,14 +180,14 @@ def test_bad_config_in_a_subprocess_is_one_located_line(tmp_path):
     assert hits and "undeclared variable 'hault'" in hits[0], r.stdout + r.stderr
 
 
-def test_unparseable_sentence_points_at_column(tmp_path, capsys, monkeypatch):
+def test_unparseable_sentence_points_at_column(tmp_path, cli_main):
     cfg = write(
         tmp_path, CONFIG.replace("sw shall always satisfy p | halt", "sw shall always p | halt")
     )
-    code, out, err = cli_here(capsys, monkeypatch, "check", cfg)
-    assert code == 1, out + err
+    r = cli_main("check", cfg)
+    assert r.returncode == 1, r.stdout + r.stderr
     # 'text: ' starts at column 5; the bad token 'p' is the 17th character of the sentence
-    assert f"{cfg}:9:{11 + 16}:" in out + err
+    assert f"{cfg}:9:{11 + 16}:" in r.stdout + r.stderr
 
 
 def test_usage_error_exit_2():
