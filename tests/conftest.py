@@ -40,32 +40,13 @@ def user_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
 
 
 @pytest.fixture
-def cli_main(
-    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> Callable[..., subprocess.CompletedProcess[str]]:
-    """``safety-supervisor ARGS`` run by the CLI's main in this process, ended as the
-    subprocess would be (supervisor/__main__.py): exit code, stdout and stderr, without
-    the subprocess's start and imports.  Without SAFETY_SUPERVISOR_DEBUG, as for users.
-    Keep real subprocesses for what needs one: a terminal, signals, the exit path
-    itself."""
-    import monitors.ir.formula as formula
-    from supervisor.cli import main
+def cli_main(monkeypatch: pytest.MonkeyPatch) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """The CLI's main in this process (tests/inproc.py), without
+    SAFETY_SUPERVISOR_DEBUG, as for users."""
+    from inproc import cli_main
 
     monkeypatch.delenv("SAFETY_SUPERVISOR_DEBUG", raising=False)
-    # replay and check point the parsers at their cache: undone after the test
-    monkeypatch.setattr(formula, "_parser_cache_dir", formula._parser_cache_dir)
-
-    def run(*args: object) -> subprocess.CompletedProcess[str]:
-        argv = [str(a) for a in args]
-        capsys.readouterr()  # what the test printed before is not the command's
-        try:
-            code = main(argv)
-        except SystemExit as e:  # argparse: usage errors (2), --help (0)
-            code = e.code if isinstance(e.code, int) else 0 if e.code is None else 1
-        out = capsys.readouterr()
-        return subprocess.CompletedProcess(["safety-supervisor", *argv], code, out.out, out.err)
-
-    return run
+    return cli_main
 
 
 @pytest.fixture

@@ -2,7 +2,6 @@
 subprocesses for each exit path (success, bad config, usage error); the other
 error lines are read from the CLI's main in this process (conftest.py, ``cli_main``)."""
 
-import io
 import json
 import os
 import subprocess
@@ -52,14 +51,13 @@ def write(tmp_path, text):
     return p
 
 
-def test_formalize_arguments_and_json_stdin(cli_main, monkeypatch):
+def test_formalize_arguments_and_json_stdin(cli_main):
     r = cli_main("formalize", "sw shall always satisfy p")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "(H p)"
-    monkeypatch.setattr(
-        "sys.stdin", io.StringIO("sw shall always satisfy p\nsw will always satisfy q\n")
+    r = cli_main(
+        "formalize", "--json", stdin="sw shall always satisfy p\nsw will always satisfy q\n"
     )
-    r = cli_main("formalize", "--json")
     assert r.returncode == 1
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert rows[0] == {"text": "sw shall always satisfy p", "formula": "(H p)", "error": None}
