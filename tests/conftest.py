@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import signal
+import subprocess
 import tempfile
 import threading
 import time
@@ -68,6 +69,35 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Any:
     report = yield
     _fail_required_skip(report)
     return report
+
+
+@pytest.fixture(scope="session", autouse=True)
+def user_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One ``$XDG_CACHE_HOME`` for the whole run, in and out of this process: replay
+    keeps its monitors and parser tables there (supervisor/cache.py, ``open_user``),
+    so a spec compiles once per run, and never in or from the user's own
+    ~/.cache.  Tests of that cache set their own."""
+    home = tmp_path_factory.mktemp("xdg-cache")
+    home.chmod(0o700)
+    with pytest.MonkeyPatch.context() as mp:
+        if "PIP_CACHE_DIR" not in os.environ:  # pip's wheels stay where they were
+            base = os.environ.get("XDG_CACHE_HOME", "")
+            mp.setenv(
+                "PIP_CACHE_DIR",
+                str(Path(base if os.path.isabs(base) else Path.home() / ".cache") / "pip"),
+            )
+        mp.setenv("XDG_CACHE_HOME", str(home))
+        yield home
+
+
+@pytest.fixture
+def cli_main(monkeypatch: pytest.MonkeyPatch) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """The CLI's main in this process (tests/support/inproc.py), without
+    SAFETY_SUPERVISOR_DEBUG, as for users."""
+    from inproc import cli_main
+
+    monkeypatch.delenv("SAFETY_SUPERVISOR_DEBUG", raising=False)
+    return cli_main
 
 
 @pytest.fixture

@@ -1,4 +1,6 @@
-"""The command line as a user runs it: real subprocesses, real files, real compiler."""
+"""The command line as a user runs it: real files, real compiler, and real
+subprocesses for each exit path (success, bad config, usage error); the other
+error lines are read from the CLI's main in this process (conftest.py, ``cli_main``)."""
 
 import json
 import os
@@ -49,11 +51,13 @@ def write(tmp_path, text):
     return p
 
 
-def test_formalize_arguments_and_json_stdin():
-    r = cli("formalize", "sw shall always satisfy p")
+def test_formalize_arguments_and_json_stdin(cli_main):
+    r = cli_main("formalize", "sw shall always satisfy p")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "(H p)"
-    r = cli("formalize", "--json", stdin="sw shall always satisfy p\nsw will always satisfy q\n")
+    r = cli_main(
+        "formalize", "--json", stdin="sw shall always satisfy p\nsw will always satisfy q\n"
+    )
     assert r.returncode == 1
     rows = [json.loads(line) for line in r.stdout.splitlines()]
     assert rows[0] == {"text": "sw shall always satisfy p", "formula": "(H p)", "error": None}
@@ -68,8 +72,8 @@ def test_check_srobot_config_compiles():
     assert "13 requirements ok" in lines[-1]
 
 
-def test_explain_shows_formula_reading_variables_handler():
-    r = cli("explain", SROBOT, "state_req103")
+def test_explain_shows_formula_reading_variables_handler(cli_main):
+    r = cli_main("explain", SROBOT, "state_req103")
     assert r.returncode == 0, r.stderr
     out = r.stdout
     assert "state_req103" in out and "(H ((classifier = 1) -> ((! dgt_3) -> (OpState = 3))))" in out
@@ -112,13 +116,13 @@ def test_quoted_and_keyword_like_names_check_and_explain(tmp_path):
     )
 
 
-def test_explain_unknown_requirement():
-    r = cli("explain", SROBOT, "state_req999")
+def test_explain_unknown_requirement(cli_main):
+    r = cli_main("explain", SROBOT, "state_req999")
     assert r.returncode == 1 and "no requirement 'state_req999'" in r.stderr
 
 
-def test_compile_writes_sources_library_manifest(tmp_path):
-    r = cli("compile", SROBOT, "-o", tmp_path / "out")
+def test_compile_writes_sources_library_manifest(tmp_path, cli_main):
+    r = cli_main("compile", SROBOT, "-o", tmp_path / "out")
     assert r.returncode == 0, r.stdout + r.stderr
     out = tmp_path / "out"
     assert (out / "monitor.c").exists() and (out / "monitor.h").exists()
@@ -153,22 +157,33 @@ def test_compile_writes_sources_library_manifest(tmp_path):
         (("within 1 second", "within 150 milliseconds"), 11, "not a whole number"),
     ],
 )
-def test_bad_input_is_one_located_line(tmp_path, edit, line, needle):
+def test_bad_input_is_one_located_line(tmp_path, cli_main, edit, line, needle):
     cfg = write(tmp_path, CONFIG.replace(*edit))
-    r = cli("check", cfg)
-    assert r.returncode == 1, r.stdout + r.stderr
+    r = cli_main("check", cfg)
     text = r.stdout + r.stderr
+    assert r.returncode == 1, text
     assert "Traceback" not in text
     hits = [t for t in text.splitlines() if f"{cfg}:{line}" in t]
     assert hits, text
     assert needle in hits[0], hits
 
 
-def test_unparseable_sentence_points_at_column(tmp_path):
+def test_bad_config_in_a_subprocess_is_one_located_line(tmp_path):
+    """The bad-config exit path as users meet it; the cases above check the lines."""
+    cfg = write(tmp_path, CONFIG.replace("satisfy p | halt", "satisfy p | hault"))
+    r = cli("check", cfg)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "Traceback" not in r.stdout + r.stderr
+    hits = [t for t in (r.stdout + r.stderr).splitlines() if f"{cfg}:9" in t]
+    assert hits and "undeclared variable 'hault'" in hits[0], r.stdout + r.stderr
+
+
+def test_unparseable_sentence_points_at_column(tmp_path, cli_main):
     cfg = write(
         tmp_path, CONFIG.replace("sw shall always satisfy p | halt", "sw shall always p | halt")
     )
-    r = cli("check", cfg)
+    r = cli_main("check", cfg)
+    assert r.returncode == 1, r.stdout + r.stderr
     # 'text: ' starts at column 5; the bad token 'p' is the 17th character of the sentence
     assert f"{cfg}:9:{11 + 16}:" in r.stdout + r.stderr
 

@@ -20,13 +20,16 @@ SROBOT = ROOT / "config" / "srobot.yaml"
 
 
 def _wrapper(path: Path, log: Path, version: str = "wrapped cc 1") -> Path:
-    """A compiler that logs each compile (not ``--version``) and runs the real cc."""
+    """A compiler that logs each compile (not ``--version``) and runs the real cc.
+    ``$CC_LOG`` and ``$CC_VERSION``, when set, replace ``log`` and ``version``: one
+    wrapper, so one compiler path in the cache's key, serves every copied site."""
     real = shutil.which("cc") or shutil.which("gcc")
     assert real is not None
     path.write_text(
         "#!/bin/sh\n"
-        f'if [ "$1" = --version ]; then echo "{version}"; exec {real} --version; fi\n'
-        f'echo compile >> "{log}"\n'
+        f'if [ "$1" = --version ]; then echo "${{CC_VERSION:-{version}}}"; '
+        f"exec {real} --version; fi\n"
+        f'echo compile >> "${{CC_LOG:-{log}}}"\n'
         f'exec {real} "$@"\n'
     )
     path.chmod(0o755)
@@ -36,17 +39,21 @@ def _wrapper(path: Path, log: Path, version: str = "wrapped cc 1") -> Path:
 class Site:
     """A state directory, a config and a logging compiler."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, cc: Path | None = None) -> None:
         self.state = tmp / "state"
         self.state.mkdir()
         self.config = tmp / "supervisor.yaml"
         shutil.copyfile(SROBOT, self.config)
         self.log = tmp / "cc.log"
-        self.cc = _wrapper(tmp / "cc", self.log)
+        self.cc = cc or _wrapper(tmp / "cc", self.log)
+        self.cc_version: str | None = None  # what the compiler says, when not its own
 
     def check(self, *extra_env: tuple[str, str]) -> subprocess.CompletedProcess[str]:
         env = {k: v for k, v in os.environ.items() if k != "SAFETY_SUPERVISOR_DEBUG"}
-        env.update(STATE_DIRECTORY=str(self.state), CC=str(self.cc), **dict(extra_env))
+        env.update(STATE_DIRECTORY=str(self.state), CC=str(self.cc), CC_LOG=str(self.log))
+        if self.cc_version is not None:
+            env["CC_VERSION"] = self.cc_version
+        env.update(dict(extra_env))
         r = subprocess.run(
             [sys.executable, "-m", "supervisor", "check", str(self.config)],
             capture_output=True,
@@ -72,12 +79,23 @@ class Site:
         return entry / name
 
 
-@pytest.fixture
-def site(tmp_path: Path) -> Site:
-    s = Site(tmp_path)
+@pytest.fixture(scope="module")
+def cold(tmp_path_factory: pytest.TempPathFactory) -> Site:
+    """The first check, cold, once for the module: it builds and fills the cache."""
+    s = Site(tmp_path_factory.mktemp("cold"))
     r = s.check()
     assert r.returncode == 0, r.stdout + r.stderr
     assert s.compiles() > 0  # cold: built
+    return s
+
+
+@pytest.fixture
+def site(cold: Site, tmp_path: Path) -> Site:
+    """A site after its first check: a copy of ``cold``'s state (modes kept), with the
+    same compiler, so the cache's key is the same."""
+    s = Site(tmp_path, cc=cold.cc)
+    s.state.rmdir()
+    shutil.copytree(cold.state, s.state, symlinks=True)
     return s
 
 
@@ -120,8 +138,8 @@ def test_a_changed_requirement_changes_the_c_and_is_a_miss(site: Site) -> None:
     assert len(site.entries()) == 2
 
 
-def test_another_compiler_version_is_a_miss(site: Site, tmp_path: Path) -> None:
-    site.cc = _wrapper(tmp_path / "cc", site.log, version="wrapped cc 2")
+def test_another_compiler_version_is_a_miss(site: Site) -> None:
+    site.cc_version = "wrapped cc 2"  # the same compiler's path, another --version
     r = site.check()
     assert r.returncode == 0, r.stdout + r.stderr
     assert site.compiles() > 0

@@ -21,7 +21,11 @@ from supervisor import data
 from supervisor.tools.children import Child, NotifySocket, daemon_argv, ros_env, ros_vars
 
 ROOT = Path(__file__).resolve().parents[2]
-DOMAIN_ID = random.randint(1, 200)
+# pytest-xdist's workers (gw0, gw1, ...) of one run never share a domain: worker i of
+# n draws from the ids i + 1, i + 1 + n, ... (without xdist: any of 1..200).
+_WORKERS = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+_WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+DOMAIN_ID = random.randrange(1 + _WORKER % _WORKERS, 201, _WORKERS)
 ROS_ENV = ros_vars(DOMAIN_ID)
 SROBOT = data.example("srobot.yaml")
 

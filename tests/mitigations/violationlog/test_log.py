@@ -15,6 +15,7 @@ import threading
 from pathlib import Path
 
 import pytest
+from inproc import cli_main
 
 from mitigations.violationlog.format import EMPTY_SHA256
 from mitigations.violationlog.reader import verify_bytes
@@ -27,13 +28,9 @@ TS_RE = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}Z$")
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "supervisor", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    """``safety-supervisor ARGS`` by the CLI's main in this process (tests/support/inproc.py):
+    these tests read its lines, not the process's start."""
+    return cli_main(*args)
 
 
 def new_log(path: Path, **kw) -> ViolationLog:

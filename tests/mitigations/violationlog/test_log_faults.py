@@ -7,7 +7,6 @@ import errno
 import json
 import os
 import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Iterator
@@ -15,21 +14,17 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from inproc import cli_main
 
 from mitigations.violationlog.writer import ViolationLog
 
-REPO = Path(__file__).resolve().parents[3]
 CFG = "c0" * 32
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "supervisor", *args],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    """``safety-supervisor ARGS`` by the CLI's main in this process (tests/support/inproc.py):
+    these tests read its lines, not the process's start."""
+    return cli_main(*args)
 
 
 @pytest.fixture

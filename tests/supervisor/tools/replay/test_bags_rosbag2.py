@@ -16,7 +16,6 @@ import json
 import shutil
 import sqlite3
 import subprocess
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -335,24 +334,32 @@ def independent_values(case: Case) -> list[dict[str, int]]:
     return out
 
 
-def _replay(config: Path, bag: Path, out: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    cmd = [sys.executable, "-m", "supervisor", "replay", "--quiet", "--json", "-o", str(out)]
-    return subprocess.run(
-        [*cmd, *args, str(config), str(bag)], capture_output=True, text=True, timeout=300
-    )
+@pytest.fixture
+def replay(
+    cli_main: Callable[..., subprocess.CompletedProcess[str]],
+) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """``safety-supervisor replay --quiet --json -o OUT [ARGS] CONFIG BAG``, by the
+    CLI's main in this process (conftest.py)."""
+
+    def run(config: Path, bag: Path, out: Path, *args: str) -> subprocess.CompletedProcess[str]:
+        return cli_main("replay", "--quiet", "--json", "-o", out, *args, config, bag)
+
+    return run
 
 
 @pytest.mark.parametrize(
     "case", [*CASES, *COMPRESSED], ids=[*(c.bag for c in CASES), *(p.id for p in COMPRESSED)]
 )
-def test_replay_matches_independent_reader(case: Case, tmp_path: Path) -> None:
+def test_replay_matches_independent_reader(
+    case: Case, tmp_path: Path, replay: Callable[..., Any]
+) -> None:
     expected = independent_values(case)
     assert expected, f"{case.bag}: the independent reader found no message on {case.topic_in_bag}"
     config = _config(tmp_path, case)
     out = tmp_path / "out.jsonl"
     bag = tmp_path / "bag"  # a copy: the corpus stays as rosbag2 wrote it
     shutil.copytree(BAGS / case.bag, bag)
-    proc = _replay(config, bag, out, *case.args)
+    proc = replay(config, bag, out, *case.args)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     summary = json.loads(proc.stdout)
@@ -660,14 +667,16 @@ def independent_ticks(case: EventCase) -> list[dict[str, int | bool]]:
 
 
 @pytest.mark.parametrize("case", EVENT_CASES, ids=[c.bag for c in EVENT_CASES])
-def test_replay_events_match_independent_reader(case: EventCase, tmp_path: Path) -> None:
+def test_replay_events_match_independent_reader(
+    case: EventCase, tmp_path: Path, replay: Callable[..., Any]
+) -> None:
     expected = independent_ticks(case)
     assert expected, f"{case.bag}: the independent reader found no message"
     config = _event_config(tmp_path, case)
     out = tmp_path / "out.jsonl"
     bag = tmp_path / "bag"
     shutil.copytree(BAGS / case.bag, bag)
-    proc = _replay(config, bag, out)
+    proc = replay(config, bag, out)
     assert proc.returncode == 0, proc.stderr
     assert "Traceback" not in proc.stderr
     summary = json.loads(proc.stdout)
@@ -736,7 +745,9 @@ REFUSED: list[Any] = [
 
 
 @pytest.mark.parametrize("case", REFUSED)
-def test_replay_refuses_in_one_line(case: Refused, tmp_path: Path) -> None:
+def test_replay_refuses_in_one_line(
+    case: Refused, tmp_path: Path, replay: Callable[..., Any]
+) -> None:
     config = tmp_path / "refused.yaml"
     config.write_text(
         "component: R\nstep: {policy: on_message}\n"
@@ -748,7 +759,7 @@ def test_replay_refuses_in_one_line(case: Refused, tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     shutil.copytree(BAGS / case.bag, bag)
     out = tmp_path / "out.jsonl"
-    proc = _replay(config, bag, out)
+    proc = replay(config, bag, out)
     assert proc.returncode == 1, proc.stdout + proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import math
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from inproc import cli_main
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -339,11 +339,7 @@ def run_replay(tmp_path: Path, bag: Path) -> tuple[subprocess.CompletedProcess, 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(CONFIG)
     out = tmp_path / "out.jsonl"
-    run = subprocess.run(
-        [sys.executable, "-m", "supervisor", "replay", str(cfg), str(bag), "-o", str(out),
-         "--quiet"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+    run = cli_main("replay", cfg, bag, "-o", out, "--quiet")  # in-process: tests/support/inproc.py
     records = list(iter_records(str(out))) if out.exists() else []
     return run, records
 

@@ -81,13 +81,13 @@ mitigations:
     ],
 )
 def test_a_relative_topic_in_a_bag_is_the_config_s_absolute_one(
-    tmp_path, bag, recorded, topic, msg
+    cli_main, tmp_path, bag, recorded, topic, msg
 ):
     """rosbag2 records ``topic1``; rclpy resolves it in the root namespace as ``/topic1``."""
     path = BAGS / bag
     want = sqlite_counts(path)[recorded]
     assert want > 0
-    run = cli("replay", str(event_config(tmp_path, topic, msg)), str(path), "--json")
+    run = cli_main("replay", str(event_config(tmp_path, topic, msg)), str(path), "--json")
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
     assert result["messages"] == want
@@ -133,14 +133,14 @@ mitigations:
 
 
 @pytest.mark.parametrize("how", ["option", "config"])
-def test_a_namespaced_bag_maps_onto_the_config(tmp_path, how):
+def test_a_namespaced_bag_maps_onto_the_config(cli_main, tmp_path, how):
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
     if how == "option":
         args = [str(speed_config(tmp_path)), str(bag), "--namespace", "/robot1"]
     else:
         args = [str(speed_config(tmp_path, ros="ros: {namespace: /robot1}\n")), str(bag)]
     out = tmp_path / "out.jsonl"
-    run = cli("replay", *args, "--json", "-o", str(out))
+    run = cli_main("replay", *args, "--json", "-o", str(out))
     assert run.returncode == 0, run.stderr
     result = json.loads(run.stdout)
     assert result["messages"] == len(SPEEDS)
@@ -150,18 +150,18 @@ def test_a_namespaced_bag_maps_onto_the_config(tmp_path, how):
 
 
 @pytest.mark.parametrize("bad", ["robot1", "/robot 1", "/robot1/", "/1robot", ""])
-def test_a_bad_namespace_is_one_line(tmp_path, bad):
+def test_a_bad_namespace_is_one_line(cli_main, tmp_path, bad):
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
-    run = cli("replay", str(speed_config(tmp_path)), str(bag), f"--namespace={bad}")
+    run = cli_main("replay", str(speed_config(tmp_path)), str(bag), f"--namespace={bad}")
     assert run.returncode == 2 if "usage" in run.stderr else run.returncode == 1
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert "Traceback" not in run.stderr
     assert len(lines) == 1 and "--namespace" in lines[0], run.stderr
 
 
-def test_a_replay_that_matched_no_topic_fails_and_lists_both_sides(tmp_path):
+def test_a_replay_that_matched_no_topic_fails_and_lists_both_sides(cli_main, tmp_path):
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)  # no --namespace: nothing matches
-    run = cli("replay", str(speed_config(tmp_path)), str(bag))
+    run = cli_main("replay", str(speed_config(tmp_path)), str(bag))
     assert run.returncode == 1, run.stdout
     assert "Traceback" not in run.stderr
     last = run.stderr.strip().splitlines()[-1]
@@ -172,35 +172,35 @@ def test_a_replay_that_matched_no_topic_fails_and_lists_both_sides(tmp_path):
 MISSING = "  odom: {type: double, topic: /odom_speed, msg: std_msgs/msg/Float64, initial: 0.0}\n"
 
 
-def test_missing_topics_are_a_warning_block_at_the_end_and_in_json(tmp_path):
+def test_missing_topics_are_a_warning_block_at_the_end_and_in_json(cli_main, tmp_path):
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
     cfg = speed_config(tmp_path, extra=MISSING)
-    run = cli("replay", str(cfg), str(bag), "--namespace", "/robot1")
+    run = cli_main("replay", str(cfg), str(bag), "--namespace", "/robot1")
     assert run.returncode == 0, run.stderr
     out = run.stdout.strip().splitlines()
     table = next(i for i, line in enumerate(out) if line.startswith("limit "))
     # last, after the requirement table, not lost among the notes before it
     assert [i for i, line in enumerate(out) if "/odom_speed" in line] == [len(out) - 1]
     assert table < len(out) - 1 and "odom" in out[-1] and out[-1].startswith("warning: ")
-    as_json = cli("replay", str(cfg), str(bag), "--namespace", "/robot1", "--json")
+    as_json = cli_main("replay", str(cfg), str(bag), "--namespace", "/robot1", "--json")
     assert as_json.returncode == 0, as_json.stderr
     assert json.loads(as_json.stdout)["missing_topics"] == ["/odom_speed"]
 
 
-def test_require_all_topics_makes_a_missing_topic_an_error(tmp_path):
+def test_require_all_topics_makes_a_missing_topic_an_error(cli_main, tmp_path):
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
     cfg = speed_config(tmp_path, extra=MISSING)
-    run = cli("replay", str(cfg), str(bag), "--namespace", "/robot1", "--require-all-topics")
+    run = cli_main("replay", str(cfg), str(bag), "--namespace", "/robot1", "--require-all-topics")
     assert run.returncode == 1
     assert "Traceback" not in run.stderr
     last = run.stderr.strip().splitlines()[-1]
     assert last.startswith("safety-supervisor: ") and "/odom_speed" in last
-    ok = cli("replay", str(speed_config(tmp_path)), str(bag), "--namespace=/robot1",
+    ok = cli_main("replay", str(speed_config(tmp_path)), str(bag), "--namespace=/robot1",
              "--require-all-topics")  # fmt: skip
     assert ok.returncode == 0, ok.stderr
 
 
-def test_a_variable_read_only_through_rate_of_is_used(tmp_path):
+def test_a_variable_read_only_through_rate_of_is_used(cli_main, tmp_path):
     cfg = write(
         tmp_path / "rate.yaml",
         """\
@@ -217,7 +217,7 @@ mitigations:
   note: {log: {message: violated}}
 """,
     )
-    run = cli("check", str(cfg))
+    run = cli_main("check", str(cfg))
     assert run.returncode == 0, run.stderr
     assert "unused" not in run.stderr and "no requirement uses" not in run.stderr
 
@@ -274,35 +274,36 @@ def test_no_progress_when_stderr_is_not_a_terminal(tmp_path):
     assert "\r" not in run.stderr and "replay: " not in run.stderr
 
 
-def test_report_bag_reads_relative_names(tmp_path):
+def test_report_bag_reads_relative_names(cli_main, tmp_path):
     """``report --bag`` resolves names as replay does: rosbag2's ``CCC`` is ``/CCC``."""
     bag = BAGS / "sqlite3/wbag"
     cfg = event_config(tmp_path, "/CCC", "std_msgs/msg/String")
     log = tmp_path / "log.jsonl"
-    assert cli("replay", str(cfg), str(bag), "-o", str(log)).returncode == 0
+    assert cli_main("replay", str(cfg), str(bag), "-o", str(log)).returncode == 0
     page = tmp_path / "r.html"
-    run = cli("report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page))
+    run = cli_main("report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page))
     assert run.returncode == 0, run.stderr
     assert "Traceback" not in run.stderr
     html = page.read_text()
     assert "none of the recordings" not in html
 
 
-def test_report_bag_takes_the_namespace_replay_takes(tmp_path):
+def test_report_bag_takes_the_namespace_replay_takes(cli_main, tmp_path):
     """``report --bag --namespace`` maps a namespaced bag as ``replay --namespace``
     does; a bad one is one line, exit 1."""
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
     cfg = speed_config(tmp_path)
     log = tmp_path / "log.jsonl"
     assert (
-        cli("replay", str(cfg), str(bag), "--namespace", "/robot1", "-o", str(log)).returncode == 0
+        cli_main("replay", str(cfg), str(bag), "--namespace", "/robot1", "-o", str(log)).returncode
+        == 0
     )
     page = tmp_path / "r.html"
     argv = ["report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page)]
-    run = cli(*argv, "--namespace", "/robot1")
+    run = cli_main(*argv, "--namespace", "/robot1")
     assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
     assert "none of the recordings" not in page.read_text()
-    bad = cli(*argv, "--namespace", "robot1")
+    bad = cli_main(*argv, "--namespace", "robot1")
     assert bad.returncode == 1 and "Traceback" not in bad.stderr, bad.stderr
     assert bad.stderr.strip().splitlines() == [
         "report: --namespace 'robot1' is not a ROS namespace "
@@ -357,7 +358,7 @@ def test_a_second_replay_compiles_nothing_from_the_user_s_cache(tmp_path):
     assert compiles() > 0
 
 
-def test_a_matched_topic_without_messages_judged_nothing(tmp_path):
+def test_a_matched_topic_without_messages_judged_nothing(cli_main, tmp_path):
     """rosbag2's empty_bag has /rosout, no message on it: exit 1, not a 0-tick success."""
     cfg = write(
         tmp_path / "rosout.yaml",
@@ -375,13 +376,13 @@ mitigations:
 """,
     )
     assert sqlite_counts(BAGS / "sqlite3/empty_bag") == {}
-    run = cli("replay", str(cfg), str(BAGS / "sqlite3/empty_bag"))
+    run = cli_main("replay", str(cfg), str(BAGS / "sqlite3/empty_bag"))
     assert run.returncode == 1 and "Traceback" not in run.stderr
     last = run.stderr.strip().splitlines()[-1]
     assert "no message on the config's topics (/rosout)" in last
 
 
-def test_a_missing_event_topic_is_not_said_to_keep_the_monitor_from_stepping(tmp_path):
+def test_a_missing_event_topic_is_not_said_to_keep_the_monitor_from_stepping(cli_main, tmp_path):
     """An event is false until its message comes (docs/reference/config.md), so only
     the value without 'initial:' is named as never getting one."""
     bag = namespaced_bag(tmp_path / "bag", SPEEDS)
@@ -391,7 +392,7 @@ def test_a_missing_event_topic_is_not_said_to_keep_the_monitor_from_stepping(tmp
     )
     cfg = speed_config(tmp_path, extra=extra)
     cfg.write_text(cfg.read_text().replace("odom < 100.0", "odom < 100.0 & !bump"))
-    run = cli("replay", str(cfg), str(bag), "--namespace=/robot1")
+    run = cli_main("replay", str(cfg), str(bag), "--namespace=/robot1")
     assert "Traceback" not in run.stderr, run.stderr
     said = [line for line in (run.stdout + run.stderr).splitlines() if "never" in line]
     assert said and all("without 'initial:', odom never gets a value" in s for s in said), said
