@@ -543,7 +543,8 @@ class Runtime:
                 name: coerce(col[k].item(), vtype)[0]
                 for name, col, vtype in zip(names, seen, types, strict=True)
             }
-            self.recent.append(Row.of({"tick": self.tick + k, **snap}))
+            # plain rows: a replay's record takes the whole encoding (docs/BENCHMARKS.md)
+            self.recent.append({"tick": self.tick + k, **snap})
         self.tick += stepped
         self._pending_since = None
         result = None
