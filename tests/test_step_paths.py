@@ -108,8 +108,9 @@ POLICIES = st.sampled_from(
 
 def stream(seed: int, segments: list[str]) -> list[tuple[int, str, Any]]:
     """Messages ``(t, topic, value)``: every topic once, then one stretch per
-    segment (``quiet``: nothing but values within bounds at short gaps; ``noisy``:
-    violations, NaNs, a count too big for int64, silences)."""
+    segment (``quiet``: values within bounds at short gaps but for one pause
+    near a silence limit, now and then; ``noisy``: violations, NaNs, a count too
+    big for int64, silences)."""
     rng = random.Random(seed)
     t = T0
     out: list[tuple[int, str, Any]] = []
@@ -128,8 +129,13 @@ def stream(seed: int, segments: list[str]) -> list[tuple[int, str, Any]]:
         # rounds in a random order each: in a quiet stretch no input falls silent
         # for longer than a few messages
         rounds = [rng.sample(["/speed", "/speed", "/count", "/cmd"], 4) for _ in range(40)]
-        for k in range(rng.randint(70, 160)):
+        length = rng.randint(70, 160)
+        # a pause near a silence limit (stale_after_ms 40 or 120), within a ns
+        pause = rng.choice([None, rng.randrange(length)])
+        for k in range(length):
             t += rng.randint(1, 8) * MS // 2 + rng.randint(0, 999)
+            if k == pause:
+                t += rng.choice([35, 40, 80, 120, 150]) * MS + rng.randint(-1, 1)
             topic = rounds[k // 4][k % 4] if kind == "quiet" else rng.choice(rounds[0])
             value = calm(topic)
             if kind == "noisy":
