@@ -178,8 +178,8 @@ class RequirementPolicy:
         c = self.config
         if self.incident_ns is not None and c.escalate is not None and not self.escalated:
             times.append(self.incident_ns + int(c.escalate.after_ms * MS))
-        if self.run_since_ns is not None and not self.in_episode and c.debounce_ms:
-            times.append(self.run_since_ns + int(c.debounce_ms * MS))
+        # No debounce_ms deadline: an episode starts at a step (on_step), never in
+        # on_time, and a deadline on_time cannot move would hold the core's clock.
         live = [t for t in times if t is not None]
         return min(live) if live else None
 

@@ -22,7 +22,7 @@ from typing import Any, Protocol
 from mitigations.engine import Request
 from mitigations.policy import Note
 from mitigations.supervision import Supervision
-from supervisor.daemon.runtime import InputEvent, StepResult
+from supervisor.daemon.runtime import InputEvent, Rows, StepResult
 from supervisor.daemon.session import Session
 
 REJECT_REPORT_FIRST = 10  # then every REJECT_REPORT_EVERY-th rejected value per input
@@ -110,6 +110,33 @@ class Core:
             self.input_events(events)
         if result is not None:
             self._after_step(result)
+
+    def quiet(self) -> bool:
+        """:meth:`rows` may take messages now: the runtime can step a batch and no
+        policy is active (so no policy deadline can fall inside it)."""
+        return self.session.runtime.bulk_ready and not self.supervision.active
+
+    def rows(self, rows: Rows, *, min_rows: int = 1) -> int:
+        """Messages of one input row each (``replay``'s recordings), received at
+        ``rows.t_ns``: as many as are quiet stepped in bulk (Runtime.step_rows),
+        with the same decisions as :meth:`fields` one by one.  Returns how many
+        were taken; the caller hands the next one to :meth:`fields`."""
+        t0 = int(rows.t_ns[0]) if len(rows.t_ns) else None
+        if t0 is None:
+            return 0
+        if t0 >= self._due:
+            self.advance(t0)
+        if not self.quiet():
+            return 0
+        rt = self.session.runtime
+        done = rt.step_rows(rows, self._stale_after_ns, min_rows=min_rows)
+        if not done.rows:
+            return 0
+        self.now = int(rows.t_ns[done.rows - 1])
+        self._due = 0  # the next deadline is computed afresh
+        if done.result is not None:
+            self._after_step(done.result)
+        return done.rows
 
     def reject(self, name: str, t: int, why: str) -> None:
         """A message of input ``name`` whose field could not be read."""

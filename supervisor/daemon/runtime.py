@@ -16,15 +16,20 @@ Step policies (config ``step.policy``), the thesis's asynchronous-topic problem
 - ``synchronized``: step once every input has a message newer than the last
   step, or ``max_skew_ms`` after the first new message when some never came.
 Nothing is stepped until every input has a value (or an ``initial:`` value).
+
+A batch of messages (``replay``'s recordings) goes through :meth:`Runtime.step_rows`:
+the same decisions as :meth:`Runtime.on_values` message by message, made by the same
+``_steps_on``, with the monitor stepped in one C call (numpy's part is in
+``bulk.py``).
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, cast, runtime_checkable
 
 from mitigations.violationlog.writer import Row
 
@@ -40,6 +45,20 @@ class Monitor(Protocol):
     def tick(self, values: Sequence[Any]) -> Sequence[int]: ...
     def reset(self) -> None: ...
     def reset_requirement(self, index: int) -> None: ...
+
+
+@runtime_checkable
+class BatchMonitor(Monitor, Protocol):
+    """A monitor that steps many rows in one call (LoadedMonitor): what
+    :meth:`Runtime.step_rows` needs besides :class:`Monitor`."""
+
+    def pack_columns(self, columns: Sequence[Any]) -> Any: ...
+    def tick_until(self, rows: Any) -> tuple[int, bytes]: ...
+
+
+# The policies whose decision to step is a function of the message alone
+# (Runtime._steps_on): a batch of their messages can be stepped in bulk.
+MESSAGE_POLICIES = ("on_message", "on_trigger")
 
 
 @dataclass(frozen=True)
@@ -62,6 +81,29 @@ class StepResult:
     t_ns: int
     violated: list[int]  # requirement indices whose handler fired
     inputs: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Rows:
+    """A batch of messages for :meth:`Runtime.step_rows`, in receive order: row i
+    was received at ``t_ns[i]`` (int64 nanoseconds, not decreasing).  ``values``
+    maps an input to ``(mask, column)``: numpy arrays as long as ``t_ns``, the
+    rows whose message sets that input and its value on them (other rows: any)."""
+
+    t_ns: Any
+    values: Mapping[str, tuple[Any, Any]]
+
+
+@dataclass(frozen=True)
+class Bulk:
+    """What :meth:`Runtime.step_rows` did: the first ``rows`` rows were taken
+    (0: none, step them one by one), the monitor stepped ``ticks`` times, and
+    ``result`` is the last step when it violated (for the policies, as
+    :meth:`Runtime.on_values` returns a step)."""
+
+    rows: int = 0
+    ticks: int = 0
+    result: StepResult | None = None
 
 
 @dataclass
@@ -145,6 +187,7 @@ class Runtime:
     _next_periodic: int | None = None
     _derived: list[_Input] = field(default_factory=list)  # ages and rates
     _ready: bool = False
+    _bulk: bool = False  # step_rows may take batches (policy, inputs and monitor allow)
 
     def __post_init__(self) -> None:
         self._in = [_Input(s) for s in self.inputs]
@@ -160,6 +203,13 @@ class Runtime:
             raise ValueError(f"trigger '{self.trigger}' is not an input")
         if self.policy == "periodic" and not self.period_ns:
             raise ValueError("periodic policy needs a period")
+        # An event is true for one step only, an age or a rate changes with time
+        # alone: a forward fill of the rows' values cannot say that.
+        self._bulk = (
+            self.policy in MESSAGE_POLICIES
+            and isinstance(self.monitor, BatchMonitor)
+            and all(i.spec.kind == "value" and not i.spec.event for i in self._in)
+        )
 
     # ------------------------------------------------------------ state
 
@@ -261,9 +311,7 @@ class Runtime:
                 events.append(InputEvent("input_recovered", name, t_ns))
         if not accepted:
             return None, events
-        if self.policy == "on_message" or (
-            self.policy == "on_trigger" and self.trigger in accepted
-        ):
+        if self._steps_on(accepted):
             return self.step(t_ns), events
         if self.policy == "synchronized":
             if self._pending_since is None:
@@ -271,6 +319,17 @@ class Runtime:
             if all(i.fresh for i in self._in):
                 return self.step(t_ns), events
         return None, events
+
+    def _steps_on(self, accepted: Collection[str]) -> bool:
+        """Whether one message that set the inputs ``accepted`` steps the monitor
+        under a policy of MESSAGE_POLICIES (the others: False, they decide from
+        state and time).  The one place of that decision, message by message
+        (:meth:`on_values`) and in bulk (:meth:`step_rows`)."""
+        if not accepted:
+            return False
+        return self.policy == "on_message" or (
+            self.policy == "on_trigger" and self.trigger in accepted
+        )
 
     def _arrived(self, inp: _Input, raw: Any, t_ns: int, events: list[InputEvent]) -> None:
         """An age's stamp or a rate's arrival: the value itself is worked out at
@@ -405,6 +464,84 @@ class Runtime:
         self.recent.append(Row.of({"tick": self.tick, **snap}))
         self.tick += 1
         return result
+
+    @property
+    def bulk_ready(self) -> bool:
+        """:meth:`step_rows` may take a batch now: a message-driven policy with
+        plain values, every input has one and none is stale (a recovery would be
+        an event to report)."""
+        return self._bulk and self.ready and not any(i.stale for i in self._in)
+
+    def step_rows(
+        self, rows: Rows, default_after_ns: int | None = None, *, min_rows: int = 1
+    ) -> Bulk:
+        """The messages of ``rows`` (one :meth:`on_values` call each), stepped in
+        bulk as far as nothing but stepping happens: up to the first value that
+        would be reported (NaN, rejected), the first time an input could turn
+        stale (``default_after_ns`` as in :meth:`check_stale`), and through the
+        first violating step at most.  The state after is exactly what
+        :meth:`on_values` row by row leaves; the rows not taken are for it.
+        Nothing is taken unless :attr:`bulk_ready`, the quiet rows number at
+        least ``min_rows`` and the monitor steps among them."""
+        if not self.bulk_ready or len(rows.t_ns) < min_rows:
+            return Bulk()
+        from supervisor.daemon import bulk  # numpy: only when a batch comes
+
+        t = rows.t_ns
+        masks, columns = [], []
+        cut = len(t)
+        for inp in self._in:
+            mask, column = rows.values.get(inp.spec.name, (None, None))
+            masks.append(mask)
+            columns.append(column)
+            if mask is not None:
+                bad = bulk.unfit(column[mask], inp.spec.type)
+                if bad is not None:
+                    cut = min(cut, bulk.nth_true(mask, bad))
+            after = _limit(inp.spec, default_after_ns)
+            if after and inp.last_ns is not None:
+                times = t[mask] if mask is not None else t[:0]
+                cut = min(cut, bulk.stale_cut(inp.last_ns, times, after, t))
+        if cut < min_rows:
+            return Bulk()
+        t = t[:cut]
+        masks = [None if m is None else m[:cut] for m in masks]
+        types = [inp.spec.type for inp in self._in]
+        columns = bulk.typed(columns, types, cut)
+        names = [inp.spec.name for inp in self._in]
+        ticks = bulk.stepping_rows(masks, names, self._steps_on, cut)
+        if len(ticks) == 0:
+            return Bulk()
+        seen = bulk.tick_columns(masks, columns, self.values(), types, ticks)
+        monitor = cast(BatchMonitor, self.monitor)  # _bulk: it is one
+        stepped, flags = monitor.tick_until(monitor.pack_columns(seen))
+        violated = [k for k, f in enumerate(flags) if f]
+        last_tick_row = int(ticks[stepped - 1])
+        upto = last_tick_row + 1 if violated else cut  # the rows taken
+        for inp, m, column in zip(self._in, masks, columns, strict=True):
+            taken = bulk.true_rows(m, upto)
+            # a step clears every input's freshness; a message after the last step sets it
+            inp.fresh = bool(len(taken)) and int(taken[-1]) > last_tick_row
+            if not len(taken):
+                continue
+            last = int(taken[-1])
+            inp.value, inp.has_value = coerce(column[last].item(), inp.spec.type)[0], True
+            inp.last_ns = int(t[last])
+            inp.messages += len(taken)
+        keep = min(stepped, self.recent.maxlen or stepped)
+        for k in range(stepped - keep, stepped):
+            snap = {
+                name: coerce(col[k].item(), vtype)[0]
+                for name, col, vtype in zip(names, seen, types, strict=True)
+            }
+            # plain rows: a replay's record takes the whole encoding (docs/BENCHMARKS.md)
+            self.recent.append({"tick": self.tick + k, **snap})
+        self.tick += stepped
+        self._pending_since = None
+        result = None
+        if violated:
+            result = StepResult(self.tick - 1, int(t[last_tick_row]), violated, self.snapshot())
+        return Bulk(upto, stepped, result)
 
     def reset_all(self) -> None:
         """Judge every requirement afresh from the next tick (operator reset)."""
