@@ -71,6 +71,17 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Any:
     return report
 
 
+@pytest.fixture
+def short_tmp() -> Iterator[Path]:
+    """A directory with a short path, for Unix sockets: sun_path holds 108 bytes, and
+    pytest's tmp_path under xdist (``.../popen-gw1/<test name>/``) can exceed it."""
+    d = Path(tempfile.mkdtemp(prefix="ss-"))
+    try:
+        yield d
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def user_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
     """One ``$XDG_CACHE_HOME`` for the whole run, in and out of this process: replay

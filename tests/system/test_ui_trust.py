@@ -525,7 +525,7 @@ FOREIGN = (
 @pytest.mark.ros
 @pytest.mark.slow
 def test_a_forged_status_from_a_second_node_reaches_neither_the_dom_nor_a_socket(
-    tmp_path: Path, robot_node: Any
+    tmp_path: Path, short_tmp: Path, robot_node: Any
 ) -> None:
     from browser import open_page
     from rclpy.node import Node
@@ -534,13 +534,13 @@ def test_a_forged_status_from_a_second_node_reaches_neither_the_dom_nor_a_socket
     from supervisor.names import client_control_socket
     from tests.system.test_ui import wait_js
 
-    runtime = tmp_path / "rt"
+    runtime = short_tmp / "rt"  # the socket's path must fit in sun_path
     own_path = Path(
         client_control_socket({"ROS_DOMAIN_ID": str(DOMAIN_ID), "XDG_RUNTIME_DIR": str(runtime)})
     )
     own_path.parent.mkdir(parents=True)
     own = FakeControl(own_path)  # where the UI's own configuration says the daemon is
-    forged = FakeControl(tmp_path / "forged.sock")  # where the forged document says it is
+    forged = FakeControl(short_tmp / "forged.sock")  # where the forged document says it is
     token_file = tmp_path / "ui.token"
     token_file.write_bytes(TOKEN + b"\n")
     token_file.chmod(0o640)

@@ -18,7 +18,7 @@ from monitors.backends.load import compile_spec
 from supervisor.daemon.runtime import InputSpec, Rows, Runtime
 from supervisor.pipeline import project_for
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 MS = 1_000_000
 RANGES = {"classifier": (0, 2), "distance_to_target": (0, 100), "OpState": (0, 3)}
 
