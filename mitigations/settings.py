@@ -475,19 +475,24 @@ def _duration(
     return x
 
 
+def integral_value(text: str, vtype: str) -> bool | int | None:
+    """``text`` as a value of the monitor's ``bool`` or ``int64`` type, None when it is
+    not one: the one reading of such values, for the config's and the policies'."""
+    s = text.strip()
+    if vtype == "bool":
+        return {"true": True, "1": True, "false": False, "0": False}.get(s.lower())
+    if vtype == "int64" and re.fullmatch(r"-?\d{1,19}", s) and INT64_MIN <= int(s) <= INT64_MAX:
+        return int(s)
+    return None
+
+
 def _typed_value(v: Any, vtype: str, name: str) -> Any:
     """Confirmation's ``equals`` as a value of the variable's monitor type."""
-    s = _shown(v).strip()
-    if vtype == "bool":
-        if s.lower() in ("true", "1"):
-            return True
-        if s.lower() in ("false", "0"):
-            return False
-    elif vtype == "int64":
-        if re.fullmatch(r"-?\d{1,19}", s) and INT64_MIN <= int(s) <= INT64_MAX:
-            return int(s)
-    else:
+    if vtype not in ("bool", "int64"):
         return _finite(v, f"variable '{name}': equals", "confirm", "equals")
+    value = integral_value(_shown(v), vtype)
+    if value is not None:
+        return value
     raise SettingsError(
         f"variable '{name}': equals '{_shown(v)}' is not a {vtype}", "confirm", setting="equals"
     )

@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from mitigations.settings import integral_value
 from monitors.errors import UserError
 from supervisor.config.yamlload import LineDict
 
@@ -160,15 +161,9 @@ def relative_to(config: Path, name: str) -> Path:
 
 def typed_value(v: Any, vtype: str, where: LineDict, key: str, name: str) -> Any:
     """``v`` as a value of monitor type ``vtype`` (variable ``name``'s ``initial``, ...)."""
-    s = _shown(v).strip()
-    if vtype == "bool":
-        if s.lower() in ("true", "1"):
-            return True
-        if s.lower() in ("false", "0"):
-            return False
-    elif vtype == "int64":
-        if re.fullmatch(r"-?\d{1,19}", s) and INT64_MIN <= int(s) <= INT64_MAX:
-            return int(s)
-    else:
+    if vtype not in ("bool", "int64"):
         return to_number(v, where, key, f"variable '{name}': {key}")
+    value = integral_value(_shown(v), vtype)
+    if value is not None:
+        return value
     raise error_at(f"variable '{name}': {key} '{_shown(v)}' is not a {vtype}", where, key)
