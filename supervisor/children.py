@@ -88,6 +88,40 @@ def start(
     )
 
 
+def run(
+    argv: Sequence[str],
+    *,
+    env: Mapping[str, str],
+    timeout: float | None,
+    capture: bool = True,
+    parent_death_signal: int | None = signal.SIGTERM,
+) -> subprocess.CompletedProcess[str]:
+    """``argv`` to its end as a :func:`start`ed child, as ``subprocess.run`` would:
+    its output as text (``capture``), or on this process's streams with its stdin
+    (``capture=False``, for an operator's command).  On ``timeout`` the child's
+    process group is killed, what it started too, and ``subprocess.TimeoutExpired``
+    raised.  ``parent_death_signal=None`` where the trampoline's own start would
+    distort a timing."""
+    pipe = subprocess.PIPE if capture else None
+    proc = start(
+        argv,
+        env=env,
+        stdin=subprocess.DEVNULL if capture else None,
+        stdout=pipe,
+        stderr=pipe,
+        parent_death_signal=parent_death_signal,
+    )
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        raise
+    text = [b.decode(errors="replace") if b is not None else "" for b in (out, err)]
+    return subprocess.CompletedProcess(list(argv), proc.returncode, text[0], text[1])
+
+
 def _trampoline(args: list[str]) -> int:
     """``PID SIGNAL -- ARGV``: get SIGNAL when PID dies, then become ARGV."""
     if len(args) < 4 or args[2] != "--":

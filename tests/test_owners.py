@@ -41,16 +41,32 @@ def _calls(tree: ast.Module, name: str) -> list[int]:
     ]
 
 
-def test_only_children_py_starts_a_long_lived_child_in_the_application() -> None:
+def test_only_children_py_starts_a_child_in_the_application() -> None:
     # supervisor/children.py gives every child its environment, process group and
-    # parent-death signal; a Popen elsewhere in supervisor/ would skip them.
+    # parent-death signal; a Popen or subprocess.run elsewhere in supervisor/ would
+    # skip them, short-lived children included.
     found = [
         f"{path.relative_to(ROOT)}:{line}"
         for path, tree in _sources("supervisor")
         if path != ROOT / "supervisor" / "children.py"
-        for line in _calls(tree, "Popen")
+        for name in ("Popen", "run", "call", "check_call", "check_output")
+        for line in _calls(tree, name)
+        if _on_subprocess(tree, line, name)
     ]
     assert not found, found
+
+
+def _on_subprocess(tree: ast.Module, line: int, name: str) -> bool:
+    """Whether the call ``name`` on ``line`` is subprocess's (``subprocess.run``, or a
+    bare ``Popen`` imported from it), not a method of the same name."""
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and node.lineno == line:
+            f = node.func
+            if isinstance(f, ast.Attribute) and f.attr == name:
+                return isinstance(f.value, ast.Name) and f.value.id == "subprocess"
+            if isinstance(f, ast.Name) and f.id == name:
+                return name == "Popen"
+    return False
 
 
 @pytest.mark.parametrize("kind", MITIGATION_KINDS)

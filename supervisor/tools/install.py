@@ -35,7 +35,6 @@ import pwd
 import re
 import shlex
 import shutil
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +43,7 @@ from urllib.parse import unquote, urlparse
 
 import supervisor
 from monitors.errors import UserError
-from supervisor import data
+from supervisor import children, data
 from supervisor.files import write_atomic
 from supervisor.names import OPERATORS_GROUP
 from supervisor.tools.ui.token import TOKEN_FILE, TOKEN_MODE, new_token
@@ -579,7 +578,9 @@ def run_step(step: Step) -> None:
     """Do one step; raises UserError naming it when it fails."""
     try:
         if step.argv is not None:
-            rc = subprocess.run(step.argv, check=False).returncode
+            rc = children.run(
+                step.argv, env=children.child_env(), timeout=None, capture=False
+            ).returncode
             if rc != 0:
                 raise UserError(f"{step.description}: {step.argv[0]} exited {rc}", file=PROG)
         elif step.mkdir is not None:

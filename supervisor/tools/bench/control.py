@@ -31,7 +31,6 @@ import http.client
 import json
 import random
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -40,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
-from supervisor import data
+from supervisor import children, data
 from supervisor.config.load import load_config
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.httpsoak import HTTP_KINDS, Attacker, SoakUi, listen_overflows
@@ -295,10 +294,9 @@ def soak(
             }
         d.stop_cleanly()
         records = d.records()
-        verify = subprocess.run(
+        verify = children.run(
             [sys.executable, "-m", "supervisor", "logs", "--verify", str(d.log)],
-            capture_output=True,
-            text=True,
+            env=children.child_env(),
             timeout=120,
         )
         refused: Counter[str] = Counter()

@@ -294,8 +294,8 @@ def test_dry_run_prints_plan_and_changes_nothing(
         raise AssertionError(f"dry run executed something: {a}")
 
     monkeypatch.setattr(install, "run_step", forbidden)
-    monkeypatch.setattr(install.subprocess, "run", forbidden)
-    monkeypatch.setattr(install.subprocess, "Popen", forbidden)
+    monkeypatch.setattr(install.children, "run", forbidden)  # its one way to start a child
+    monkeypatch.setattr(install.children, "start", forbidden)
     prefix, unit_dir, rot_dir = tmp_path / "opt", tmp_path / "units", tmp_path / "logrotate.d"
     user = "ss-test-" + os.urandom(3).hex()
     etc_existed = install.CONFIG_DIR.exists()
