@@ -224,20 +224,29 @@ def leftovers(*markers: str) -> list[str]:
 
 @pytest.mark.ros
 @pytest.mark.parametrize("how", ["stdin", "sigterm", "sigint"])
-def test_the_base_exits_when_the_demo_goes_away_or_stops_it(how: str) -> None:
+def test_the_base_exits_when_the_demo_goes_away_or_stops_it(how: str, robot_node: Any) -> None:
     pytest.importorskip("rclpy")
+    import rosutil
+
     seed = str(random.randrange(10**6, 10**7))
+    env = _env()
+    env["ROS_DOMAIN_ID"] = str(rosutil.DOMAIN_ID)  # where this process's node watches
     proc = subprocess.Popen(
         [sys.executable, "-m", "supervisor.tools.demo.base", "--seed", seed],
         cwd=ROOT,
-        env=_env(),
+        env=env,
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
     )
     try:
-        time.sleep(2.0)  # rclpy imported, the node made, waiting for the supervisor
+        # rclpy imported and the base's node made: it is in the graph, waiting for the supervisor
+        rosutil.wait_until(
+            "the base's node in the graph",
+            lambda: proc.poll() is not None or "mobile_base" in robot_node.get_node_names(),
+            60,
+        )
         assert proc.poll() is None
         assert proc.stdin is not None
         if how == "stdin":
