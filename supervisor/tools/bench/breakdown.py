@@ -18,9 +18,12 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from supervisor.tools.bench.plan import SROBOT_VIOLATING, Plan
+
+if TYPE_CHECKING:
+    from supervisor.config.model import Config
 
 # The stages in order, each from the previous mark to its own.
 STAGES = (
@@ -53,12 +56,9 @@ def breakdown(
     from rclpy.context import Context
 
     import mitigations.violationlog.writer as writer
-    from mitigations.actions import build_action
-    from mitigations.actions.publish import PublishAction
     from mitigations.engine import Engine
     from mitigations.violationlog.writer import ViolationLog
     from supervisor.daemon.core import Core
-    from supervisor.daemon.loss import OwnWrites, RecordingPublisher
     from supervisor.daemon.process import prepare_session
 
     work.mkdir(parents=True, exist_ok=True)
@@ -75,44 +75,17 @@ def breakdown(
     ctx = Context()
     rclpy.init(context=ctx, domain_id=_private_domain())
     node = rclpy.create_node("bench_breakdown", context=ctx)
-    marks: dict[str, int] = {}
+    marks = _Marks()
     samples: dict[str, list[float]] = {name: [] for name, _ in (*stages, AFTER_HALT)}
-
-    def mark(name: str) -> None:
-        # the first time only: the mitigation record's own fsync comes after the halt
-        if name not in marks:
-            marks[name] = time.perf_counter_ns()
-
-    def around(f: Callable[..., Any], before: str | None, after: str | None) -> Callable[..., Any]:
-        def timed(*a: Any, **k: Any) -> Any:
-            if before:
-                mark(before)
-            try:
-                return f(*a, **k)
-            finally:
-                if after:
-                    mark(after)
-
-        return timed
-
-    publishers: dict[Any, Any] = {}
-    actions = {n: build_action(m, node, publishers) for n, m in cfg.mitigations.items()}
-    own = OwnWrites()
-    for action in actions.values():
-        if isinstance(action, PublishAction):  # as the daemon wraps it (loss.py)
-            action.publisher = RecordingPublisher(action.publisher, action.topic, own)
-            action.publisher.publish = around(  # type: ignore[method-assign]
-                action.publisher.publish, "publish_start", "publish_end"
-            )
-    engine = Engine(actions, log)
+    engine = Engine(_timed_actions(cfg, node, marks), log)
     real_fsync = writer.os.fsync
     core = Core(session, log, engine.submit)
     real_violation = log.violation
-    log.violation = around(  # type: ignore[method-assign]
+    log.violation = marks.around(  # type: ignore[method-assign]
         real_violation, "recorded_start", "recorded_end"
     )
     try:
-        writer.os.fsync = around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]
+        writer.os.fsync = marks.around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]
         values = [(name, plan.nominal[name]) for name in plan.nominal]
         bad = [(n, SROBOT_VIOLATING.get(n, x)) for n, x in values]
         t = time.monotonic_ns()
@@ -125,21 +98,14 @@ def breakdown(
             t += 1_000_000
             if idle_ms:
                 time.sleep(idle_ms / 1e3)
-            marks.clear()
-            mark("start")
+            marks.at.clear()
+            marks.mark("start")
             core.fields(bad, t)
             log.flush()  # the loop's, after the message: under after_publish, the fsync
-            if "publish_end" not in marks or i < warmup:
+            if "publish_end" not in marks.at or i < warmup:
                 continue
-            if after:
-                order = ["start", "recorded_start", "recorded_end", "publish_start"]
-                order += ["publish_end", "fsync_end"]
-                chain = (*stages, AFTER_HALT)
-            else:
-                order = ["start", "recorded_start", "fsync_start", "fsync_end"]
-                order += ["publish_start", "publish_end"]
-                chain = stages
-            stamps = [marks[k] for k in order]
+            order, chain = _order(after, stages)
+            stamps = [marks.at[k] for k in order]
             for (name, _), a, b in zip(chain, stamps, stamps[1:], strict=False):
                 samples[name].append((b - a) / 1e3)
     finally:
@@ -150,6 +116,77 @@ def breakdown(
         rclpy.shutdown(context=ctx)
         if session.cleanup is not None:
             session.cleanup()
+    return _summary(samples, stages, after, idle_ms, durability)
+
+
+class _Marks:
+    """``perf_counter_ns`` by stage boundary, within one violation."""
+
+    def __init__(self) -> None:
+        self.at: dict[str, int] = {}
+
+    def mark(self, name: str) -> None:
+        # the first time only: the mitigation record's own fsync comes after the halt
+        if name not in self.at:
+            self.at[name] = time.perf_counter_ns()
+
+    def around(
+        self, f: Callable[..., Any], before: str | None, after: str | None
+    ) -> Callable[..., Any]:
+        """``f``, marking ``before`` as it is called and ``after`` as it returns."""
+
+        def timed(*a: Any, **k: Any) -> Any:
+            if before:
+                self.mark(before)
+            try:
+                return f(*a, **k)
+            finally:
+                if after:
+                    self.mark(after)
+
+        return timed
+
+
+def _timed_actions(cfg: Config, node: Any, marks: _Marks) -> dict[str, Any]:
+    """The config's actions as the daemon builds and wraps them (loss.py), each
+    publish marking ``publish_start`` and ``publish_end``."""
+    from mitigations.actions import build_action
+    from mitigations.actions.publish import PublishAction
+    from supervisor.daemon.loss import OwnWrites, RecordingPublisher
+
+    publishers: dict[Any, Any] = {}
+    actions = {n: build_action(m, node, publishers) for n, m in cfg.mitigations.items()}
+    own = OwnWrites()
+    for action in actions.values():
+        if isinstance(action, PublishAction):  # as the daemon wraps it (loss.py)
+            action.publisher = RecordingPublisher(action.publisher, action.topic, own)
+            action.publisher.publish = marks.around(  # type: ignore[method-assign]
+                action.publisher.publish, "publish_start", "publish_end"
+            )
+    return actions
+
+
+def _order(
+    after: bool, stages: tuple[tuple[str, str], ...]
+) -> tuple[list[str], tuple[tuple[str, str], ...]]:
+    """The marks in the order they bound the stages, and the stages they bound."""
+    if after:
+        order = ["start", "recorded_start", "recorded_end", "publish_start"]
+        order += ["publish_end", "fsync_end"]
+        return order, (*stages, AFTER_HALT)
+    order = ["start", "recorded_start", "fsync_start", "fsync_end"]
+    order += ["publish_start", "publish_end"]
+    return order, stages
+
+
+def _summary(
+    samples: dict[str, list[float]],
+    stages: tuple[tuple[str, str], ...],
+    after: bool,
+    idle_ms: float,
+    durability: str,
+) -> dict[str, Any]:
+    """Each stage's percentiles, the time after the halt under after_publish, the total."""
     out: dict[str, Any] = {"trials": len(samples["step"]), "idle_ms": idle_ms, "stages_us": {}}
     out["durability"] = durability
     total = []

@@ -35,6 +35,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.httpsoak import HTTP_KINDS, Attacker, SoakUi, listen_overflows
 from supervisor.tools.bench.numbers import percentiles
 from supervisor.tools.bench.scale import fd_count, proc_memory
-from supervisor.tools.bench.session import session
+from supervisor.tools.bench.session import Daemon, Session, session
 from supervisor.tools.reset import request
 
 ANSWER_LIMIT_S = 1.0  # what an operator's reset must never exceed
@@ -167,6 +168,234 @@ def _kind(ok: bool, message: str) -> str:
     return "other"
 
 
+def _soak_config(config: Path, work: Path, sock: str, max_resets: int | None) -> Path:
+    """The given config with its control socket in the bench's temp dir."""
+    cfg = work / "soak.yaml"
+    control_cfg = f"\ncontrol:\n  socket: {sock}\n"
+    if max_resets is not None:
+        control_cfg += f"  max_resets: {max_resets}\n"
+    cfg.write_text(config.read_text().rstrip("\n") + control_cfg)
+    return cfg
+
+
+def _start(
+    s: Session, config: Path, max_resets: int | None, ui_on: bool
+) -> tuple[str, Daemon, SoakUi | None]:
+    """The daemon, ready and its watchdog pings watched, and unless ``ui_on`` is false
+    the UI listening on its control socket; the socket's path, the daemon, the UI."""
+    work = s.tmp / "daemon"
+    work.mkdir()
+    sock = str(work / "c.sock")
+    cfg = _soak_config(config, work, sock, max_resets)
+    d = s.daemon(cfg, work, watchdog_usec=2_000_000)
+    d.wait_ready(120)
+    d.watch_pings()
+    ui: SoakUi | None = None
+    if ui_on:
+        (s.tmp / "ui").mkdir()
+        ui = SoakUi(s, s.tmp / "ui", sock)
+        ui.wait_listening()
+    return sock, d, ui
+
+
+class _Attackers:
+    """The hostile clients of both channels and what each of their connections came to."""
+
+    def __init__(self, sock: str, ui: SoakUi | None, stop: threading.Event) -> None:
+        self.sock = sock
+        self.ui = ui
+        self.stop = stop
+        self.outcomes: Counter[str] = Counter()
+        self.http_outcomes: Counter[str] = Counter()
+        self.got_through: list[str] = []
+        self.lock = threading.Lock()
+
+    def threads(self, clients: int, http_clients: int) -> list[threading.Thread]:
+        threads = [
+            threading.Thread(target=self._control, args=(i,), daemon=True) for i in range(clients)
+        ]
+        if self.ui is not None:
+            threads += [
+                threading.Thread(target=self._http, args=(1000 + i,), daemon=True)
+                for i in range(http_clients)
+            ]
+        return threads
+
+    def _control(self, seed: int) -> None:
+        rnd = random.Random(seed)
+        while not self.stop.is_set():
+            kind = rnd.choice(KINDS)
+            result = _attack(self.sock, kind, rnd)
+            with self.lock:
+                self.outcomes[f"{kind}:{result}"] += 1
+
+    def _http(self, seed: int) -> None:
+        assert self.ui is not None
+        a = Attacker(self.ui, seed, self.stop)
+        while not self.stop.is_set():
+            kind = a.rnd.choice(HTTP_KINDS)
+            result, through = a.attack(kind)
+            with self.lock:
+                self.http_outcomes[f"{kind}:{result}"] += 1
+                if through:
+                    self.got_through.append(kind)
+
+
+class _ControlProbe:
+    """The operator's reset over the control socket every ``probe_ms``, timed, with
+    both processes' peak RSS sampled between resets."""
+
+    def __init__(self) -> None:
+        self.latencies: list[float] = []
+        self.answers: Counter[str] = Counter()
+        self.misses: list[str] = []
+        self.peak_rss = 0
+        self.ui_peak = 0
+
+    def run(
+        self,
+        sock: str,
+        daemon_pid: int,
+        ui: SoakUi | None,
+        stop: threading.Event,
+        end: float,
+        probe_ms: int,
+    ) -> None:
+        while time.monotonic() < end:
+            p0 = time.monotonic()
+            try:
+                answer = request(sock, {"command": "reset", "via": "operator"}, 5.0)
+            except UserError as e:
+                self.misses.append(str(e))
+            else:
+                took = time.monotonic() - p0
+                self.latencies.append(took)
+                self.answers["accepted" if answer["ok"] else str(answer.get("refused"))] += 1
+                if took > ANSWER_LIMIT_S:
+                    self.misses.append(f"answered after {took:.3f} s")
+            self.peak_rss = max(self.peak_rss, proc_memory(daemon_pid)["rss_kb"] or 0)
+            if ui is not None:
+                self.ui_peak = max(self.ui_peak, proc_memory(ui.child.pid)["rss_kb"] or 0)
+            stop.wait(max(0.0, probe_ms / 1000 - (time.monotonic() - p0)))
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "sent": len(self.latencies)
+            + sum(1 for m in self.misses if not m.startswith("answered")),
+            "answered": len(self.latencies),
+            "answers": dict(self.answers),
+            "missed": len(self.misses),
+            "misses": self.misses[:10],
+            "latency_ms": _ms(self.latencies),
+        }
+
+
+def _http_part(
+    ui: SoakUi,
+    probe: HttpProbe,
+    attackers: _Attackers,
+    http_clients: int,
+    ui_start: tuple[dict[str, Any], int | None] | None,
+    ui_peak: int,
+    overflows: tuple[int | None, int | None],
+) -> dict[str, Any]:
+    """The UI's side of the soak; stops the UI (SIGTERM: it stops its server and node)."""
+    ui_alive = ui.child.alive()
+    ui_end = (proc_memory(ui.child.pid), fd_count(ui.child.pid))
+    ui_exit = ui.child.stop(10)
+    before, after = overflows
+    http_outcomes = attackers.http_outcomes
+    return {
+        **probe.summary(),
+        "attackers": http_clients,
+        "attack_connections": sum(http_outcomes.values()),
+        "attack_outcomes": dict(sorted(http_outcomes.items())),
+        "got_through": len(attackers.got_through),
+        "server_errors": sum(n for k, n in http_outcomes.items() if k.endswith(":500")),
+        # machine-wide: other programs' full accept queues count too
+        "listen_overflows": None if before is None or after is None else after - before,
+        "alive_at_end": ui_alive,
+        "exit_status": ui_exit,
+        "tracebacks": _tracebacks(ui.stderr_path()),
+        "rss_kb": {
+            "start": ui_start[0]["rss_kb"] if ui_start else None,
+            "end": ui_end[0]["rss_kb"],
+            "peak": ui_peak,
+        },
+        "fds": {"start": ui_start[1] if ui_start else None, "end": ui_end[1]},
+    }
+
+
+def _under_attack(
+    threads: list[threading.Thread],
+    probe: HttpProbe | None,
+    stop: threading.Event,
+    operator: Callable[[float], None],
+) -> float:
+    """Starts the attackers and the UI's probe, runs the operator's probe from the
+    start time until it returns, then stops and joins them all; the start time."""
+    t0 = time.monotonic()
+    for t in threads:
+        t.start()
+    if probe is not None:
+        probe.thread.start()
+    operator(t0)
+    stop.set()
+    if probe is not None:
+        probe.thread.join(15)
+    for t in threads:
+        t.join(60)  # an attack holds its connection at most until the stop
+    return t0
+
+
+def _refused(records: list[dict[str, Any]]) -> Counter[str]:
+    """Refused resets by reason, from the records that summarise them."""
+    refused: Counter[str] = Counter()
+    for r in records:
+        if r.get("what") == "reset_refused":
+            refused.update(r["refused"])
+    return refused
+
+
+def _stopped_log(d: Daemon) -> tuple[list[dict[str, Any]], bool]:
+    """Stops the daemon; its log's records and whether ``logs --verify`` accepts it."""
+    d.stop_cleanly()
+    records = d.records()
+    verify = children.run(
+        [sys.executable, "-m", "supervisor", "logs", "--verify", str(d.log)],
+        env=children.child_env(),
+        timeout=120,
+    )
+    return records, verify.returncode == 0
+
+
+def _with_ui_resets(http_part: dict[str, Any], resets: list[dict[str, Any]]) -> dict[str, Any]:
+    """``http_part`` with the resets the UI's probe expects and those recorded."""
+    # every reset the daemon took from the UI is a record naming it; only the
+    # probe sends resets that can pass the UI's checks (httpsoak's docstring)
+    http_part["resets_expected"] = sum(
+        http_part["answers"].get(k, 0) for k in ("accepted", "still_violated")
+    )
+    http_part["resets_recorded"] = sum(1 for r in resets if r.get("via") == "ui")
+    return http_part
+
+
+def _channels(control: dict[str, Any], http_part: dict[str, Any] | None) -> dict[str, Any]:
+    """Both channels' operator resets side by side."""
+    return {
+        name: {
+            "sent": c["sent"],
+            "answered": c["answered"],
+            "p50_ms": c["latency_ms"]["p50"],
+            "p99_ms": c["latency_ms"]["p99"],
+            "max_ms": c["latency_ms"]["max"],
+            "misses": c["missed"],
+        }
+        for name, c in (("control", control), ("http", http_part))
+        if c is not None
+    }
+
+
 def soak(
     config: Path,
     minutes: float,
@@ -178,140 +407,40 @@ def soak(
 ) -> dict[str, Any]:
     requirements = [r.id for r in load_config(config).requirements]
     with session(None) as s:
-        work = s.tmp / "daemon"
-        work.mkdir()
-        sock = str(work / "c.sock")
-        cfg = work / "soak.yaml"
-        control_cfg = f"\ncontrol:\n  socket: {sock}\n"
-        if max_resets is not None:
-            control_cfg += f"  max_resets: {max_resets}\n"
-        cfg.write_text(config.read_text().rstrip("\n") + control_cfg)
-        d = s.daemon(cfg, work, watchdog_usec=2_000_000)
-        d.wait_ready(120)
-        d.watch_pings()
-        ui: SoakUi | None = None
-        if ui_on:
-            (s.tmp / "ui").mkdir()
-            ui = SoakUi(s, s.tmp / "ui", sock)
-            ui.wait_listening()
+        sock, d, ui = _start(s, config, max_resets, ui_on)
         start_mem, start_fds = proc_memory(d.pid), fd_count(d.pid)
         ui_start = (proc_memory(ui.child.pid), fd_count(ui.child.pid)) if ui else None
         overflows_before = listen_overflows()
         stop = threading.Event()
-        outcomes: Counter[str] = Counter()
-        http_outcomes: Counter[str] = Counter()
-        got_through: list[str] = []
-        lock = threading.Lock()
-
-        def attacker(seed: int) -> None:
-            rnd = random.Random(seed)
-            while not stop.is_set():
-                kind = rnd.choice(KINDS)
-                result = _attack(sock, kind, rnd)
-                with lock:
-                    outcomes[f"{kind}:{result}"] += 1
-
-        def http_attacker(seed: int) -> None:
-            assert ui is not None
-            a = Attacker(ui, seed, stop)
-            while not stop.is_set():
-                kind = a.rnd.choice(HTTP_KINDS)
-                result, through = a.attack(kind)
-                with lock:
-                    http_outcomes[f"{kind}:{result}"] += 1
-                    if through:
-                        got_through.append(kind)
-
-        threads = [
-            threading.Thread(target=attacker, args=(i,), daemon=True) for i in range(clients)
-        ]
-        if ui is not None:
-            threads += [
-                threading.Thread(target=http_attacker, args=(1000 + i,), daemon=True)
-                for i in range(http_clients)
-            ]
+        attackers = _Attackers(sock, ui, stop)
+        threads = attackers.threads(clients, http_clients)
         probe = HttpProbe(ui, requirements, stop) if ui is not None else None
-        t0 = time.monotonic()
-        for t in threads:
-            t.start()
-        if probe is not None:
-            probe.thread.start()
-        latencies: list[float] = []
-        answers: Counter[str] = Counter()
-        misses: list[str] = []
-        end = t0 + minutes * 60
-        peak_rss = ui_peak = 0
-        while time.monotonic() < end:
-            p0 = time.monotonic()
-            try:
-                answer = request(sock, {"command": "reset", "via": "operator"}, 5.0)
-            except UserError as e:
-                misses.append(str(e))
-            else:
-                took = time.monotonic() - p0
-                latencies.append(took)
-                answers["accepted" if answer["ok"] else str(answer.get("refused"))] += 1
-                if took > ANSWER_LIMIT_S:
-                    misses.append(f"answered after {took:.3f} s")
-            peak_rss = max(peak_rss, proc_memory(d.pid)["rss_kb"] or 0)
-            if ui is not None:
-                ui_peak = max(ui_peak, proc_memory(ui.child.pid)["rss_kb"] or 0)
-            stop.wait(max(0.0, probe_ms / 1000 - (time.monotonic() - p0)))
-        stop.set()
-        if probe is not None:
-            probe.thread.join(15)
-        for t in threads:
-            t.join(60)  # an attack holds its connection at most until the stop
+        operator = _ControlProbe()
+        t0 = _under_attack(
+            threads,
+            probe,
+            stop,
+            lambda t0: operator.run(sock, d.pid, ui, stop, t0 + minutes * 60, probe_ms),
+        )
         end_mem, end_fds = proc_memory(d.pid), fd_count(d.pid)
         overflows_after = listen_overflows()
         ping_gap = d.longest_ping_gap(t0, time.monotonic())
         daemon_alive = d.alive()
         http_part: dict[str, Any] | None = None
         if ui is not None and probe is not None:
-            ui_alive = ui.child.alive()
-            ui_end = (proc_memory(ui.child.pid), fd_count(ui.child.pid))
-            ui_exit = ui.child.stop(10)  # SIGTERM: the UI stops its server and node
-            http_part = {
-                **probe.summary(),
-                "attackers": http_clients,
-                "attack_connections": sum(http_outcomes.values()),
-                "attack_outcomes": dict(sorted(http_outcomes.items())),
-                "got_through": len(got_through),
-                "server_errors": sum(n for k, n in http_outcomes.items() if k.endswith(":500")),
-                # machine-wide: other programs' full accept queues count too
-                "listen_overflows": None
-                if overflows_before is None or overflows_after is None
-                else overflows_after - overflows_before,
-                "alive_at_end": ui_alive,
-                "exit_status": ui_exit,
-                "tracebacks": _tracebacks(ui.stderr_path()),
-                "rss_kb": {
-                    "start": ui_start[0]["rss_kb"] if ui_start else None,
-                    "end": ui_end[0]["rss_kb"],
-                    "peak": ui_peak,
-                },
-                "fds": {"start": ui_start[1] if ui_start else None, "end": ui_end[1]},
-            }
-        d.stop_cleanly()
-        records = d.records()
-        verify = children.run(
-            [sys.executable, "-m", "supervisor", "logs", "--verify", str(d.log)],
-            env=children.child_env(),
-            timeout=120,
-        )
-        refused: Counter[str] = Counter()
-        for r in records:
-            if r.get("what") == "reset_refused":
-                refused.update(r["refused"])
+            http_part = _http_part(
+                ui,
+                probe,
+                attackers,
+                http_clients,
+                ui_start,
+                operator.ui_peak,
+                (overflows_before, overflows_after),
+            )
+        records, log_verifies = _stopped_log(d)
+        refused = _refused(records)
         resets = [r for r in records if r.get("event") == "reset"]
-        control = {
-            "sent": len(latencies) + sum(1 for m in misses if not m.startswith("answered")),
-            "answered": len(latencies),
-            "answers": dict(answers),
-            "missed": len(misses),
-            "misses": misses[:10],
-            "latency_ms": _ms(latencies),
-        }
+        control = operator.summary()
         result: dict[str, Any] = {
             "minutes": minutes,
             "max_resets": max_resets,
@@ -322,38 +451,25 @@ def soak(
             "missed": control["missed"],
             "misses": control["misses"],
             "latency_ms": control["latency_ms"],
-            "attack_connections": sum(outcomes.values()),
-            "attack_outcomes": dict(sorted(outcomes.items())),
+            "attack_connections": sum(attackers.outcomes.values()),
+            "attack_outcomes": dict(sorted(attackers.outcomes.items())),
             "refused_summarised": dict(refused),
             "resets_recorded": len(resets),
             "control_failed": sum(1 for r in records if r.get("what") == "control_failed"),
-            "rss_kb": {"start": start_mem["rss_kb"], "end": end_mem["rss_kb"], "peak": peak_rss},
+            "rss_kb": {
+                "start": start_mem["rss_kb"],
+                "end": end_mem["rss_kb"],
+                "peak": operator.peak_rss,
+            },
             "fds": {"start": start_fds, "end": end_fds},
             "longest_ping_gap_s": None if ping_gap is None else round(ping_gap, 3),
             "daemon_alive_at_end": daemon_alive,
             "daemon_tracebacks": _tracebacks(d.stderr_path),
-            "log_verifies": verify.returncode == 0,
+            "log_verifies": log_verifies,
         }
         if http_part is not None:
-            # every reset the daemon took from the UI is a record naming it; only the
-            # probe sends resets that can pass the UI's checks (httpsoak's docstring)
-            http_part["resets_expected"] = sum(
-                http_part["answers"].get(k, 0) for k in ("accepted", "still_violated")
-            )
-            http_part["resets_recorded"] = sum(1 for r in resets if r.get("via") == "ui")
-            result["http"] = http_part
-        result["channels"] = {
-            name: {
-                "sent": c["sent"],
-                "answered": c["answered"],
-                "p50_ms": c["latency_ms"]["p50"],
-                "p99_ms": c["latency_ms"]["p99"],
-                "max_ms": c["latency_ms"]["max"],
-                "misses": c["missed"],
-            }
-            for name, c in (("control", control), ("http", http_part))
-            if c is not None
-        }
+            result["http"] = _with_ui_resets(http_part, resets)
+        result["channels"] = _channels(control, http_part)
         return result
 
 

@@ -43,130 +43,177 @@ def run_driver(args: argparse.Namespace, topics: list[Topic]) -> None:
 
         client = node.create_client(Trigger, args.sync_service)
         emit(event="started")
-        deadline = time.monotonic() + args.match_timeout
-        while not (
-            all(p.get_subscription_count() >= 1 for p in pubs)
-            and halt_sub.get_publisher_count() >= 1
-            and client.service_is_ready()
-        ):
-            if stop_requested.is_set():
-                return
-            if time.monotonic() > deadline:
-                emit(event="error", error="the responder was not discovered")
-                return
-            time.sleep(0.01)  # polling interval of the discovery check
+        if not _matched(pubs, halt_sub, client, args.match_timeout):
+            return
         emit(event="matched")
         loop = WaitLoop(node, [(halt_sub, halt_class)], client=client)
         log = LogCounts(Path(args.log), args.requirement) if args.log else None
-        timeout_ns = int(args.timeout * 1e9)
-        total_halts = sync_timeouts = 0
-
-        def publish(state: list[Any], which: list[int]) -> None:
-            for i in which:
-                pubs[i].publish(state[i])
-
-        def pump(timeout: int, *, seq: int | None = None) -> tuple[int, bool]:
-            """Receive for at most ``timeout`` ns, until the first halt (data true)
-            or, with ``seq``, until the response to that request; (halts, answered)."""
-            nonlocal total_halts
-            end = time.monotonic_ns() + timeout
-            n = 0
-            answered = False
-            while not stop_requested.is_set():
-                if loop.wait(end - time.monotonic_ns()):
-                    while (m := loop.take(0)) is not None:
-                        n += bool(m.data)
-                if loop.client_ready:
-                    while True:
-                        header, _response = client.handle.take_response(Trigger.Response)
-                        if header is None:
-                            break
-                        answered |= header.request_id.sequence_number == seq
-                if answered or (seq is None and n) or time.monotonic_ns() >= end:
-                    break
-            total_halts += n
-            return n, answered
-
-        def sync() -> int:
-            """Handshake: a request to the responder's reset service is served by
-            its loop after the messages we published before it (same process,
-            delivered in order; the loop drains subscriptions before services), so
-            the answer means the responder has stepped on them.  The daemon resets
-            its monitors (an operator reset), which keeps each trial fresh."""
-            nonlocal sync_timeouts
-            seq = client.handle.send_request(Trigger.Request())
-            n, answered = pump(timeout_ns, seq=seq)
-            sync_timeouts += not answered
-            return n
-
-        def settle_log() -> None:
-            """The daemon acted on every halt we saw: its loop wrote the reset
-            record, its worker fsynced the mitigation record.  The next trial must
-            queue behind neither, and our halt=false must reach the daemon after
-            its own halt (which is queued when the mitigation record is written)."""
-            if log is None:
-                return
-            end = time.monotonic() + args.timeout
-            while time.monotonic() < end and (
-                log.count("mitigation") < total_halts or log.count("reset") < total_halts
-            ):
-                time.sleep(0.0002)  # polling the log file, not synchronisation
-
-        def prepare() -> int:
-            """The nominal state (halt false: each trial starts from a holding
-            state), then the violating values except the trigger.  Each part is
-            followed by the handshake: DDS does not order messages of different
-            topics, and a trigger overtaking the values it completes would step
-            on a half-published state.  Any halt meanwhile is a stray: again."""
-            strays = 0
-            while not stop_requested.is_set():
-                settle_log()
-                publish(nominal, order[:-1])
-                extra = sync()
-                publish(nominal, order[-1:])
-                extra += sync()
-                publish(violating, order[:-1])
-                extra += sync()
-                if not extra:
-                    return strays
-                strays += extra
-            return strays
-
-        latencies: list[int] = []
-        walls: list[int] = []
-        missed = strays = in_a_row = 0
+        trials = _Trials(args, pubs, nominal, violating, order, loop, client, log)
         try:
-            for trial in range(args.warmup + args.trials):
-                s = prepare()
-                if stop_requested.is_set():
-                    return
-                wall = time.time_ns()  # to line up with the daemon's record timestamps
-                t0 = time.monotonic_ns()
-                pubs[trigger].publish(violating[trigger])
-                got, _ = pump(timeout_ns)
-                t1 = time.monotonic_ns()
-                in_a_row = 0 if got else in_a_row + 1
-                if in_a_row >= 10:
-                    emit(event="error", error=f"no halt in {in_a_row} trials in a row")
-                    return
-                if trial >= args.warmup:
-                    strays += s
-                    if got:
-                        latencies.append(t1 - t0)
-                        walls.append(wall)
-                    else:
-                        missed += 1
-            settle_log()
+            if not trials.run(args.warmup, args.trials):
+                return
         finally:
             loop.close()
         emit(
             event="result",
-            latencies_ns=latencies,
-            published_wall_ns=walls,
-            missed=missed,
-            strays=strays,
-            sync_timeouts=sync_timeouts,
+            latencies_ns=trials.latencies,
+            published_wall_ns=trials.walls,
+            missed=trials.missed,
+            strays=trials.strays,
+            sync_timeouts=trials.sync_timeouts,
         )
+
+
+def _matched(pubs: list[Any], halt_sub: Any, client: Any, match_timeout: float) -> bool:
+    """Waits until the responder subscribes to every topic, publishes the halt and
+    serves the reset; false (an error emitted unless asked to stop) if it does not."""
+    deadline = time.monotonic() + match_timeout
+    while not (
+        all(p.get_subscription_count() >= 1 for p in pubs)
+        and halt_sub.get_publisher_count() >= 1
+        and client.service_is_ready()
+    ):
+        if stop_requested.is_set():
+            return False
+        if time.monotonic() > deadline:
+            emit(event="error", error="the responder was not discovered")
+            return False
+        time.sleep(0.01)  # polling interval of the discovery check
+    return True
+
+
+class _Trials:
+    """The trials against a matched responder, and what they measured."""
+
+    def __init__(
+        self,
+        args: argparse.Namespace,
+        pubs: list[Any],
+        nominal: list[Any],
+        violating: list[Any],
+        order: list[int],
+        loop: WaitLoop,
+        client: Any,
+        log: LogCounts | None,
+    ) -> None:
+        self.args = args
+        self.pubs = pubs
+        self.nominal = nominal
+        self.violating = violating
+        self.order = order  # the trigger last
+        self.loop = loop
+        self.client = client
+        self.log = log
+        from std_srvs.srv import Trigger
+
+        self.trigger = Trigger  # the reset service's type, for the handshake
+        self.timeout_ns = int(args.timeout * 1e9)
+        self.total_halts = 0
+        self.sync_timeouts = 0
+        self.latencies: list[int] = []
+        self.walls: list[int] = []
+        self.missed = 0
+        self.strays = 0
+
+    def run(self, warmup: int, trials: int) -> bool:
+        """Every trial, the warm-up ones not counted; false when stopped or when no
+        halt came in 10 trials in a row (an error emitted)."""
+        trigger = self.order[-1]
+        in_a_row = 0
+        for trial in range(warmup + trials):
+            s = self.prepare()
+            if stop_requested.is_set():
+                return False
+            wall = time.time_ns()  # to line up with the daemon's record timestamps
+            t0 = time.monotonic_ns()
+            self.pubs[trigger].publish(self.violating[trigger])
+            got, _ = self.pump(self.timeout_ns)
+            t1 = time.monotonic_ns()
+            in_a_row = 0 if got else in_a_row + 1
+            if in_a_row >= 10:
+                emit(event="error", error=f"no halt in {in_a_row} trials in a row")
+                return False
+            if trial >= warmup:
+                self.strays += s
+                if got:
+                    self.latencies.append(t1 - t0)
+                    self.walls.append(wall)
+                else:
+                    self.missed += 1
+        self.settle_log()
+        return True
+
+    def publish(self, state: list[Any], which: list[int]) -> None:
+        for i in which:
+            self.pubs[i].publish(state[i])
+
+    def pump(self, timeout: int, *, seq: int | None = None) -> tuple[int, bool]:
+        """Receive for at most ``timeout`` ns, until the first halt (data true)
+        or, with ``seq``, until the response to that request; (halts, answered)."""
+        loop = self.loop
+        end = time.monotonic_ns() + timeout
+        n = 0
+        answered = False
+        while not stop_requested.is_set():
+            if loop.wait(end - time.monotonic_ns()):
+                while (m := loop.take(0)) is not None:
+                    n += bool(m.data)
+            if loop.client_ready:
+                while True:
+                    header, _response = self.client.handle.take_response(self.trigger.Response)
+                    if header is None:
+                        break
+                    answered |= header.request_id.sequence_number == seq
+            if answered or (seq is None and n) or time.monotonic_ns() >= end:
+                break
+        self.total_halts += n
+        return n, answered
+
+    def sync(self) -> int:
+        """Handshake: a request to the responder's reset service is served by
+        its loop after the messages we published before it (same process,
+        delivered in order; the loop drains subscriptions before services), so
+        the answer means the responder has stepped on them.  The daemon resets
+        its monitors (an operator reset), which keeps each trial fresh."""
+        seq = self.client.handle.send_request(self.trigger.Request())
+        n, answered = self.pump(self.timeout_ns, seq=seq)
+        self.sync_timeouts += not answered
+        return n
+
+    def settle_log(self) -> None:
+        """The daemon acted on every halt we saw: its loop wrote the reset
+        record, its worker fsynced the mitigation record.  The next trial must
+        queue behind neither, and our halt=false must reach the daemon after
+        its own halt (which is queued when the mitigation record is written)."""
+        log = self.log
+        if log is None:
+            return
+        end = time.monotonic() + self.args.timeout
+        while time.monotonic() < end and (
+            log.count("mitigation") < self.total_halts or log.count("reset") < self.total_halts
+        ):
+            time.sleep(0.0002)  # polling the log file, not synchronisation
+
+    def prepare(self) -> int:
+        """The nominal state (halt false: each trial starts from a holding
+        state), then the violating values except the trigger.  Each part is
+        followed by the handshake: DDS does not order messages of different
+        topics, and a trigger overtaking the values it completes would step
+        on a half-published state.  Any halt meanwhile is a stray: again."""
+        order = self.order
+        strays = 0
+        while not stop_requested.is_set():
+            self.settle_log()
+            self.publish(self.nominal, order[:-1])
+            extra = self.sync()
+            self.publish(self.nominal, order[-1:])
+            extra += self.sync()
+            self.publish(self.violating, order[:-1])
+            extra += self.sync()
+            if not extra:
+                return strays
+            strays += extra
+        return strays
 
 
 class LogCounts:

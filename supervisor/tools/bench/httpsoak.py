@@ -21,6 +21,7 @@ import random
 import socket
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -159,172 +160,15 @@ class Attacker:
 
     def attack(self, kind: str) -> tuple[str, bool]:
         """(outcome, whether a request that could have reset got a 200)."""
-        rnd = self.rnd
         conns: list[socket.socket] = []
-        could_reset = False
         try:
             s = self._connect()
             conns.append(s)
-            if kind == "bytes":
-                s.sendall(rnd.randbytes(rnd.randint(1, 20000)))
-                s.shutdown(socket.SHUT_WR)
-            elif kind == "method":
-                method = rnd.choice(["GET", "POST", "PUT", "HEAD", "DELETE", "OPTIONS", "BREW",
-                                     "CONNECT", "TRACE", "G\x00T", "PATCH"])  # fmt: skip
-                path = rnd.choice(["/", "/api/reset", "/api/state", "/events", "/robot/a/api/reset",
-                                   "//api/reset", "/%00", "/" + "a" * 70000, "*", "/../etc/passwd",
-                                   "http://evil/api/reset", "/api/reset?x=1", "/\x1b[2J"])  # fmt: skip
-                s.sendall(
-                    _request(method, path, [("Host", self.side.host), ("Connection", "close")])
-                )
-                could_reset = method == "POST" and "reset" in path  # no token: never a reset
-            elif kind == "headers":
-                headers = [("Host", self.side.host)]
-                for _ in range(rnd.choice([1, 5, 20, 150])):
-                    headers.append((rnd.choice(JUNK_HEADERS), rnd.choice(JUNK_VALUES)))
-                s.sendall(_request(rnd.choice(["GET", "POST"]), "/api/reset", headers))
-                s.shutdown(socket.SHUT_WR)
-                could_reset = True
-            elif kind == "length":
-                # the right token, a body that is no reset, framed wrongly
-                body = rnd.choice(BAD_BODIES)
-                length = rnd.choice([None, "", "-1", "1e3", "0x10", " 5", "5, 5",
-                                     str(len(body) + rnd.randint(1, 100)), str(len(body))])  # fmt: skip
-                s.sendall(
-                    _request(
-                        "POST",
-                        "/api/reset",
-                        self._reset_headers(**{"Content-Length": length}),
-                        body,
-                    )
-                )
-                s.shutdown(socket.SHUT_WR)
-                could_reset = True
-            elif kind == "chunked":
-                body = rnd.choice(BAD_BODIES)
-                h = self._reset_headers(**{"Transfer-Encoding": "chunked"})
-                s.sendall(_request("POST", "/api/reset", h, _chunked(body, rnd)))
-                could_reset = True
-            elif kind == "chunked_bad":
-                body = rnd.choice([b"{}", b'{"requirement": "x"}'])
-                te, cl = "chunked", None
-                framing = rnd.choice(["size", "short", "noend", "many", "both", "gzip", "ext"])
-                if framing == "size":
-                    data = b"zz\r\n" + body + b"\r\n0\r\n\r\n"
-                elif framing == "short":
-                    data = b"40\r\n" + body
-                elif framing == "noend":
-                    data = _chunked(body, rnd)[:-5]
-                elif framing == "many":
-                    data = b"1\r\n \r\n" * 100 + b"0\r\n\r\n"
-                elif framing == "both":
-                    data, cl = _chunked(body, rnd), "2"
-                elif framing == "gzip":
-                    data, te = _chunked(body, rnd), "gzip, chunked"
-                else:
-                    data = b"2;" + b"e" * 300 + b"\r\n{}\r\n0\r\n\r\n"
-                h = self._reset_headers(**{"Transfer-Encoding": te, "Content-Length": cl})
-                s.sendall(_request("POST", "/api/reset", h, data))
-                s.shutdown(socket.SHUT_WR)
-                could_reset = True
-            elif kind == "huge":
-                chunked = rnd.random() < 0.5
-                h = self._reset_headers(
-                    **(
-                        {"Transfer-Encoding": "chunked"}
-                        if chunked
-                        else {"Content-Length": str(10**9)}
-                    )
-                )
-                s.sendall(_request("POST", "/api/reset", h))
-                block = (b"1000\r\n" + b"x" * 4096 + b"\r\n") if chunked else b"x" * 65536
-                try:
-                    for _ in range(rnd.randint(1, 200)):  # up to 13 MB, until refused
-                        s.sendall(block)
-                except OSError:
-                    pass  # the UI answered 413 and closed: what it should do
-                could_reset = True
-            elif kind == "deep":
-                n = rnd.randint(100, 2000)
-                body = rnd.choice([b'{"requirement": ' + b"[" * n + b"]" * n + b"}", b"[" * 4000])
-                h = self._reset_headers(**{"Content-Length": str(len(body))})
-                s.sendall(_request("POST", "/api/reset", h, body))
-                could_reset = True
-            elif kind == "slowloris":
-                # a request's head or body a byte at a time, or half a head then silence
-                body = rnd.choice(BAD_BODIES)
-                data = _request(
-                    "POST",
-                    "/api/reset",
-                    self._reset_headers(**{"Content-Length": str(len(body))}),
-                    body,
-                )
-                if rnd.random() < 0.5:
-                    for b in data[: rnd.randint(5, len(data))]:
-                        s.sendall(bytes([b]))
-                        self.stop.wait(rnd.uniform(0.05, 0.5))
-                else:
-                    s.sendall(data[: rnd.randint(5, len(data) - 1)])
-                    self.stop.wait(rnd.uniform(1, 35))
-                s.shutdown(socket.SHUT_WR)
-                could_reset = True
-            elif kind == "token":
-                body = rnd.choice([b"{}", b'{"requirement": "state_req103"}'])
-                h = self._reset_headers(**{"Content-Length": str(len(body))}, **self._bad_auth())
-                s.sendall(_request("POST", "/api/reset", h, body))
-                could_reset = True
-            elif kind == "origin":
-                # the right token and body, but another site's page, host or content type
-                body = b"{}"
-                over: dict[str, str | None] = {"Content-Length": "2"}
-                over.update(rnd.choice([
-                    {"Origin": "http://evil.example"}, {"Origin": "null"},
-                    {"Origin": f"http://{self.side.host}.evil"}, {"Sec-Fetch-Site": "cross-site"},
-                    {"Sec-Fetch-Site": "same-site"}, {"Host": "evil.example"},
-                    {"Host": f"evil:{self.side.port}"}, {"Host": None},
-                    {"Content-Type": "text/plain"}, {"Content-Type": None},
-                    {"Content-Type": "application/x-www-form-urlencoded"},
-                ]))  # fmt: skip
-                s.sendall(_request("POST", "/api/reset", self._reset_headers(**over), body))
-                could_reset = True
-            elif kind == "sse":
-                # subscribe, read a little, then stop reading for a while
-                s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-                path = rnd.choice(["/events", "/events", "/robot/a/events"])
-                s.sendall(
-                    _request(
-                        "GET", path, [("Host", self.side.host), ("Accept", "text/event-stream")]
-                    )
-                )
-                outcome = _status(s)
-                self.stop.wait(rnd.uniform(0.5, 20))
-                return f"{outcome}_stalled", False
-            elif kind == "many":
-                for _ in range(rnd.randint(20, 120)):
-                    c = self._connect()
-                    conns.append(c)
-                    c.sendall(
-                        rnd.choice(
-                            [b"", b"GET / HTTP/1.1\r\n", b"POST /api/reset HTTP/1.1\r\nHost: "]
-                        )
-                    )
-                self.stop.wait(rnd.uniform(0.1, 2))
-                s.sendall(
-                    _request(
-                        "GET", "/api/state", [("Host", self.side.host), ("Connection", "close")]
-                    )
-                )
-            else:  # pipeline: several requests on one keep-alive connection
-                reqs = b"".join(
-                    _request(
-                        rnd.choice(["GET", "HEAD"]),
-                        rnd.choice(["/", "/api/state", "/nope"]),
-                        [("Host", self.side.host)],
-                    )  # fmt: skip
-                    for _ in range(rnd.randint(2, 30))
-                )
-                s.sendall(reqs)
-                s.shutdown(socket.SHUT_WR)
+            if kind == "sse":
+                return self._sse(s), False
+            # each sender: whether its request could have reset; any other kind: pipeline
+            send = self._senders().get(kind, self._send_pipeline)
+            could_reset = send(s, conns)
             outcome = _status(s)
             return outcome, could_reset and outcome == "200"
         except TimeoutError:
@@ -334,3 +178,200 @@ class Attacker:
         finally:
             for c in conns:
                 c.close()
+
+    def _senders(self) -> dict[str, Callable[[socket.socket, list[socket.socket]], bool]]:
+        """The kinds that send one request (or many) and read its status."""
+        return {
+            "bytes": self._send_bytes,
+            "method": self._send_method,
+            "headers": self._send_headers,
+            "length": self._send_length,
+            "chunked": self._send_chunked,
+            "chunked_bad": self._send_chunked_bad,
+            "huge": self._send_huge,
+            "deep": self._send_deep,
+            "slowloris": self._send_slowloris,
+            "token": self._send_token,
+            "origin": self._send_origin,
+            "many": self._send_many,
+        }
+
+    def _send_bytes(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        s.sendall(rnd.randbytes(rnd.randint(1, 20000)))
+        s.shutdown(socket.SHUT_WR)
+        return False
+
+    def _send_method(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        method = rnd.choice(["GET", "POST", "PUT", "HEAD", "DELETE", "OPTIONS", "BREW",
+                             "CONNECT", "TRACE", "G\x00T", "PATCH"])  # fmt: skip
+        path = rnd.choice(["/", "/api/reset", "/api/state", "/events", "/robot/a/api/reset",
+                           "//api/reset", "/%00", "/" + "a" * 70000, "*", "/../etc/passwd",
+                           "http://evil/api/reset", "/api/reset?x=1", "/\x1b[2J"])  # fmt: skip
+        s.sendall(_request(method, path, [("Host", self.side.host), ("Connection", "close")]))
+        return method == "POST" and "reset" in path  # no token: never a reset
+
+    def _send_headers(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        headers = [("Host", self.side.host)]
+        for _ in range(rnd.choice([1, 5, 20, 150])):
+            headers.append((rnd.choice(JUNK_HEADERS), rnd.choice(JUNK_VALUES)))
+        s.sendall(_request(rnd.choice(["GET", "POST"]), "/api/reset", headers))
+        s.shutdown(socket.SHUT_WR)
+        return True
+
+    def _send_length(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        # the right token, a body that is no reset, framed wrongly
+        body = rnd.choice(BAD_BODIES)
+        length = rnd.choice([None, "", "-1", "1e3", "0x10", " 5", "5, 5",
+                             str(len(body) + rnd.randint(1, 100)), str(len(body))])  # fmt: skip
+        s.sendall(
+            _request(
+                "POST",
+                "/api/reset",
+                self._reset_headers(**{"Content-Length": length}),
+                body,
+            )
+        )
+        s.shutdown(socket.SHUT_WR)
+        return True
+
+    def _send_chunked(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        body = rnd.choice(BAD_BODIES)
+        h = self._reset_headers(**{"Transfer-Encoding": "chunked"})
+        s.sendall(_request("POST", "/api/reset", h, _chunked(body, rnd)))
+        return True
+
+    def _send_chunked_bad(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        body = rnd.choice([b"{}", b'{"requirement": "x"}'])
+        te, cl = "chunked", None
+        framing = rnd.choice(["size", "short", "noend", "many", "both", "gzip", "ext"])
+        if framing == "size":
+            data = b"zz\r\n" + body + b"\r\n0\r\n\r\n"
+        elif framing == "short":
+            data = b"40\r\n" + body
+        elif framing == "noend":
+            data = _chunked(body, rnd)[:-5]
+        elif framing == "many":
+            data = b"1\r\n \r\n" * 100 + b"0\r\n\r\n"
+        elif framing == "both":
+            data, cl = _chunked(body, rnd), "2"
+        elif framing == "gzip":
+            data, te = _chunked(body, rnd), "gzip, chunked"
+        else:
+            data = b"2;" + b"e" * 300 + b"\r\n{}\r\n0\r\n\r\n"
+        h = self._reset_headers(**{"Transfer-Encoding": te, "Content-Length": cl})
+        s.sendall(_request("POST", "/api/reset", h, data))
+        s.shutdown(socket.SHUT_WR)
+        return True
+
+    def _send_huge(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        chunked = rnd.random() < 0.5
+        h = self._reset_headers(
+            **({"Transfer-Encoding": "chunked"} if chunked else {"Content-Length": str(10**9)})
+        )
+        s.sendall(_request("POST", "/api/reset", h))
+        block = (b"1000\r\n" + b"x" * 4096 + b"\r\n") if chunked else b"x" * 65536
+        try:
+            for _ in range(rnd.randint(1, 200)):  # up to 13 MB, until refused
+                s.sendall(block)
+        except OSError:
+            pass  # the UI answered 413 and closed: what it should do
+        return True
+
+    def _send_deep(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        n = rnd.randint(100, 2000)
+        body = rnd.choice([b'{"requirement": ' + b"[" * n + b"]" * n + b"}", b"[" * 4000])
+        h = self._reset_headers(**{"Content-Length": str(len(body))})
+        s.sendall(_request("POST", "/api/reset", h, body))
+        return True
+
+    def _send_slowloris(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        # a request's head or body a byte at a time, or half a head then silence
+        body = rnd.choice(BAD_BODIES)
+        data = _request(
+            "POST",
+            "/api/reset",
+            self._reset_headers(**{"Content-Length": str(len(body))}),
+            body,
+        )
+        if rnd.random() < 0.5:
+            for b in data[: rnd.randint(5, len(data))]:
+                s.sendall(bytes([b]))
+                self.stop.wait(rnd.uniform(0.05, 0.5))
+        else:
+            s.sendall(data[: rnd.randint(5, len(data) - 1)])
+            self.stop.wait(rnd.uniform(1, 35))
+        s.shutdown(socket.SHUT_WR)
+        return True
+
+    def _send_token(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        body = rnd.choice([b"{}", b'{"requirement": "state_req103"}'])
+        h = self._reset_headers(**{"Content-Length": str(len(body))}, **self._bad_auth())
+        s.sendall(_request("POST", "/api/reset", h, body))
+        return True
+
+    def _send_origin(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        # the right token and body, but another site's page, host or content type
+        body = b"{}"
+        over: dict[str, str | None] = {"Content-Length": "2"}
+        over.update(rnd.choice([
+            {"Origin": "http://evil.example"}, {"Origin": "null"},
+            {"Origin": f"http://{self.side.host}.evil"}, {"Sec-Fetch-Site": "cross-site"},
+            {"Sec-Fetch-Site": "same-site"}, {"Host": "evil.example"},
+            {"Host": f"evil:{self.side.port}"}, {"Host": None},
+            {"Content-Type": "text/plain"}, {"Content-Type": None},
+            {"Content-Type": "application/x-www-form-urlencoded"},
+        ]))  # fmt: skip
+        s.sendall(_request("POST", "/api/reset", self._reset_headers(**over), body))
+        return True
+
+    def _send_many(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        rnd = self.rnd
+        for _ in range(rnd.randint(20, 120)):
+            c = self._connect()
+            conns.append(c)
+            c.sendall(
+                rnd.choice([b"", b"GET / HTTP/1.1\r\n", b"POST /api/reset HTTP/1.1\r\nHost: "])
+            )
+        self.stop.wait(rnd.uniform(0.1, 2))
+        s.sendall(
+            _request("GET", "/api/state", [("Host", self.side.host), ("Connection", "close")])
+        )
+        return False
+
+    def _send_pipeline(self, s: socket.socket, conns: list[socket.socket]) -> bool:
+        """Several requests on one keep-alive connection."""
+        rnd = self.rnd
+        reqs = b"".join(
+            _request(
+                rnd.choice(["GET", "HEAD"]),
+                rnd.choice(["/", "/api/state", "/nope"]),
+                [("Host", self.side.host)],
+            )  # fmt: skip
+            for _ in range(rnd.randint(2, 30))
+        )
+        s.sendall(reqs)
+        s.shutdown(socket.SHUT_WR)
+        return False
+
+    def _sse(self, s: socket.socket) -> str:
+        rnd = self.rnd
+        # subscribe, read a little, then stop reading for a while
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        path = rnd.choice(["/events", "/events", "/robot/a/events"])
+        s.sendall(
+            _request("GET", path, [("Host", self.side.host), ("Accept", "text/event-stream")])
+        )
+        outcome = _status(s)
+        self.stop.wait(rnd.uniform(0.5, 20))
+        return f"{outcome}_stalled"

@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from supervisor.tools.bench.plan import SROBOT_VIOLATING, Plan
 
@@ -207,6 +207,105 @@ def _tmpdir(where: Path | None) -> Iterator[Path]:
         shutil.rmtree(d, ignore_errors=True)
 
 
+class _Case(NamedTuple):
+    """One replay measured: its bag, the config replaying it, and how the bag is written."""
+
+    label: str
+    config: Path
+    bag: Path
+    fast: bool
+    write: Callable[[Path], int]
+
+
+def _cases(
+    plan: Plan, messages: int, tmp: Path, scan_config: Path, violating: dict[str, Any] | None
+) -> list[_Case]:
+    """The cases in the order they run; the ``--exact`` one reuses the first bag."""
+    cases = [
+        _Case(
+            "fixed-size, MCAP",
+            plan.path,
+            tmp / "fixed-mcap",
+            True,
+            lambda p: write_rounds(p, plan, messages, "mcap"),
+        ),
+        _Case(
+            "fixed-size, sqlite3",
+            plan.path,
+            tmp / "fixed-sqlite3",
+            True,
+            lambda p: write_rounds(p, plan, messages, "sqlite3"),
+        ),
+    ]
+    if violating is not None:
+        cases += [
+            _Case(
+                f"violations every {VIOLATE_EVERY} ticks, MCAP",
+                plan.path,
+                tmp / "violations-mcap",
+                True,
+                lambda p: write_rounds(p, plan, messages, "mcap", violating=violating),
+            ),
+            _Case(
+                f"violations every {VIOLATE_EVERY} ticks, sqlite3",
+                plan.path,
+                tmp / "violations-sqlite3",
+                True,
+                lambda p: write_rounds(p, plan, messages, "sqlite3", violating=violating),
+            ),
+        ]
+    cases += [
+        _Case(
+            "--exact (message by message), MCAP",
+            plan.path,
+            tmp / "fixed-mcap",
+            False,
+            lambda p: 0,
+        ),
+        _Case(
+            "variable-size (LaserScan range_min), MCAP",
+            scan_config,
+            tmp / "scan-mcap",
+            True,
+            lambda p: write_scans(p, messages),
+        ),
+    ]
+    return cases
+
+
+def _replay_case(case: _Case, messages: int, say: Callable[[str], None]) -> dict[str, Any]:
+    """Writes the case's bag unless an earlier case did, replays it; its numbers."""
+    from supervisor.tools.replay.session import replay_files
+
+    label, config, bag, fast, write = case
+    if not bag.exists():
+        say(f"replay: writing {messages} messages ({label})")
+        start = time.perf_counter()
+        write(bag)
+        written_s = time.perf_counter() - start
+    else:
+        written_s = None
+    say(f"replay: {label}")
+    r = replay_files(config, [bag], None, None, fast=fast)
+    if r.get("error"):
+        from supervisor.tools.bench.errors import BenchError
+
+        raise BenchError(f"replay of {bag.name}: {r['error']}")
+    return {
+        "case": label,
+        "storage": "sqlite3" if bag.name.endswith("-sqlite3") else "mcap",
+        "config": str(config),
+        "fast": fast,
+        "messages": r["messages"],
+        "ticks": r["ticks"],
+        "violations": sum(q["violations"] for q in r["requirements"]),
+        "seconds": r["seconds"],
+        "rate": r["rate"],
+        "bag_mb": _size(bag) / 1e6,
+        "write_s": written_s,
+    }
+
+
 def replay_bench(
     plan: Plan,
     messages: int,
@@ -217,91 +316,13 @@ def replay_bench(
 ) -> dict[str, Any]:
     """Every case's messages/s (the replay's own clock: reading, decoding and stepping,
     not compiling), and the monitor's ticks/s one by one and in batches."""
-    from supervisor.tools.replay.session import replay_files
-
     out: dict[str, Any] = {"messages": messages, "recorded_rate": RECORDED_RATE, "cases": []}
     violating = violating_state(plan)
     with _tmpdir(where) as tmp:
         scan_config = tmp / "scan.yaml"
         scan_config.write_text(SCAN_CONFIG.replace("LOG", str(tmp / "scan-violations.jsonl")))
-        bags: list[tuple[str, Path, Path, bool, Callable[[Path], int]]] = [
-            (
-                "fixed-size, MCAP",
-                plan.path,
-                tmp / "fixed-mcap",
-                True,
-                lambda p: write_rounds(p, plan, messages, "mcap"),
-            ),
-            (
-                "fixed-size, sqlite3",
-                plan.path,
-                tmp / "fixed-sqlite3",
-                True,
-                lambda p: write_rounds(p, plan, messages, "sqlite3"),
-            ),
-        ]
-        if violating is not None:
-            bags += [
-                (
-                    f"violations every {VIOLATE_EVERY} ticks, MCAP",
-                    plan.path,
-                    tmp / "violations-mcap",
-                    True,
-                    lambda p: write_rounds(p, plan, messages, "mcap", violating=violating),
-                ),
-                (
-                    f"violations every {VIOLATE_EVERY} ticks, sqlite3",
-                    plan.path,
-                    tmp / "violations-sqlite3",
-                    True,
-                    lambda p: write_rounds(p, plan, messages, "sqlite3", violating=violating),
-                ),
-            ]
-        bags += [
-            (
-                "--exact (message by message), MCAP",
-                plan.path,
-                tmp / "fixed-mcap",
-                False,
-                lambda p: 0,
-            ),
-            (
-                "variable-size (LaserScan range_min), MCAP",
-                scan_config,
-                tmp / "scan-mcap",
-                True,
-                lambda p: write_scans(p, messages),
-            ),
-        ]
-        for label, config, bag, fast, write in bags:
-            if not bag.exists():
-                say(f"replay: writing {messages} messages ({label})")
-                start = time.perf_counter()
-                write(bag)
-                written_s = time.perf_counter() - start
-            else:
-                written_s = None
-            say(f"replay: {label}")
-            r = replay_files(config, [bag], None, None, fast=fast)
-            if r.get("error"):
-                from supervisor.tools.bench.errors import BenchError
-
-                raise BenchError(f"replay of {bag.name}: {r['error']}")
-            out["cases"].append(
-                {
-                    "case": label,
-                    "storage": "sqlite3" if bag.name.endswith("-sqlite3") else "mcap",
-                    "config": str(config),
-                    "fast": fast,
-                    "messages": r["messages"],
-                    "ticks": r["ticks"],
-                    "violations": sum(q["violations"] for q in r["requirements"]),
-                    "seconds": r["seconds"],
-                    "rate": r["rate"],
-                    "bag_mb": _size(bag) / 1e6,
-                    "write_s": written_s,
-                }
-            )
+        for case in _cases(plan, messages, tmp, scan_config, violating):
+            out["cases"].append(_replay_case(case, messages, say))
     out["by_storage"] = by_storage(out["cases"])
     say("replay: monitor ticks/s, tick() against tick_batch")
     out["monitor"] = monitor_rates(plan.path, min_seconds=min_seconds)

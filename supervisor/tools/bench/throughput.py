@@ -12,7 +12,7 @@ from typing import Any
 
 from supervisor.tools.bench.errors import BenchError
 from supervisor.tools.bench.plan import Plan
-from supervisor.tools.bench.session import Helper, Session, cpu_seconds
+from supervisor.tools.bench.session import Daemon, Helper, Session, cpu_seconds
 
 
 def throughput(
@@ -47,13 +47,7 @@ def throughput(
     baselines, pub = _start_clients(s, plan, work, rate, seconds, naive=naive, burst=burst)
     everyone = (daemon, pub, *baselines.values())
     try:
-        daemon.wait_ready(ready_timeout)
-        if on_ready is not None:
-            on_ready(daemon.pid)
-        daemon.watch_pings()
-        pub.wait_event("matched", 60, everyone)
-        for b in baselines.values():
-            b.wait_event("matched", 60, everyone)  # they see the publisher too
+        _ready_and_matched(daemon, pub, baselines, ready_timeout, on_ready)
         pids = {"daemon": daemon.pid, **{k: b.pid for k, b in baselines.items()}}
         cpu0 = {k: cpu_seconds(p) for k, p in pids.items()}
         go = time.monotonic()
@@ -71,12 +65,7 @@ def throughput(
         stop = daemon.stop_record()
         closed = _record_closed(daemon.records()) if record else None
         received = {"daemon": {n: c["messages"] + c["rejected"] for n, c in stop["inputs"].items()}}
-        for name, b in baselines.items():
-            b.stop()
-            final = b.latest("final") or b.latest("counts")
-            if final is None:
-                raise BenchError(f"{name}: reported no counts")
-            received[name] = final[1]["counts"]
+        received.update(_stopped_baselines(baselines))
     finally:
         for c in everyone:
             c.kill()
@@ -100,13 +89,47 @@ def throughput(
         on_disk = sum(p.stat().st_size for p in record_dir.rglob("*") if p.is_file())
         out["record"] = {**(closed or {}), "mb_on_disk": on_disk / 1e6}
     out["receivers"] = _receivers(received, sent, done["seconds"], cpu0, cpu1)
-    # The daemon's CPU up to its exit: its shutdown too (the recorder's last writes).
-    d = out["receivers"]["daemon"]
-    d["cpu_s_to_exit"] = cpu_exit - cpu0["daemon"]
-    n = d["received"]
-    d["cpu_us_per_msg_to_exit"] = 1e6 * d["cpu_s_to_exit"] / n if n else None
+    _add_cpu_to_exit(out["receivers"]["daemon"], cpu_exit - cpu0["daemon"])
     _overhead(out, list(baselines))
     return out
+
+
+def _ready_and_matched(
+    daemon: Daemon,
+    pub: Helper,
+    baselines: dict[str, Helper],
+    ready_timeout: float,
+    on_ready: Callable[[int], None] | None,
+) -> None:
+    """Waits for the daemon to be ready (its pings watched from then) and for the
+    publisher and every baseline to match."""
+    everyone = (daemon, pub, *baselines.values())
+    daemon.wait_ready(ready_timeout)
+    if on_ready is not None:
+        on_ready(daemon.pid)
+    daemon.watch_pings()
+    pub.wait_event("matched", 60, everyone)
+    for b in baselines.values():
+        b.wait_event("matched", 60, everyone)  # they see the publisher too
+
+
+def _stopped_baselines(baselines: dict[str, Helper]) -> dict[str, dict[str, Any]]:
+    """Stops the baseline receivers; each one's last counts by topic."""
+    received: dict[str, dict[str, Any]] = {}
+    for name, b in baselines.items():
+        b.stop()
+        final = b.latest("final") or b.latest("counts")
+        if final is None:
+            raise BenchError(f"{name}: reported no counts")
+        received[name] = final[1]["counts"]
+    return received
+
+
+def _add_cpu_to_exit(d: dict[str, Any], cpu_s_to_exit: float) -> None:
+    """The daemon's CPU up to its exit: its shutdown too (the recorder's last writes)."""
+    d["cpu_s_to_exit"] = cpu_s_to_exit
+    n = d["received"]
+    d["cpu_us_per_msg_to_exit"] = 1e6 * d["cpu_s_to_exit"] / n if n else None
 
 
 def _receivers(

@@ -296,6 +296,111 @@ def _spread(values: list[float]) -> dict[str, float] | None:
     return {"min": ordered[0], "median": ordered[len(ordered) // 2], "max": ordered[-1]}
 
 
+class _Load:
+    """What the UI goes through while throughput() publishes: its CPU sampled and,
+    with ``restart``, a SIGKILL halfway and a restart; ``marks``: when, monotonic."""
+
+    def __init__(self, ui: UiChild, restart: bool, seconds: float, streams: list[Stream]) -> None:
+        self.ui = ui
+        self.restart = restart
+        self.seconds = seconds
+        self.streams = streams
+        self.marks: dict[str, float] = {}
+        self.first_pid = ui.child.pid
+        self.done = threading.Event()  # the run is over (or failed): stop acting
+        self.sampled = threading.Event()  # the kill and the CPU samples are done
+        self.released = threading.Event()  # the UI was stopped: its starting thread may end
+        self.sampler: threading.Thread | None = None
+
+    def _during(self, go: float) -> None:
+        # On a thread: the kill and the UI's CPU samples happen while throughput()
+        # waits for the publisher.
+        marks, done, ui, seconds = self.marks, self.done, self.ui, self.seconds
+        marks["go"] = go
+        marks["ui_cpu0"] = cpu_seconds(self.first_pid)
+        if self.restart and not done.wait(max(0.0, go + seconds / 2 - time.monotonic())):
+            marks["ui_cpu_at_kill"] = cpu_seconds(self.first_pid)
+            marks["killed"] = time.monotonic()
+            ui.child.kill()  # SIGKILL to its group, then reaped
+            ui.start()
+            marks["restarted"] = time.monotonic()
+        if not done.wait(max(0.0, go + seconds - time.monotonic())):
+            marks["ui_cpu1"] = cpu_seconds(ui.child.pid)
+            marks["end"] = time.monotonic()
+        self.sampled.set()
+        # The restarted UI's parent-death signal fires when the thread that started
+        # it ends (supervisor/children.py): this one lives until the UI was stopped.
+        self.released.wait()
+
+    def on_go(self, go: float) -> None:
+        self.sampler = threading.Thread(
+            target=self._during, args=(go,), name="ui-load", daemon=True
+        )
+        self.sampler.start()
+
+    def before_stop(self) -> None:
+        # The daemon still publishes its status: a restart late in a short run is
+        # still timed to the clients' first status (``within_run`` says whether the
+        # publisher was still running then).
+        self.sampled.wait(self.seconds + START_TIMEOUT_S)
+        if "killed" not in self.marks:
+            return
+        deadline = time.monotonic() + STATUS_AGAIN_TIMEOUT_S
+        while time.monotonic() < deadline:
+            if all(r.status_again(self.marks["killed"])[1] is not None for r in self.streams):
+                return
+            time.sleep(0.05)  # polling the client threads
+
+    def stop(self) -> int | None:
+        """Stops the UI and the clients, a kill under way finished first; the UI's exit
+        status (SIGTERM with the streams open: it must exit 0)."""
+        self.done.set()
+        self.sampled.wait(START_TIMEOUT_S)  # a kill under way finishes before the stop
+        exit_code = self.ui.child.stop()
+        self.released.set()
+        if self.sampler is not None:
+            self.sampler.join()
+        for r in self.streams:
+            r.stop()
+        return exit_code
+
+
+def _wait_connected(streams: list[Stream], page: ChromiumPage | None, clients: int) -> None:
+    """Until every stream connected; a page that failed to open is left out."""
+    deadline = time.monotonic() + START_TIMEOUT_S
+    if page is not None:
+        page.wait_opened(START_TIMEOUT_S)
+    while not all(r.connects for r in streams):
+        if page is not None and page.error is not None:
+            streams.remove(page)
+            continue
+        if time.monotonic() > deadline:
+            raise BenchError(f"ui: {clients} clients not connected within {START_TIMEOUT_S:g} s")
+        time.sleep(0.05)  # polling the client threads
+
+
+def _restart(
+    readers: list[SseClient], marks: dict[str, float], go: float, end: float, clients: int
+) -> dict[str, Any]:
+    """How long the restart took and how soon each client had the status again."""
+    killed, restarted = marks["killed"], marks["restarted"]
+    again = [r.status_again(killed) for r in readers]
+    connected = [c - restarted for c, _st in again if c is not None]
+    status = [st - restarted for _c, st in again if st is not None]
+    return {
+        "killed_after_s": killed - go,
+        "restart_took_s": restarted - killed,
+        "clients_reconnected": len(connected),
+        "clients_with_status_again": len(status),
+        "connected_again_s": _spread(connected),
+        "status_again_s": _spread(status),
+        # Status again before the publisher's end: the restart happened while
+        # the daemon was monitoring at the offered rate.
+        "within_run": bool(status) and len(status) == clients and restarted + max(status) <= end,
+        "restarted_ui_cpu_s": marks.get("ui_cpu1"),
+    }
+
+
 def _case(
     s: Session,
     plan: Plan,
@@ -312,76 +417,22 @@ def _case(
     readers = [SseClient(ui.port, f"sse-{i}") for i in range(clients)]
     page = ChromiumPage(ui.port) if chromium and ChromiumPage.available() else None
     streams: list[Stream] = [*readers, *([page] if page is not None else [])]
-    marks: dict[str, float] = {}
-    first_pid = ui.child.pid
-    done = threading.Event()  # the run is over (or failed): stop acting
-    sampled = threading.Event()  # the kill and the CPU samples are done
-    released = threading.Event()  # the UI was stopped: its starting thread may end
-
-    def during(go: float) -> None:
-        # On a thread: the kill and the UI's CPU samples happen while throughput()
-        # waits for the publisher.
-        marks["go"] = go
-        marks["ui_cpu0"] = cpu_seconds(first_pid)
-        if restart and not done.wait(max(0.0, go + seconds / 2 - time.monotonic())):
-            marks["ui_cpu_at_kill"] = cpu_seconds(first_pid)
-            marks["killed"] = time.monotonic()
-            ui.child.kill()  # SIGKILL to its group, then reaped
-            ui.start()
-            marks["restarted"] = time.monotonic()
-        if not done.wait(max(0.0, go + seconds - time.monotonic())):
-            marks["ui_cpu1"] = cpu_seconds(ui.child.pid)
-            marks["end"] = time.monotonic()
-        sampled.set()
-        # The restarted UI's parent-death signal fires when the thread that started
-        # it ends (supervisor/children.py): this one lives until the UI was stopped.
-        released.wait()
-
-    sampler: threading.Thread | None = None
-
-    def on_go(go: float) -> None:
-        nonlocal sampler
-        sampler = threading.Thread(target=during, args=(go,), name="ui-load", daemon=True)
-        sampler.start()
-
-    def before_stop() -> None:
-        # The daemon still publishes its status: a restart late in a short run is
-        # still timed to the clients' first status (``within_run`` says whether the
-        # publisher was still running then).
-        sampled.wait(seconds + START_TIMEOUT_S)
-        if "killed" not in marks:
-            return
-        deadline = time.monotonic() + STATUS_AGAIN_TIMEOUT_S
-        while time.monotonic() < deadline:
-            if all(r.status_again(marks["killed"])[1] is not None for r in streams):
-                return
-            time.sleep(0.05)  # polling the client threads
-
+    load = _Load(ui, restart, seconds, streams)
     try:
-        deadline = time.monotonic() + START_TIMEOUT_S
-        if page is not None:
-            page.wait_opened(START_TIMEOUT_S)
-        while not all(r.connects for r in streams):
-            if page is not None and page.error is not None:
-                streams.remove(page)
-                continue
-            if time.monotonic() > deadline:
-                raise BenchError(
-                    f"ui: {clients} clients not connected within {START_TIMEOUT_S:g} s"
-                )
-            time.sleep(0.05)  # polling the client threads
+        _wait_connected(streams, page, clients)
         row = throughput(
-            s, plan, rate, seconds, False, wd_usec=wd_usec, on_go=on_go, before_stop=before_stop
+            s,
+            plan,
+            rate,
+            seconds,
+            False,
+            wd_usec=wd_usec,
+            on_go=load.on_go,
+            before_stop=load.before_stop,
         )
     finally:
-        done.set()
-        sampled.wait(START_TIMEOUT_S)  # a kill under way finishes before the stop
-        exit_code = ui.child.stop()  # SIGTERM with the streams open: it must exit 0
-        released.set()
-        if sampler is not None:
-            sampler.join()
-        for r in streams:
-            r.stop()
+        exit_code = load.stop()
+    marks = load.marks
     go = marks["go"]
     end = go + row["seconds"]
     per_client = [r.counts(go, end) for r in readers]
@@ -404,27 +455,10 @@ def _case(
             1e3 * (marks["ui_cpu1"] - marks["ui_cpu0"]) / (marks["end"] - go)
         )
     if restart and "killed" in marks:
-        killed, restarted = marks["killed"], marks["restarted"]
         out["ui"]["ui_cpu_ms_per_s_until_kill"] = (
-            1e3 * (marks["ui_cpu_at_kill"] - marks["ui_cpu0"]) / (killed - go)
+            1e3 * (marks["ui_cpu_at_kill"] - marks["ui_cpu0"]) / (marks["killed"] - go)
         )
-        again = [r.status_again(killed) for r in readers]
-        connected = [c - restarted for c, _st in again if c is not None]
-        status = [st - restarted for _c, st in again if st is not None]
-        out["ui"]["restart"] = {
-            "killed_after_s": killed - go,
-            "restart_took_s": restarted - killed,
-            "clients_reconnected": len(connected),
-            "clients_with_status_again": len(status),
-            "connected_again_s": _spread(connected),
-            "status_again_s": _spread(status),
-            # Status again before the publisher's end: the restart happened while
-            # the daemon was monitoring at the offered rate.
-            "within_run": bool(status)
-            and len(status) == clients
-            and restarted + max(status) <= end,
-            "restarted_ui_cpu_s": marks.get("ui_cpu1"),
-        }
+        out["ui"]["restart"] = _restart(readers, marks, go, end, clients)
     return out
 
 

@@ -183,6 +183,16 @@ def test_bench_quick_out(tmp_path: Path) -> None:
         assert f"{c['rate']:.0f}" in md
     # the daemon's stages, as the text report has them
     stages = r["latency"]["breakdown"]["stages_us"]
+    # every stage of both durabilities, in order, and the part after the halt
+    from supervisor.tools.bench.breakdown import STAGES, STAGES_AFTER_PUBLISH
+
+    assert list(stages) == [name for name, _ in STAGES]
+    after = r["latency"]["breakdown_after_publish"]
+    assert list(after["stages_us"]) == [name for name, _ in STAGES_AFTER_PUBLISH]
+    assert (
+        after["after_halt_us"]["p50"] is not None
+        and "after_halt_us" not in r["latency"]["breakdown"]
+    )
     assert "| stage | p50 µs |" in md and "x the floor (goal: at most 1.3x)" in md
     assert "after_publish: halt p50" in md and "| safety-supervisor (before_action) |" in md
     for name, st in stages.items():
