@@ -5,10 +5,12 @@ Each line is compared whole, so a change of wording, line or hint shows."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from monitors.errors import UserError
+from supervisor.config import load_config
 from supervisor.pipeline import project_for
 
 HEAD = "component: sw\nstep: {policy: periodic, period_ms: 100}\n"
@@ -124,3 +126,106 @@ def test_check_reports_each_variable_problem_at_its_line(tmp_path: Path, case: s
     project = project_for(path, ros=False)
     assert [str(e) for e in project.errors] == [e.format(f=path) for e in errors]
     assert project.warnings == [w.format(f=path) for w in warnings]
+
+
+LPC = Path(__file__).resolve().parents[2] / "data" / "fret" / "LPC_mini_reqts_and_vars.json"
+LPC_HEAD = f"""\
+component: vehicle
+step: {{policy: periodic, period_ms: 100}}
+requirements_from: {LPC}
+requirement_defaults:
+  on_violation: [halt]
+  policy: {{cooldown_ms: 500}}
+"""
+LPC_VARS = """\
+variables:
+  hover_control_mode: {topic: /vehicle/hover, msg: std_msgs/msg/Bool}
+  kgs: {topic: /vehicle/kgs, msg: std_msgs/msg/Float64}
+  kias: {topic: /vehicle/kias, msg: std_msgs/msg/Float64}
+  lift_mode: {topic: /vehicle/lift_mode, msg: std_msgs/msg/Int64}
+"""
+
+
+def _fields(entry: Any) -> tuple[Any, ...]:
+    return (
+        entry.text,
+        entry.file,
+        entry.line,
+        entry.col,
+        entry.id_line,
+        entry.rationale,
+        entry.on_violation,
+        entry.on_violation_line,
+        dict(entry.policy),
+        entry.policy_line,
+        entry.assumption,
+        entry.fret_ptltl,
+    )
+
+
+def test_requirement_entries_take_the_defaults_and_a_refinement_keeps_the_import(
+    tmp_path: Path,
+) -> None:
+    imported = tmp_path / "imported.yaml"
+    imported.write_text(LPC_HEAD + LPC_VARS + MIT)
+    base = {e.id: e for e in load_config(imported).requirements}
+    first = base["LPC_TB_STAY_ON_NEXT"]
+    assert first.on_violation == ["halt"] and first.policy == {"cooldown_ms": 500}
+    assert (first.id_line, first.line, first.fret_ptltl is not None) == (3, None, True)
+
+    refined = tmp_path / "refined.yaml"
+    refined.write_text(
+        LPC_HEAD
+        + LPC_VARS
+        + "requirements:\n"
+        + "  - id: LPC_TB_STAY_ON_NEXT\n    rationale: why\n"
+        + "  - id: new_assumption\n    text: vehicle shall always satisfy kgs <= 20.0\n"
+        + "  - id: other\n    text: vehicle shall always satisfy kias <= 20.0\n"
+        + "    on_violation: []\n    policy: {latch: true}\n    assumption: 'True'\n"
+        + MIT
+    )
+    got = {e.id: e for e in load_config(refined).requirements}
+    assert list(got)[: len(base)] == list(base)
+    path = str(refined)
+    assert _fields(got["LPC_TB_STAY_ON_NEXT"]) == (
+        first.text,
+        first.file,
+        None,
+        1,
+        13,
+        "why",
+        ["halt"],
+        13,
+        {"cooldown_ms": 500},
+        6,
+        False,
+        first.fret_ptltl,
+    )
+    assert _fields(got["new_assumption"]) == (
+        "vehicle shall always satisfy kgs <= 20.0",
+        path,
+        16,
+        11,
+        15,
+        "",
+        ["halt"],
+        15,
+        {"cooldown_ms": 500},
+        6,
+        True,
+        None,
+    )
+    assert _fields(got["other"]) == (
+        "vehicle shall always satisfy kias <= 20.0",
+        path,
+        18,
+        11,
+        17,
+        "",
+        [],
+        19,
+        {"latch": True},
+        20,
+        True,
+        None,
+    )
