@@ -25,6 +25,11 @@ def _req(text: str) -> str:
 REQ_P = _req("sw shall always satisfy p")
 
 RAISED = {
+    "unknown key in requirement_defaults": (
+        HEAD + "requirement_defaults:\n  on_violaton: [halt]\n" + VAR_P + REQ_P + MIT,
+        "{f}:4: unknown key 'on_violaton' in requirement_defaults "
+        "(hint: did you mean 'on_violation'?)",
+    ),
     "requirements not a list": (
         HEAD + VAR_P + "requirements: {a: 1}\n" + MIT,
         "{f}:5: 'requirements' must be a list of {{id, text, ...}}",
