@@ -4,6 +4,7 @@ Each line is compared whole, so a change of wording, line or hint shows."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -234,3 +235,49 @@ def test_requirement_entries_take_the_defaults_and_a_refinement_keeps_the_import
         True,
         None,
     )
+
+
+OGMA = Path(__file__).resolve().parents[2] / "data" / "sRobot-ogma-variable-db.txt"
+
+
+def test_a_yaml_entry_refining_an_ogma_variable_keeps_its_topic_msg_and_field(
+    tmp_path: Path,
+) -> None:
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "component: sRobot\nstep: {policy: periodic, period_ms: 100}\n"
+        f"variables_from: {OGMA}\n"
+        "variables:\n  alert: {type: bool, depth: 3}\n"
+        "requirements:\n  - id: r1\n    text: sRobot shall always satisfy alert\n" + MIT
+    )
+    v = load_config(path).variables["alert"]
+    assert (v.topic, v.msg, v.field, v.depth) == ("/sRobotAlert", "std_msgs/msg/Bool", "data", 3)
+
+
+def test_fret_parent_requirements_are_left_out_with_a_note_each(tmp_path: Path) -> None:
+    export = tmp_path / "fret.json"
+    export.write_text(
+        json.dumps(
+            {
+                "requirements": [
+                    {"reqid": "", "fulltext": ""},
+                    {"reqid": "P", "fulltext": "", "semantics": {}},
+                    {"reqid": "r1", "fulltext": "sw shall always satisfy p", "semantics": {}},
+                ],
+                "variables": [],
+            }
+        )
+    )
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        f"component: sw\nstep: {{policy: periodic, period_ms: 100}}\nrequirements_from: {export}\n"
+        + VAR_P
+        + MIT
+    )
+    cfg = load_config(path)
+    assert [e.id for e in cfg.requirements] == ["r1"]
+    assert cfg.notes == [
+        f"{path}:3: note: {export}: requirement '{name}' has no text (a parent requirement "
+        "in FRET); left out"
+        for name in ("(no id)", "P")
+    ]
