@@ -85,6 +85,23 @@ def test_config_error_is_one_line_at_its_place(tmp_path: Path, case: str) -> Non
 
 
 CHECKED = {
+    "step trigger read by no requirement": (
+        "component: sw\nstep: {policy: on_trigger, trigger: t}\n"
+        + VAR_P
+        + "  t: {type: bool, topic: /t, msg: std_msgs/msg/Bool}\n"
+        + REQ_P
+        + MIT,
+        [],
+        [],
+    ),
+    "input read by no requirement": (
+        HEAD + VAR_P + "  t: {type: bool, topic: /t, msg: std_msgs/msg/Bool}\n" + REQ_P + MIT,
+        [
+            "{f}:5: variable 't' is declared but no requirement uses it "
+            "(hint: remove it, or it may be a typo in a requirement)"
+        ],
+        [],
+    ),
     "define reads an undeclared variable": (
         HEAD
         + VAR_P
