@@ -96,3 +96,30 @@ def test_seq_going_back_is_out_of_order_and_the_chain_goes_on() -> None:
             missing=1,
         )
     )
+
+
+def test_an_interrupted_record_is_passed_over_only_where_it_followed_the_chain() -> None:
+    first = _chain({"seq": 1})[0]
+    for prev, intact in ((sha256_hex(first), True), ("0" * 64, False)):
+        cut = b'{"prev_sha256":"' + prev.encode() + b'","seq":2,"x":\n'
+        text = json.dumps({"prev_sha256": sha256_hex(cut), "seq": 3}, separators=(",", ":"))
+        after = text.encode() + b"\n"
+        got = _result(first + cut + after)
+        if intact:
+            assert (got["warnings"], got["errors"], got["records"]) == (
+                [
+                    "v.log:2: warning: incomplete record (writer interrupted); "
+                    "the writer continued the chain after it"
+                ],
+                [
+                    "v.log:3: 1 records missing (seq 2) before this line: no records_lost "
+                    "record accounts for them (removed, or the writer was changed)"
+                ],
+                2,
+            )
+        else:
+            assert (got["warnings"], got["errors"], got["records"]) == (
+                [],
+                ["v.log:2: hash chain broken: not a log record (line was edited or inserted)"],
+                1,
+            )
