@@ -195,6 +195,29 @@ def check_variables(
             "partial round (a lost or late message) shifts every later step by one topic; "
             "set max_skew_ms below the robot's publishing period"
         )
+    errors += _define_errors(cfg)
+    if ros:
+        errors += _input_errors(cfg)
+    used = _used_variables(cfg, reqs)
+    for v in cfg.inputs:
+        if v.topic is None and v.name in used:
+            errors.append(
+                UserError(
+                    f"variable '{v.name}' from {v.imported_from} has no topic",
+                    file=cfg.path,
+                    line=v.line,
+                    hint="give it one in variables: (topic:, msg:) or in an OGMA database "
+                    "under variables_from:",
+                )
+            )
+    if all(r.ok for r in reqs):  # unused is only meaningful when every requirement was read
+        _drop_unused(cfg, used, errors, warnings)
+    return errors, warnings
+
+
+def _define_errors(cfg: Config) -> list[UserError]:
+    """Each define reads declared inputs only and has its variable's type."""
+    errors: list[UserError] = []
     env = _env(cfg)
     for v in cfg.defines:
         try:
@@ -214,15 +237,26 @@ def check_variables(
                 raise UserError(f"'{v.name}' is declared {v.type} but its define is {t}")
         except UserError as e:
             errors.append(_located(e, cfg.path, v.line))
-    if ros:
-        for v in cfg.inputs:
-            if v.topic is None:
-                continue  # imported from FRET without a topic: judged with the unused below
-            try:
-                check_input(v)
-            except UserError as e:
-                e.message = f"variable '{v.name}': {e.message}"
-                errors.append(_located(e, cfg.path, v.line))
+    return errors
+
+
+def _input_errors(cfg: Config) -> list[UserError]:
+    """Each input's message type and field, checked against the ROS interfaces."""
+    errors: list[UserError] = []
+    for v in cfg.inputs:
+        if v.topic is None:
+            continue  # imported from FRET without a topic: judged with the unused below
+        try:
+            check_input(v)
+        except UserError as e:
+            e.message = f"variable '{v.name}': {e.message}"
+            errors.append(_located(e, cfg.path, v.line))
+    return errors
+
+
+def _used_variables(cfg: Config, reqs: list[CompiledRequirement]) -> set[str]:
+    """The variables the monitor reads: in formulas, in the defines those use,
+    the inputs of ages and rates, the step trigger and policies' confirmations."""
     used: set[str] = set()
     for r in reqs:
         if r.formalization is not None:
@@ -238,37 +272,30 @@ def check_variables(
     for entry in cfg.requirements:  # a policy's confirmation reads its variable too
         if entry.policy_config.confirm is not None:
             used.add(entry.policy_config.confirm.variable)
-    for v in cfg.inputs:
-        if v.topic is None and v.name in used:
+    return used
+
+
+def _drop_unused(cfg: Config, used: set[str], errors: list[UserError], warnings: list[str]) -> None:
+    """An unused imported variable is a note and leaves the config; an unused
+    declared one is an error."""
+    for v in list(cfg.variables.values()):
+        if v.name not in used and v.imported_from is not None:
+            # A FRET or OGMA file shared by many components declares more than
+            # this one reads: a note, and the monitor leaves it out.
+            warnings.append(
+                f"{cfg.path}:{v.line}: note: variable '{v.name}' from {v.imported_from} "
+                "is not used by any requirement; it is left out"
+            )
+            del cfg.variables[v.name]
+        elif v.name not in used:
             errors.append(
                 UserError(
-                    f"variable '{v.name}' from {v.imported_from} has no topic",
+                    f"variable '{v.name}' is declared but no requirement uses it",
                     file=cfg.path,
                     line=v.line,
-                    hint="give it one in variables: (topic:, msg:) or in an OGMA database "
-                    "under variables_from:",
+                    hint="remove it, or it may be a typo in a requirement",
                 )
             )
-    if all(r.ok for r in reqs):  # unused is only meaningful when every requirement was read
-        for v in list(cfg.variables.values()):
-            if v.name not in used and v.imported_from is not None:
-                # A FRET or OGMA file shared by many components declares more than
-                # this one reads: a note, and the monitor leaves it out.
-                warnings.append(
-                    f"{cfg.path}:{v.line}: note: variable '{v.name}' from {v.imported_from} "
-                    "is not used by any requirement; it is left out"
-                )
-                del cfg.variables[v.name]
-            elif v.name not in used:
-                errors.append(
-                    UserError(
-                        f"variable '{v.name}' is declared but no requirement uses it",
-                        file=cfg.path,
-                        line=v.line,
-                        hint="remove it, or it may be a typo in a requirement",
-                    )
-                )
-    return errors, warnings
 
 
 def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError], list[str]]:

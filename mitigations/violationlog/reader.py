@@ -198,23 +198,9 @@ def verify_lines(path: str, lines: Iterable[bytes]) -> VerifyResult:
             )
             res.broken = True
             break
-        try:
-            # the chain only: the schema is the readers' (a record of the wrong shape
-            # written by the writer, or chained by anyone, still verifies)
-            try:
-                rec = json.loads(line)
-            except RecursionError:  # nested deeper than the parser goes: the header
-                rec = _header(line)
-            if not isinstance(rec, dict) or "prev_sha256" not in rec:
-                raise ValueError("not a record")
-        except ValueError:
-            follows = None if nxt is None else _PREV_RE.search(nxt)
-            m = _PREV_RE.search(line)
-            if (
-                follows is not None
-                and follows.group(1).decode() == sha256_hex(line)
-                and (m is None or m.group(1).decode() == expected)
-            ):
+        rec = _record(line)
+        if rec is None:
+            if _continued_after(line, nxt, expected):
                 res.warnings.append(
                     f"{where}: warning: incomplete record (writer interrupted); "
                     "the writer continued the chain after it"
@@ -226,42 +212,82 @@ def verify_lines(path: str, lines: Iterable[bytes]) -> VerifyResult:
             )
             res.broken = True
             break
-        seal = line_seal_ok(line)
-        if seal is False:
-            res.errors.append(f"{where}: hash chain broken: line was edited")
-            res.broken = True
-            break
-        if rec["prev_sha256"] != expected:
-            if seal is None:
-                msg = "line was edited or a line before it was removed"
-            elif i == 1:
-                msg = "the file's first line(s) were removed (or this line was inserted)"
-            else:
-                msg = "line was inserted, or a line before it was removed or rewritten"
-            res.errors.append(f"{where}: hash chain broken: {msg}")
+        broken = _chain_break(line, rec, expected, i)
+        if broken is not None:
+            res.errors.append(f"{where}: hash chain broken: {broken}")
             res.broken = True
             break
         res.records += 1
         if res.first is None:
             res.first = rec
-        n = rec.get("seq")
-        if isinstance(n, int) and not isinstance(n, bool):
-            if seq is None:
-                res.first_seq = n
-            elif n > seq + 1 and n != 1:
-                check_seq_gap(where, seq + 1, n - 1, rec, res)
-            elif n <= seq and n != 1:
-                res.missing += 1
-                res.errors.append(
-                    f"{where}: seq {n} after seq {seq}: out of order (a record was "
-                    "duplicated or moved, or the writer was changed)"
-                )
-            seq = res.last_seq = n
+        seq = _follow_seq(where, rec, seq, res)
         if rec.get("event") == "supervisor" and rec.get("previous_last_sha256"):
             res.links.append((i, str(rec["previous_last_sha256"])))
         expected = sha256_hex(line)
     res.last_sha256 = expected
     return res
+
+
+def _record(line: bytes) -> dict[str, Any] | None:
+    """The line's chain fields, or None when it is not a log record."""
+    # the chain only: the schema is the readers' (a record of the wrong shape
+    # written by the writer, or chained by anyone, still verifies)
+    try:
+        try:
+            rec = json.loads(line)
+        except RecursionError:  # nested deeper than the parser goes: the header
+            rec = _header(line)
+    except ValueError:
+        return None
+    if not isinstance(rec, dict) or "prev_sha256" not in rec:
+        return None
+    return rec
+
+
+def _continued_after(line: bytes, nxt: bytes | None, expected: str) -> bool:
+    """Whether a line that is no record is an interrupted write the writer chained
+    the next line to (and that itself followed the chain, where it says so)."""
+    follows = None if nxt is None else _PREV_RE.search(nxt)
+    m = _PREV_RE.search(line)
+    return (
+        follows is not None
+        and follows.group(1).decode() == sha256_hex(line)
+        and (m is None or m.group(1).decode() == expected)
+    )
+
+
+def _chain_break(line: bytes, rec: dict[str, Any], expected: str, i: int) -> str | None:
+    """What broke the chain at record ``rec`` (line ``i``), or None where it holds."""
+    seal = line_seal_ok(line)
+    if seal is False:
+        return "line was edited"
+    if rec["prev_sha256"] != expected:
+        if seal is None:
+            return "line was edited or a line before it was removed"
+        if i == 1:
+            return "the file's first line(s) were removed (or this line was inserted)"
+        return "line was inserted, or a line before it was removed or rewritten"
+    return None
+
+
+def _follow_seq(where: str, rec: dict[str, Any], seq: int | None, res: VerifyResult) -> int | None:
+    """Checks the record's seq against the previous one (gaps and reorders go to
+    ``res``); returns the seq to compare the next record with."""
+    n = rec.get("seq")
+    if not isinstance(n, int) or isinstance(n, bool):
+        return seq
+    if seq is None:
+        res.first_seq = n
+    elif n > seq + 1 and n != 1:
+        check_seq_gap(where, seq + 1, n - 1, rec, res)
+    elif n <= seq and n != 1:
+        res.missing += 1
+        res.errors.append(
+            f"{where}: seq {n} after seq {seq}: out of order (a record was "
+            "duplicated or moved, or the writer was changed)"
+        )
+    res.last_seq = n
+    return n
 
 
 def parse_time(text: str) -> datetime:

@@ -193,6 +193,16 @@ def _database(
     component: str | None,
     notes: list[str] | None = None,
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
+    reqs = _database_requirements(requirements, file, component, notes)
+    internal, other = _database_variables(variables, file, component)
+    return reqs, internal, other
+
+
+def _database_requirements(
+    requirements: list[Any], file: str, component: str | None, notes: list[str] | None
+) -> list[RequirementEntry]:
+    """The database's requirements of ``component``; the ones left out (other
+    components', FRET's parent requirements) are told in ``notes``."""
     reqs: list[RequirementEntry] = []
     others: dict[str, int] = {}  # left out: component -> how many
     parents: list[str] = []
@@ -249,6 +259,14 @@ def _database(
                 f"requirement '{printable(rid)}' has no text (a parent requirement in FRET); "
                 "left out"
             )
+    return reqs
+
+
+def _database_variables(
+    variables: list[Any], file: str, component: str | None
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The database's variables of ``component``: internal ones (with their
+    definitions) and the others (inputs and outputs)."""
     internal: list[dict[str, Any]] = []
     other: list[dict[str, Any]] = []
     for i, item in enumerate(variables, 1):
@@ -275,4 +293,4 @@ def _database(
             # FRET's Output is what the component sets: the analyses' role: output.
             role = "output" if kind == "Output" else "input"
             other.append({"name": name, "type": _variable(name, dtype, file), "role": role})
-    return reqs, internal, other
+    return internal, other

@@ -236,7 +236,22 @@ def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
 def _source(var: Variable, spec: LineDict, base: Variable | None, vs: LineDict) -> None:
     """Where input ``var`` reads its value: a topic's field, a service's calls, an
     action's goal states, or another input's stamps or arrivals."""
-    name = var.name
+    source = _source_key(var.name, spec, base)
+    if source == "topic":
+        _topic_source(var, spec, base, vs)
+    elif source == "service":
+        _service_source(var, spec)
+    elif source == "action":
+        _action_source(var, spec)
+    else:  # age_of, rate_of: resolved against their input in _derived_sources
+        _derived_source(var, spec, source)
+    if var.field != "data" or "field" in spec:
+        _path(var.field, spec, "field", var.name)
+
+
+def _source_key(name: str, spec: LineDict, base: Variable | None) -> str:
+    """The one source key the spec gives (``topic`` when none), refusing a
+    second source and keys that belong to another source."""
     given = [k for k in SOURCES if spec.get(k) is not None]
     if len(given) > 1:
         raise error_at(
@@ -254,110 +269,126 @@ def _source(var: Variable, spec: LineDict, base: Variable | None, vs: LineDict) 
                 key,
                 f"{source} takes: {', '.join(sorted(allowed)) or 'no other key'}",
             )
-    if source == "topic":
-        var.topic = str(spec.get("topic") or (base.topic if base else "") or "") or None
-        var.msg = str(spec.get("msg") or (base.msg if base else "") or "") or None
-        var.field = str(spec.get("field") or (base.field if base else "data"))
-        if not var.topic:
-            raise error_at(
-                f"variable '{name}' has no topic (and no define)",
-                vs,
-                name,
-                "add topic: /name and msg: pkg/msg/Type, or define: <expression>",
-            )
-        _absolute(var.topic, spec, "topic", name)
-        if not var.msg:
-            raise error_at(
-                f"variable '{name}' needs msg: the ROS 2 message type of {var.topic}", vs, name
-            )
-    elif source == "service":
-        var.service = str(spec["service"])
-        _absolute(var.service, spec, "service", name)
-        if not spec.get("srv"):
-            raise error_at(
-                f"variable '{name}' needs srv: the service's type (pkg/srv/Name)", spec, "service"
-            )
-        var.srv = str(spec["srv"])
-        call = spec.get("call")
-        if call not in SERVICE_CALLS:
-            raise error_at(
-                f"variable '{name}': call must be request or response",
-                spec,
-                "call" if "call" in spec else "service",
-                "request: the call was made (its fields); response: it came back",
-            )
-        var.call = str(call)
-        try:
-            var.msg = service_event_type(var.srv)
-        except UserError as e:
-            raise error_at(f"variable '{name}': {e.message}", spec, "srv", e.hint) from None
-        var.topic = service_topic(var.service)
-        if spec.get("field") is not None:
-            var.field = str(spec["field"])
-        elif not spec.get("event"):
-            raise error_at(
-                f"variable '{name}' reads no field of the {call}",
-                spec,
-                "service",
-                f"add field: (a field of {var.srv}'s {call}) or event: true",
-            )
-        elif spec.get("reduce") is not None:
-            raise error_at(f"variable '{name}': reduce needs a field:", spec, "reduce")
-        if not spec.get("event") and "initial" not in spec:
-            raise error_at(
-                f"variable '{name}' has no value before the first {call}: give it initial:",
-                spec,
-                "service",
-            )
-    elif source == "action":
-        var.action = str(spec["action"])
-        _absolute(var.action, spec, "action", name)
-        if spec.get("status") is None:
-            raise error_at(
-                f"variable '{name}' needs status: the goal states it watches",
-                spec,
-                "action",
-                "e.g. status: [accepted, executing], or status: aborted with event: true",
-            )
-        try:
-            var.statuses = goal_statuses(spec["status"])
-        except UserError as e:
-            raise error_at(f"variable '{name}': {e.message}", spec, "status", e.hint) from None
-        if var.type == "double":
-            raise error_at(
-                f"variable '{name}': goal states feed a bool (some goal is in them) or an "
-                "int64 (how many are), not a double",
-                spec,
-                "type",
-            )
-        var.topic, var.msg = action_status_topic(var.action), ACTION_STATUS_MSG
-        if var.type == "int64" and spec.get("event"):
-            raise error_at(f"variable '{name}': an event is bool", spec, "event")
-        if "initial" not in spec and not spec.get("event"):
-            var.initial = False if var.type == "bool" else 0  # no goal before the first status
-    else:  # age_of, rate_of: resolved against their input in _derived_sources
-        of = spec[source]
-        if not isinstance(of, str):
-            raise error_at(f"variable '{name}': {source} names an input variable", spec, source)
-        if var.type != "double":
-            unit = "milliseconds" if source == "age_of" else "messages per second"
-            raise error_at(
-                f"variable '{name}': {source} is in {unit}, a double, not {var.type}",
-                spec,
-                "type",
-            )
-        if source == "age_of":
-            var.age_of = of
-            if spec.get("stamp") is not None:
-                var.stamp = str(spec["stamp"])
-                _path(var.stamp, spec, "stamp", name)
-        else:
-            var.rate_of = of
-            window = number(spec, "window_ms", f"variable '{name}'", maximum=MAX_WINDOW_MS)
-            if window is not None:
-                var.window_ms = window
-    if var.field != "data" or "field" in spec:
-        _path(var.field, spec, "field", name)
+    return source
+
+
+def _topic_source(var: Variable, spec: LineDict, base: Variable | None, vs: LineDict) -> None:
+    """A topic's field; an entry refining an imported variable (``base``) keeps
+    the topic, msg and field it does not give."""
+    name = var.name
+    var.topic = str(spec.get("topic") or (base.topic if base else "") or "") or None
+    var.msg = str(spec.get("msg") or (base.msg if base else "") or "") or None
+    var.field = str(spec.get("field") or (base.field if base else "data"))
+    if not var.topic:
+        raise error_at(
+            f"variable '{name}' has no topic (and no define)",
+            vs,
+            name,
+            "add topic: /name and msg: pkg/msg/Type, or define: <expression>",
+        )
+    _absolute(var.topic, spec, "topic", name)
+    if not var.msg:
+        raise error_at(
+            f"variable '{name}' needs msg: the ROS 2 message type of {var.topic}", vs, name
+        )
+
+
+def _service_source(var: Variable, spec: LineDict) -> None:
+    """A service's requests or responses, read from its service-event topic."""
+    name = var.name
+    var.service = str(spec["service"])
+    _absolute(var.service, spec, "service", name)
+    if not spec.get("srv"):
+        raise error_at(
+            f"variable '{name}' needs srv: the service's type (pkg/srv/Name)", spec, "service"
+        )
+    var.srv = str(spec["srv"])
+    call = spec.get("call")
+    if call not in SERVICE_CALLS:
+        raise error_at(
+            f"variable '{name}': call must be request or response",
+            spec,
+            "call" if "call" in spec else "service",
+            "request: the call was made (its fields); response: it came back",
+        )
+    var.call = str(call)
+    try:
+        var.msg = service_event_type(var.srv)
+    except UserError as e:
+        raise error_at(f"variable '{name}': {e.message}", spec, "srv", e.hint) from None
+    var.topic = service_topic(var.service)
+    if spec.get("field") is not None:
+        var.field = str(spec["field"])
+    elif not spec.get("event"):
+        raise error_at(
+            f"variable '{name}' reads no field of the {call}",
+            spec,
+            "service",
+            f"add field: (a field of {var.srv}'s {call}) or event: true",
+        )
+    elif spec.get("reduce") is not None:
+        raise error_at(f"variable '{name}': reduce needs a field:", spec, "reduce")
+    if not spec.get("event") and "initial" not in spec:
+        raise error_at(
+            f"variable '{name}' has no value before the first {call}: give it initial:",
+            spec,
+            "service",
+        )
+
+
+def _action_source(var: Variable, spec: LineDict) -> None:
+    """Whether (bool) or how many (int64) of an action's goals are in given states."""
+    name = var.name
+    var.action = str(spec["action"])
+    _absolute(var.action, spec, "action", name)
+    if spec.get("status") is None:
+        raise error_at(
+            f"variable '{name}' needs status: the goal states it watches",
+            spec,
+            "action",
+            "e.g. status: [accepted, executing], or status: aborted with event: true",
+        )
+    try:
+        var.statuses = goal_statuses(spec["status"])
+    except UserError as e:
+        raise error_at(f"variable '{name}': {e.message}", spec, "status", e.hint) from None
+    if var.type == "double":
+        raise error_at(
+            f"variable '{name}': goal states feed a bool (some goal is in them) or an "
+            "int64 (how many are), not a double",
+            spec,
+            "type",
+        )
+    var.topic, var.msg = action_status_topic(var.action), ACTION_STATUS_MSG
+    if var.type == "int64" and spec.get("event"):
+        raise error_at(f"variable '{name}': an event is bool", spec, "event")
+    if "initial" not in spec and not spec.get("event"):
+        var.initial = False if var.type == "bool" else 0  # no goal before the first status
+
+
+def _derived_source(var: Variable, spec: LineDict, source: str) -> None:
+    """``age_of`` or ``rate_of`` another input, named here and resolved later."""
+    name = var.name
+    of = spec[source]
+    if not isinstance(of, str):
+        raise error_at(f"variable '{name}': {source} names an input variable", spec, source)
+    if var.type != "double":
+        unit = "milliseconds" if source == "age_of" else "messages per second"
+        raise error_at(
+            f"variable '{name}': {source} is in {unit}, a double, not {var.type}",
+            spec,
+            "type",
+        )
+    if source == "age_of":
+        var.age_of = of
+        if spec.get("stamp") is not None:
+            var.stamp = str(spec["stamp"])
+            _path(var.stamp, spec, "stamp", name)
+    else:
+        var.rate_of = of
+        window = number(spec, "window_ms", f"variable '{name}'", maximum=MAX_WINDOW_MS)
+        if window is not None:
+            var.window_ms = window
 
 
 def _absolute(value: str, spec: LineDict, key: str, name: str) -> None:

@@ -98,62 +98,16 @@ class StatusBoard:
         watchdog_s: float | None,
         control_socket: str | None,
     ) -> dict[str, Any]:
-        session = core.session
-        policies = session.policies
-        violations = core.violations
-        cfg = session.config
+        cfg = core.session.config
         stats = core.input_stats()
         tick = core.tick
         received = sum(st["messages"] + st["rejected"] for st in stats.values())
-        tick_rate = receive_rate = 0.0
-        if self._prev is not None and now_ns > self._prev[0]:
-            dt = (now_ns - self._prev[0]) / 1e9
-            tick_rate = (tick - self._prev[1]) / dt
-            receive_rate = (received - self._prev[2]) / dt
-        self._prev = (now_ns, tick, received)
+        tick_rate, receive_rate = self._rates(now_ns, tick, received)
         if self.started_mono is None:
             self.started_mono = now_ns
-        with self._lock:
-            events, self._events = list(self._events), deque(maxlen=EVENTS_KEPT)
-            dropped, self._dropped = self._dropped, 0
-            actions = {k: list(v) for k, v in self._actions.items()}
-            last = dict(self._last_violation)
-        stale = set(core.stale_inputs())
-        types = {v.name: v for v in cfg.inputs}
-        requirements = []
-        for i, r in enumerate(session.requirements):
-            pol = policies[i]
-            reads = [n for n in session.reads[i] if n in stale] if stale else []
-            requirements.append(
-                {
-                    "id": r.id,
-                    "text": r.entry.text,
-                    "formula": session.formulas[i],
-                    "state": requirement_state(pol, now_ns),
-                    "violations": pol.violations,
-                    "last_violation": (last.get(r.id) or {}).get("ts"),
-                    "last_tick": pol.last_violation_tick,
-                    "stale_inputs": reads,
-                    "actions": actions.get(r.id, []),
-                }
-            )
-        inputs = []
-        latest = core.snapshot()
-        for name, st in stats.items():
-            v = types.get(name)
-            last_ns = st["last_ns"]
-            inputs.append(
-                {
-                    "name": name,
-                    "topic": v.topic if v else None,
-                    "type": v.type if v else None,
-                    "value": latest.get(name),
-                    "age_s": None if last_ns is None else round((now_ns - last_ns) / 1e9, 3),
-                    "stale": bool(st["stale"]),
-                    "messages": st["messages"],
-                    "lost": st["lost"],
-                }
-            )
+        events, dropped, actions, last = self._take_records()
+        requirements = _requirements(core, now_ns, actions, last)
+        inputs = _inputs(core, stats, now_ns)
         doc = {
             "schema": SCHEMA,
             "supervisor": self.supervisor,
@@ -170,7 +124,7 @@ class StatusBoard:
             "receive_rate_hz": round(receive_rate, 2),
             "received": received,
             "lost": sum(st["lost"] for st in stats.values()),
-            "violations": violations,
+            "violations": core.violations,
             "reloads": reloads,
             "recording": recording,
             "watchdog": {"enabled": watchdog_s is not None, "interval_s": watchdog_s},
@@ -181,3 +135,79 @@ class StatusBoard:
             "events_dropped": dropped,
         }
         return json_safe(doc)
+
+    def _rates(self, now_ns: int, tick: int, received: int) -> tuple[float, float]:
+        """Ticks and messages per second since the previous document (0 at the first)."""
+        tick_rate = receive_rate = 0.0
+        if self._prev is not None and now_ns > self._prev[0]:
+            dt = (now_ns - self._prev[0]) / 1e9
+            tick_rate = (tick - self._prev[1]) / dt
+            receive_rate = (received - self._prev[2]) / dt
+        self._prev = (now_ns, tick, received)
+        return tick_rate, receive_rate
+
+    def _take_records(
+        self,
+    ) -> tuple[
+        list[dict[str, Any]], int, dict[str, list[dict[str, Any]]], dict[str, dict[str, Any]]
+    ]:
+        """The events since the previous document (taken: the next starts empty),
+        how many were dropped, and each requirement's latest actions and violation."""
+        with self._lock:
+            events, self._events = list(self._events), deque(maxlen=EVENTS_KEPT)
+            dropped, self._dropped = self._dropped, 0
+            actions = {k: list(v) for k, v in self._actions.items()}
+            last = dict(self._last_violation)
+        return events, dropped, actions, last
+
+
+def _requirements(
+    core: Core,
+    now_ns: int,
+    actions: dict[str, list[dict[str, Any]]],
+    last: dict[str, dict[str, Any]],
+) -> list[dict[str, Any]]:
+    """Each requirement's entry in the document: its state, counts and stale inputs."""
+    session = core.session
+    stale = set(core.stale_inputs())
+    requirements = []
+    for i, r in enumerate(session.requirements):
+        pol = session.policies[i]
+        reads = [n for n in session.reads[i] if n in stale] if stale else []
+        requirements.append(
+            {
+                "id": r.id,
+                "text": r.entry.text,
+                "formula": session.formulas[i],
+                "state": requirement_state(pol, now_ns),
+                "violations": pol.violations,
+                "last_violation": (last.get(r.id) or {}).get("ts"),
+                "last_tick": pol.last_violation_tick,
+                "stale_inputs": reads,
+                "actions": actions.get(r.id, []),
+            }
+        )
+    return requirements
+
+
+def _inputs(core: Core, stats: dict[str, dict[str, Any]], now_ns: int) -> list[dict[str, Any]]:
+    """Each input's entry in the document: its latest value, age and counts."""
+    types = {v.name: v for v in core.session.config.inputs}
+    inputs = []
+    latest = core.snapshot()
+    for name, st in stats.items():
+        v = types.get(name)
+        last_ns = st["last_ns"]
+        inputs.append(
+            {
+                "name": name,
+                "topic": v.topic if v else None,
+                "type": v.type if v else None,
+                "value": latest.get(name),
+                "age_s": None if last_ns is None else round((now_ns - last_ns) / 1e9, 3),
+                "stale": bool(st["stale"]),
+                "messages": st["messages"],
+                "lost": st["lost"],
+            }
+        )
+    return inputs

@@ -16,7 +16,7 @@ from mitigations.violationlog.testing import MemoryLog
 from monitors.backends.load import compile_spec
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
-from supervisor.daemon.status import StatusBoard, requirement_state
+from supervisor.daemon.status import EVENTS_KEPT, StatusBoard, requirement_state
 from supervisor.pipeline import project_for
 
 MS = 1_000_000
@@ -135,3 +135,103 @@ def test_the_daemon_publishes_its_status(tmp_path: Path, robot_node: Any, namesp
         d.terminate()
     finally:
         d.close()
+
+
+SHOWN = (
+    "uptime_s",
+    "ticks",
+    "tick_rate_hz",
+    "receive_rate_hz",
+    "received",
+    "lost",
+    "violations",
+    "reloads",
+    "recording",
+    "watchdog",
+    "control_socket",
+    "inputs",
+    "events_dropped",
+)
+
+
+def test_rates_inputs_and_dropped_events_between_two_documents(tmp_path: Path):
+    (tmp_path / "c.yaml").write_text(CONFIG)
+    project = project_for(tmp_path / "c.yaml", ros=False)
+    session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
+    board = StatusBoard("safety_supervisor")
+    log = MemoryLog(lambda r: board.record(json.dumps({"ts": "2026-11-23T00:00:00.000000Z", **r})))
+    core = Core(session, log, lambda _request: None, warn=lambda _t: None)
+    core.start(0)
+
+    def document(now_ns: int) -> dict[str, Any]:
+        doc = board.document(
+            core, now_ns=now_ns, reloads=2, recording=True, watchdog_s=5.0, control_socket=None
+        )
+        return {k: doc[k] for k in SHOWN}
+
+    core.fields([("halted", False)], 1 * MS)
+    first = document(100 * MS)
+    for i in range(1, 5):
+        core.fields([("speed", 1.0 * i)], (100 + i) * MS)
+    for _ in range(EVENTS_KEPT + 3):  # more records than a document keeps
+        board.record(json.dumps({"event": "supervisor", "what": "x"}))
+    second = document(600 * MS)
+    core.advance(700 * MS)  # both inputs go stale
+    third = document(700 * MS)
+    fixed = {
+        "lost": 0,
+        "reloads": 2,
+        "recording": True,
+        "watchdog": {"enabled": True, "interval_s": 5.0},
+        "control_socket": None,
+    }
+
+    def inputs(speed: tuple[Any, ...], halted: tuple[Any, ...]) -> list[dict[str, Any]]:
+        keys = ("value", "age_s", "stale", "messages")
+        return [
+            {
+                "name": "speed",
+                "topic": "/speed",
+                "type": "double",
+                **dict(zip(keys, speed, strict=True)),
+            }
+            | {"lost": 0},
+            {
+                "name": "halted",
+                "topic": "/halted",
+                "type": "bool",
+                **dict(zip(keys, halted, strict=True)),
+            }
+            | {"lost": 0},
+        ]
+
+    assert first == fixed | {
+        "uptime_s": 0.0,
+        "ticks": 0,
+        "tick_rate_hz": 0.0,
+        "receive_rate_hz": 0.0,
+        "received": 1,
+        "violations": 0,
+        "inputs": inputs((None, None, False, 0), (False, 0.099, False, 1)),
+        "events_dropped": 0,
+    }
+    assert second == fixed | {
+        "uptime_s": 0.5,
+        "ticks": 4,
+        "tick_rate_hz": 8.0,
+        "receive_rate_hz": 8.0,
+        "received": 5,
+        "violations": 1,
+        "inputs": inputs((4.0, 0.496, False, 4), (False, 0.599, False, 1)),
+        "events_dropped": 5,
+    }
+    assert third == fixed | {
+        "uptime_s": 0.6,
+        "ticks": 4,
+        "tick_rate_hz": 0.0,
+        "receive_rate_hz": 0.0,
+        "received": 5,
+        "violations": 1,
+        "inputs": inputs((4.0, 0.596, True, 4), (False, 0.699, True, 1)),
+        "events_dropped": 0,
+    }
