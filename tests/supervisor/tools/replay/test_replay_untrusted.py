@@ -358,10 +358,11 @@ def test_a_hostile_sqlite_row_is_damage_at_its_place(
     assert f"replayed {before} messages" in LAST_OUT[0], LAST_OUT[0]
 
 
+ROW_1 = "row 1 of table topics is ("  # the row the check refused, by number
 REFUSED = [
-    ("UPDATE topics SET name = NULL", "table topics"),
-    ("UPDATE topics SET type = 7", "table topics"),
-    ("UPDATE topics SET id = 'one'", "table topics"),
+    ("UPDATE topics SET name = NULL", ROW_1),
+    ("UPDATE topics SET type = 7", ROW_1),
+    ("UPDATE topics SET id = 'one'", ROW_1),
     ("DROP TABLE topics", "no such table: topics"),
 ]
 
@@ -374,6 +375,8 @@ def test_a_hostile_topics_table_is_one_located_line(
     rc, err = in_process(capsys, "replay", str(cfg), str(f), "--quiet")
     line = assert_one_located_line(err, str(f))
     assert rc == 1 and words in line, line
+    if words == ROW_1:
+        assert line.endswith("): not (whole number, name, type)"), line
 
 
 @pytest.mark.parametrize(
