@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from itertools import chain, islice
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 import apsw
@@ -48,6 +49,49 @@ _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payload
 _ROWS = 8192
 
 
+def _check_topics(con: apsw.Connection, rows: list[Any], label: str) -> None:
+    """Raises UserError for a topics row that is not (whole number, name, type), or
+    a topic in a serialization replay cannot read."""
+    for k, row in enumerate(rows, 1):
+        if not (isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)):
+            shown = printable(repr(tuple(row))[:120])
+            raise UserError(
+                f"row {k} of table topics is {shown}: not (whole number, name, type)", file=label
+            )
+    try:
+        for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
+            if isinstance(name, str) and isinstance(fmt, str):
+                refuse_serialization(name, fmt, label)
+    except apsw.Error:
+        pass  # no such column: CDR, the only serialization of that bag's rosbag2
+
+
+def _definitions(con: apsw.Connection) -> list[tuple[str, str, str]]:
+    """The bag's message definitions (type, encoding, text); none before version 8."""
+    try:
+        return [
+            d
+            for d in con.execute(
+                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
+            )
+            if all(isinstance(x, str) for x in d)
+        ]
+    except apsw.Error:
+        return []  # bags before version 8 have no definitions
+
+
+def _rows_of_no_topic(con: apsw.Connection) -> int:
+    """Message rows of no topic (NULL or unknown id): never replayed, counted."""
+    try:
+        (lost,) = con.execute(
+            "SELECT count(*) FROM messages "
+            "WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)"
+        ).fetchone()
+    except apsw.Error:
+        return 0  # no readable messages table: reading it says where
+    return lost
+
+
 class Sqlite(Source):
     def __init__(
         self,
@@ -65,6 +109,33 @@ class Sqlite(Source):
         self._tmp: Path | None = None
         self._cut = False  # truncated: read a copy whose header counts the pages present
         self._cut_at: int | None = _cut_short(path)  # the file's size, if shorter than it says
+        con, rows = self._read_topics(topics)
+        if not rows and topics and self._cut_at is not None:
+            self._ids: dict[int, str] = {}
+            self.topics = dict(topics)
+            self.store = typestore_of([])
+            return
+        try:
+            _check_topics(con, rows, self.label)
+        except UserError:
+            con.close()
+            self._drop()
+            raise
+        self._ids = {tid: name for tid, name, _ in rows}
+        self.topics = {name: normalise_type(typ) for _, name, typ in rows}
+        defs = _definitions(con)
+        lost = _rows_of_no_topic(con)
+        if lost:
+            self.warnings.append(
+                f"warning: {self.label}: {lost} message rows name no topic of the bag: not replayed"
+            )
+        con.close()
+        self._drop()
+        self.store = typestore_of(defs, self.topics.values(), self.warnings, self.label)
+
+    def _read_topics(self, topics: dict[str, str] | None) -> tuple[apsw.Connection, list[Any]]:
+        """The open database and its topics table's rows (none when the table is past
+        the damage of a truncated file and the bag's metadata names the topics)."""
         try:
             con = self._connect()
             rows = con.execute("SELECT id, name, type FROM topics").fetchall()
@@ -86,61 +157,7 @@ class Sqlite(Source):
                 # the topics table is past the damage: the bag's metadata names them,
                 # and reading says where the damage is
                 rows = []
-        if not rows and topics and self._cut_at is not None:
-            self._ids: dict[int, str] = {}
-            self.topics = dict(topics)
-            self.store = typestore_of([])
-            return
-        for k, row in enumerate(rows, 1):
-            if not (
-                isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)
-            ):
-                con.close()
-                self._drop()
-                shown = printable(repr(tuple(row))[:120])
-                raise UserError(
-                    f"row {k} of table topics is {shown}: not (whole number, name, type)",
-                    file=self.label,
-                )
-        try:
-            for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
-                if isinstance(name, str) and isinstance(fmt, str):
-                    refuse_serialization(name, fmt, self.label)
-        except apsw.Error:
-            pass  # no such column: CDR, the only serialization of that bag's rosbag2
-        except UserError:
-            con.close()
-            self._drop()
-            raise
-        self._ids = {tid: name for tid, name, _ in rows}
-        self.topics = {name: normalise_type(typ) for _, name, typ in rows}
-        defs: list[tuple[str, str, str]] = []
-        try:
-            defs = [
-                d
-                for d in con.execute(
-                    "SELECT topic_type, encoding, encoded_message_definition "
-                    "FROM message_definitions"
-                )
-                if all(isinstance(x, str) for x in d)
-            ]
-        except apsw.Error:
-            pass  # bags before version 8 have no definitions
-        try:
-            # rows of no topic (NULL or unknown id) are never replayed: counted, said
-            (lost,) = con.execute(
-                "SELECT count(*) FROM messages "
-                "WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)"
-            ).fetchone()
-        except apsw.Error:
-            lost = 0  # no readable messages table: reading it says where
-        if lost:
-            self.warnings.append(
-                f"warning: {self.label}: {lost} message rows name no topic of the bag: not replayed"
-            )
-        con.close()
-        self._drop()
-        self.store = typestore_of(defs, self.topics.values(), self.warnings, self.label)
+        return con, rows
 
     def _connect(self) -> apsw.Connection:
         path = self._patched() if self._cut else self.path
