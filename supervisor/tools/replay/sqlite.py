@@ -7,7 +7,7 @@ import gc
 import os
 import struct
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from contextlib import contextmanager
 from itertools import chain, islice
 from pathlib import Path
@@ -241,27 +241,7 @@ class Sqlite(Source):
                 while True:
                     # Columns per fetch, joined once per chunk: no Python code per row
                     # (docs/BENCHMARKS.md, "Replay throughput").
-                    tparts: list[tuple[object, ...]] = []
-                    kparts: list[tuple[object, ...]] = []
-                    dparts: list[tuple[object, ...]] = []
-                    count = size = 0
-                    most = min(chunk, _ROWS)
-                    bad: tuple[object, ...] | None = None
-                    with _gc_paused():
-                        while count < most and size < CHUNK_BYTES and bad is None:
-                            got = list(islice(cur, min(_FETCH, most - count)))
-                            if not got:
-                                break
-                            ts, tids, data, ok = zip(*got, strict=True)
-                            if not all(ok):
-                                good = ok.index(0)
-                                bad = got[good]
-                                ts, tids, data = ts[:good], tids[:good], data[:good]
-                            tparts.append(ts)
-                            kparts.append(tids)
-                            dparts.append(data)
-                            count += len(ts)
-                            size += sum(map(len, data))  # type: ignore[arg-type]
+                    tparts, kparts, dparts, count, bad = _fetch(cur, min(chunk, _ROWS))
                     if count:
                         raw = _columns(tparts, dparts, count)
                         # the query matched these ids: numbers equal to a wanted one
@@ -286,48 +266,96 @@ class Sqlite(Source):
                 # ``last``, and ``at_last`` of those at it), so that every readable
                 # message is replayed (docs/reference/commands.md, "Damaged input").
                 at_last = 0 if last is None else _count_at(self._given.tolist(), last)
-                ts_: list[int] = []
-                tops: list[int] = []
-                data_: list[bytes] = []
-                try:
-                    cur = con.execute(
-                        f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages NOT INDEXED "
-                        f"WHERE topic_id IN ({marks}) ORDER BY rowid",
-                        list(wanted),
-                    )
-                    while row := cur.fetchone():
-                        if not row[3]:
-                            if ts_:
-                                yield raw_chunk(ts_, tops, data_).in_order()
-                            raise Damage(_bad_row(n + len(ts_), row, last))
-                        if last is not None and row[0] <= last:
-                            if row[0] < last or at_last > 0:
-                                at_last -= row[0] == last
-                                continue
-                        ts_.append(row[0])
-                        tops.append(wanted[row[1]])
-                        data_.append(row[2])
-                except apsw.Error as e:
-                    failed = e
-                else:
-                    failed = None
-                if ts_:
-                    yield raw_chunk(ts_, tops, data_).in_order()
-                    n += len(ts_)
-                    last = max(ts_)
+                n, last, failed = yield from _in_table_order(con, marks, wanted, n, last, at_last)
             if failed is not None or self._cut_at is not None:
-                where = f"{n} messages read" + (
-                    f", the last at t_ns {last}" if last is not None else ""
-                )
-                said = f" ({failed})" if failed is not None else ""
-                if self._cut_at is not None:
-                    raise Damage(
-                        f"damaged: the file is cut short at byte {self._cut_at}{said}; {where}"
-                    )
-                raise Damage(f"damaged database{said}; {where}")
+                raise Damage(_damage(n, last, failed, self._cut_at))
         finally:
             con.close()
             self._drop()
+
+
+_Parts = list[tuple[object, ...]]
+
+
+def _fetch(
+    cur: apsw.Cursor, most: int
+) -> tuple[_Parts, _Parts, _Parts, int, tuple[object, ...] | None]:
+    """Up to ``most`` rows (and CHUNK_BYTES of payloads) as columns per fetch: times,
+    topic ids, payloads, how many, and the first row that is not as it should be."""
+    tparts: _Parts = []
+    kparts: _Parts = []
+    dparts: _Parts = []
+    count = size = 0
+    bad: tuple[object, ...] | None = None
+    with _gc_paused():
+        while count < most and size < CHUNK_BYTES and bad is None:
+            got = list(islice(cur, min(_FETCH, most - count)))
+            if not got:
+                break
+            ts, tids, data, ok = zip(*got, strict=True)
+            if not all(ok):
+                good = ok.index(0)
+                bad = got[good]
+                ts, tids, data = ts[:good], tids[:good], data[:good]
+            tparts.append(ts)
+            kparts.append(tids)
+            dparts.append(data)
+            count += len(ts)
+            size += sum(map(len, data))  # type: ignore[arg-type]
+    return tparts, kparts, dparts, count, bad
+
+
+def _in_table_order(
+    con: apsw.Connection,
+    marks: str,
+    wanted: dict[int, int],
+    n: int,
+    last: int | None,
+    at_last: int,
+) -> Generator[Raw, None, tuple[int, int | None, apsw.Error | None]]:
+    """The wanted rows in the table's own order (no index) up to the damage, leaving
+    out those given already (all before ``last``, and ``at_last`` of those at it);
+    returns the messages read, the last time, and the read's failure if any."""
+    ts_: list[int] = []
+    tops: list[int] = []
+    data_: list[bytes] = []
+    failed: apsw.Error | None
+    try:
+        cur = con.execute(
+            f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages NOT INDEXED "
+            f"WHERE topic_id IN ({marks}) ORDER BY rowid",
+            list(wanted),
+        )
+        while row := cur.fetchone():
+            if not row[3]:
+                if ts_:
+                    yield raw_chunk(ts_, tops, data_).in_order()
+                raise Damage(_bad_row(n + len(ts_), row, last))
+            if last is not None and row[0] <= last:
+                if row[0] < last or at_last > 0:
+                    at_last -= row[0] == last
+                    continue
+            ts_.append(row[0])
+            tops.append(wanted[row[1]])
+            data_.append(row[2])
+    except apsw.Error as e:
+        failed = e
+    else:
+        failed = None
+    if ts_:
+        yield raw_chunk(ts_, tops, data_).in_order()
+        n += len(ts_)
+        last = max(ts_)
+    return n, last, failed
+
+
+def _damage(n: int, last: int | None, failed: apsw.Error | None, cut_at: int | None) -> str:
+    """The damage line: where reading stopped, and why."""
+    where = f"{n} messages read" + (f", the last at t_ns {last}" if last is not None else "")
+    said = f" ({failed})" if failed is not None else ""
+    if cut_at is not None:
+        return f"damaged: the file is cut short at byte {cut_at}{said}; {where}"
+    return f"damaged database{said}; {where}"
 
 
 @contextmanager
