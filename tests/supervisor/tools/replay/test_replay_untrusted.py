@@ -624,3 +624,31 @@ def test_a_huge_topic_id_is_read_without_a_table_of_its_size(
                 "UPDATE messages SET topic_id = 4611686018427387904")  # fmt: skip
     rc, err = in_process(capsys, "replay", str(cfg), str(f), "--quiet")
     assert rc == 0 and "replayed 5 messages" in LAST_OUT[0], err
+
+
+def _loose_then(tail: bytes) -> tuple[bytes, int]:
+    """Three good messages outside any chunk, then ``tail``; the bytes and where
+    ``tail`` starts."""
+    good = _head() + b"".join(_message(1, i, 1000 + i, ser_int64(i)) for i in range(3))
+    return good + tail, len(good)
+
+
+@pytest.mark.parametrize(
+    "tail,words",
+    [
+        (_rec(0, b""), "the record at byte {at} has opcode 0, which MCAP never uses"),
+        (b"\x05\x00", "the file ends early"),
+        (_rec(5, b"\0" * 30)[:20], "the record at byte {at} is cut short: the file ends early"),
+    ],
+)
+def test_a_damaged_mcap_record_after_loose_messages_is_one_line_with_where(
+    tmp_path: Path, cfg: Path, capsys: Any, tail: bytes, words: str
+) -> None:
+    data, at = _loose_then(tail)
+    bag = tmp_path / "loose.mcap"
+    bag.write_bytes(data)
+    rc, err = in_process(capsys, "replay", str(cfg), str(bag), "--quiet")
+    line = assert_one_located_line(err, str(bag))
+    where = f"(after byte {at}, 3 messages read, the last at t_ns 1002)"
+    assert rc == 1 and line.endswith(f"damaged: {words.format(at=at)} {where}"), line
+    assert "replayed 3 messages" in LAST_OUT[0], LAST_OUT[0]
