@@ -84,25 +84,8 @@ def abstract_arena(
     64-bit values.  ``ids`` are the game's requirements, ``prefix`` names its
     Boolean variables.  Raises NoAbstraction when a comparison mixes inputs and
     outputs or too many comparisons share variables."""
-    in_set, out_set = set(ins), set(outs)
-    types_enc = Encoder(ctx.types, [])
-    atoms: dict[Formula, str] = {}
-
-    def go(f: Formula) -> Formula:
-        if isinstance(f, BinOp) and f.op in REL_OPS and types_enc.type_of(f.left) != "bool":
-            vs = set(variables(f))
-            if not vs:
-                return f
-            if vs & in_set and vs & out_set:
-                raise NoAbstraction(f"{f} compares inputs with outputs")
-            if any(isinstance(g, Pre) for g in subterms(f)):
-                # a previous value ties this tick's comparison to the last tick's
-                # values: not an independent choice per tick
-                raise NoAbstraction(f"{f} compares a previous value (preInt/preReal)")
-            return Var(atoms.setdefault(f, f"cmp{len(atoms)}"))
-        return map_children(f, go)
-
-    abstract = {r: go(ctx.reqs[r].formula) for r in ids}
+    atoms, abstract = _comparisons_as_booleans(ctx, ins, outs, ids)
+    in_set = set(ins)
     side = {name: ("in" if set(variables(f)) <= in_set else "out") for f, name in atoms.items()}
     bools_in = [n for n in ins if ctx.types[n] == "bool"]
     bools_out = [n for n in outs if ctx.types[n] == "bool"]
@@ -112,30 +95,21 @@ def abstract_arena(
     rows = fresh_rows(types, a_ins + a_outs, ctx.k, prefix, ctx.deadline)
     enc = Encoder(types, rows, ctx.deadline)
     holds = {r: enc.holds(f) for r, f in abstract.items()}
-
-    # comparisons sharing a variable constrain each other: one feasibility table each
     by_atom = {name: f for f, name in atoms.items()}
-    groups = _components_of({n: set(variables(f)) for n, f in by_atom.items()})
-    tables = []
-    for group in groups:
-        if len(group) > MAX_ATOMS_PER_GROUP:
-            raise NoAbstraction(f"{len(group)} comparisons share variables")
-        tables.append((group, _feasible(ctx, [by_atom[n] for n in group])))
+    tables = _feasibility_tables(ctx, by_atom)
 
     def allowed(s: str, t: int) -> z3.BoolRef:
-        parts = []
-        for group, combos in tables:
-            if side[group[0]] != s:
-                continue
-            parts.append(
-                z3.Or(
-                    [
-                        z3.And([rows[t][n] == z3.BoolVal(v) for n, v in zip(group, c, strict=True)])
-                        for c in combos
-                    ]
-                    or [z3.BoolVal(False)]
-                )
+        parts = [
+            z3.Or(
+                [
+                    z3.And([rows[t][n] == z3.BoolVal(v) for n, v in zip(group, c, strict=True)])
+                    for c in combos
+                ]
+                or [z3.BoolVal(False)]
             )
+            for group, combos in tables
+            if side[group[0]] == s
+        ]
         return z3.And(parts) if parts else z3.BoolVal(True)
 
     def concretize(model: z3.ModelRef, n: int) -> list[dict[str, z3.ExprRef]]:
@@ -164,6 +138,48 @@ def abstract_arena(
         concretize,
         True,
     )
+
+
+def _comparisons_as_booleans(
+    ctx: Context, ins: list[str], outs: list[str], ids: list[str]
+) -> tuple[dict[Formula, str], dict[str, Formula]]:
+    """Each non-Boolean comparison of the requirements ``ids`` named ``cmp<i>`` (in
+    the order met), and the requirements with those names in their place; raises
+    NoAbstraction (see abstract_arena)."""
+    in_set, out_set = set(ins), set(outs)
+    types_enc = Encoder(ctx.types, [])
+    atoms: dict[Formula, str] = {}
+
+    def go(f: Formula) -> Formula:
+        if isinstance(f, BinOp) and f.op in REL_OPS and types_enc.type_of(f.left) != "bool":
+            vs = set(variables(f))
+            if not vs:
+                return f
+            if vs & in_set and vs & out_set:
+                raise NoAbstraction(f"{f} compares inputs with outputs")
+            if any(isinstance(g, Pre) for g in subterms(f)):
+                # a previous value ties this tick's comparison to the last tick's
+                # values: not an independent choice per tick
+                raise NoAbstraction(f"{f} compares a previous value (preInt/preReal)")
+            return Var(atoms.setdefault(f, f"cmp{len(atoms)}"))
+        return map_children(f, go)
+
+    abstract = {r: go(ctx.reqs[r].formula) for r in ids}
+    return atoms, abstract
+
+
+def _feasibility_tables(
+    ctx: Context, by_atom: dict[str, Formula]
+) -> list[tuple[list[str], list[tuple[bool, ...]]]]:
+    """Comparisons sharing a variable constrain each other: per group of them, the
+    combinations of truth values some values within the ranges make true."""
+    groups = _components_of({n: set(variables(f)) for n, f in by_atom.items()})
+    tables = []
+    for group in groups:
+        if len(group) > MAX_ATOMS_PER_GROUP:
+            raise NoAbstraction(f"{len(group)} comparisons share variables")
+        tables.append((group, _feasible(ctx, [by_atom[n] for n in group])))
+    return tables
 
 
 def _components_of(uses: dict[str, set[str]]) -> list[list[str]]:

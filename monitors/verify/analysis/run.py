@@ -54,30 +54,17 @@ def analyse(
     if k < 1:
         raise ValueError("k must be at least 1")
     deadline = None if budget_s is None else time.monotonic() + budget_s
-    seconds: dict[str, float] = {}
-    skipped: dict[str, Skip] = {}
     t0 = time.perf_counter()
 
     def give_up(why: Skip) -> Analysis:
-        skipped.update({name: why for name in (*ANALYSES, "examples") if name not in skipped})
-        seconds["total"] = time.perf_counter() - t0
+        skipped = {name: why for name in (*ANALYSES, "examples")}
+        seconds = {"total": time.perf_counter() - t0}
         return Analysis(
             k, list(reqs), dict(vars_), [], None, "skipped", "skipped", seconds, None, skipped
         )
 
-    if budget_s is not None:
-        formulas = [f for r in reqs for f in (r.formula, r.activation)]
-        formulas += [f for v in vars_.values() if (f := range_formula(v)) is not None]
-        cells = encoding_cells(formulas, k)
-        if cells > budget_s * CELLS_PER_S:
-            return give_up(
-                Skip(
-                    f"unrolling traces of k = {k} ticks builds about {cells:.2g} solver terms, "
-                    f"about {cells / CELLS_PER_S:.2g} s against a time budget of {budget_s:g} s",
-                    BUDGET,
-                    (Limit.TRACE_LENGTH,),
-                )
-            )
+    if budget_s is not None and (why := _too_large(reqs, vars_, k, budget_s)) is not None:
+        return give_up(why)
     try:
         ctx = Context(reqs, vars_, k, timeout_s, deadline, memory_mb)
     except OutOfTime:
@@ -89,90 +76,11 @@ def analyse(
         )
     except TooLarge as e:
         return give_up(Skip(f"{e} (traces of k = {k} ticks)", BUDGET, (Limit.TRACE_LENGTH, BUDGET)))
-    findings: list[Finding] = []
-    for rid, why in ctx.unsupported.items():
-        findings.append(
-            Finding(
-                "not-analysed",
-                "warning",
-                (rid,),
-                f"{rid} is left out of the analyses: {why}",
-                "nothing to change for the monitor; the analyses just cannot reason about it",
-            )
-        )
-    for r in reqs:
-        if not r.monotone and r.id in ctx.reqs:
-            findings.append(
-                Finding(
-                    "non-monotone",
-                    "warning",
-                    (r.id,),
-                    r.note or f"{r.id} is non-monotone (false until something happens)",
-                    "if a per-tick obligation was meant, use a timing such as 'always', "
-                    "'within N ticks' or 'immediately'; the analyses judge it at the end of "
-                    "each trace",
-                )
-            )
-    seconds["encode"] = time.perf_counter() - t0
-    reached = f"z3 reached its memory limit of {memory_mb} MB"
-    memout = False  # once z3 reached its memory limit, its context is not asked again
-
-    def step(name: str, run: Callable[[], object], default: object) -> object:
-        """One analysis, timed; ``default`` when the budget or z3's memory is gone
-        before or during it (findings it made before that stay: each was checked on
-        its own)."""
-        nonlocal memout
-        t = time.perf_counter()
-        if memout:
-            skipped[name] = Skip(f"{reached} before it", MEMORY)
-            return default
-        if deadline is not None and time.monotonic() >= deadline:
-            skipped[name] = Skip(f"the time budget of {budget_s:g} s ran out before it", BUDGET)
-            return default
-        try:
-            return run()
-        except OutOfTime:
-            skipped[name] = Skip(
-                f"stopped: the time budget of {budget_s:g} s ran out during it", BUDGET
-            )
-            return default
-        except z3.Z3Exception as e:
-            if not is_memout(e):
-                raise
-            memout = True
-            skipped[name] = Skip(f"stopped: {reached}", MEMORY)
-            return default
-        finally:
-            seconds[name] = time.perf_counter() - t
-
-    consistent_text = step("consistency", lambda: consistency(ctx, findings), None)
-    consistent, consistency_text = (
-        consistent_text if isinstance(consistent_text, tuple) else (None, "skipped")
-    )
-    realizability_text = (
-        str(step("realizability", lambda: realizability(ctx, findings), "skipped"))
-        if consistent
-        else "not checked (inconsistent)"
-        if consistent is False
-        else "skipped"
-    )
-    vacuous = step("vacuity", lambda: vacuity(ctx, findings, bool(consistent)), set())
-    if consistent:
-        step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
-    # z3 giving up within its time per call is reported against the budget too: a
-    # larger one gives the later analyses the time to try again.
-    undecided = skipped.get("consistency") or Skip(
-        f"consistency was not decided: the time budget of {budget_s:g} s ran out during it"
-        if deadline is not None and time.monotonic() >= deadline
-        else "consistency was not decided (z3 gave up)",
-        BUDGET,
-    )
-    if consistent is None and "redundancy" not in skipped:
-        skipped["redundancy"] = undecided
-    if consistent is None and "realizability" not in skipped:
-        skipped["realizability"] = undecided
-    if memout:  # explain's example traces would ask the same solver
-        skipped["examples"] = Skip(reached, MEMORY)
+    findings = _left_out(reqs, ctx)
+    steps = _Steps(deadline, budget_s, memory_mb)
+    steps.seconds["encode"] = time.perf_counter() - t0
+    consistent, consistency_text, realizability_text = _run_analyses(ctx, findings, steps)
+    seconds, skipped, memout = steps.seconds, steps.skipped, steps.memout
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
     findings.sort(key=lambda f: order[f.severity])
@@ -188,3 +96,133 @@ def analyse(
         None if memout else partial(examples, ctx),
         skipped,
     )
+
+
+def _too_large(
+    reqs: Sequence[Req], vars_: dict[str, VarInfo], k: int, budget_s: float
+) -> Skip | None:
+    """Why the unrolling of ``k`` ticks is not started: estimated to need more than the
+    whole budget at ``CELLS_PER_S`` (None: it fits)."""
+    formulas = [f for r in reqs for f in (r.formula, r.activation)]
+    formulas += [f for v in vars_.values() if (f := range_formula(v)) is not None]
+    cells = encoding_cells(formulas, k)
+    if cells <= budget_s * CELLS_PER_S:
+        return None
+    return Skip(
+        f"unrolling traces of k = {k} ticks builds about {cells:.2g} solver terms, "
+        f"about {cells / CELLS_PER_S:.2g} s against a time budget of {budget_s:g} s",
+        BUDGET,
+        (Limit.TRACE_LENGTH,),
+    )
+
+
+def _left_out(reqs: Sequence[Req], ctx: Context) -> list[Finding]:
+    """The warnings known before any solver call: requirements the analyses cannot
+    reason about, and non-monotone ones (judged at the end of each trace)."""
+    findings = [
+        Finding(
+            "not-analysed",
+            "warning",
+            (rid,),
+            f"{rid} is left out of the analyses: {why}",
+            "nothing to change for the monitor; the analyses just cannot reason about it",
+        )
+        for rid, why in ctx.unsupported.items()
+    ]
+    findings += [
+        Finding(
+            "non-monotone",
+            "warning",
+            (r.id,),
+            r.note or f"{r.id} is non-monotone (false until something happens)",
+            "if a per-tick obligation was meant, use a timing such as 'always', "
+            "'within N ticks' or 'immediately'; the analyses judge it at the end of "
+            "each trace",
+        )
+        for r in reqs
+        if not r.monotone and r.id in ctx.reqs
+    ]
+    return findings
+
+
+class _Steps:
+    """Runs the analyses one at a time, timed, within the budget and z3's memory:
+    what either cut short is recorded in ``skipped`` with the reason."""
+
+    def __init__(
+        self, deadline: float | None, budget_s: float | None, memory_mb: int | None
+    ) -> None:
+        self.deadline, self.budget_s = deadline, budget_s
+        self.seconds: dict[str, float] = {}
+        self.skipped: dict[str, Skip] = {}
+        self.reached = f"z3 reached its memory limit of {memory_mb} MB"
+        self.memout = False  # once z3 reached its memory limit, its context is not asked again
+
+    def out_of_time(self) -> bool:
+        return self.deadline is not None and time.monotonic() >= self.deadline
+
+    def __call__(self, name: str, run: Callable[[], object], default: object) -> object:
+        """One analysis, timed; ``default`` when the budget or z3's memory is gone
+        before or during it (findings it made before that stay: each was checked on
+        its own)."""
+        t = time.perf_counter()
+        if self.memout:
+            self.skipped[name] = Skip(f"{self.reached} before it", MEMORY)
+            return default
+        if self.out_of_time():
+            self.skipped[name] = Skip(
+                f"the time budget of {self.budget_s:g} s ran out before it", BUDGET
+            )
+            return default
+        try:
+            return run()
+        except OutOfTime:
+            self.skipped[name] = Skip(
+                f"stopped: the time budget of {self.budget_s:g} s ran out during it", BUDGET
+            )
+            return default
+        except z3.Z3Exception as e:
+            if not is_memout(e):
+                raise
+            self.memout = True
+            self.skipped[name] = Skip(f"stopped: {self.reached}", MEMORY)
+            return default
+        finally:
+            self.seconds[name] = time.perf_counter() - t
+
+
+def _run_analyses(
+    ctx: Context, findings: list[Finding], step: _Steps
+) -> tuple[bool | None, str, str]:
+    """The four analyses in order, each only where the earlier ones allow it; returns
+    (consistent, the consistency text, the realizability text)."""
+    consistent_text = step("consistency", lambda: consistency(ctx, findings), None)
+    consistent, consistency_text = (
+        consistent_text if isinstance(consistent_text, tuple) else (None, "skipped")
+    )
+    realizability_text = (
+        str(step("realizability", lambda: realizability(ctx, findings), "skipped"))
+        if consistent
+        else "not checked (inconsistent)"
+        if consistent is False
+        else "skipped"
+    )
+    vacuous = step("vacuity", lambda: vacuity(ctx, findings, bool(consistent)), set())
+    if consistent:
+        step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
+    skipped = step.skipped
+    # z3 giving up within its time per call is reported against the budget too: a
+    # larger one gives the later analyses the time to try again.
+    undecided = skipped.get("consistency") or Skip(
+        f"consistency was not decided: the time budget of {step.budget_s:g} s ran out during it"
+        if step.out_of_time()
+        else "consistency was not decided (z3 gave up)",
+        BUDGET,
+    )
+    if consistent is None and "redundancy" not in skipped:
+        skipped["redundancy"] = undecided
+    if consistent is None and "realizability" not in skipped:
+        skipped["realizability"] = undecided
+    if step.memout:  # explain's example traces would ask the same solver
+        skipped["examples"] = Skip(step.reached, MEMORY)
+    return consistent, consistency_text, realizability_text

@@ -211,20 +211,11 @@ class Mcap(Source):
         loose: tuple[list[int], list[int], list[bytes]] = ([], [], [])
         try:
             while True:
-                if pos + 9 > size:
-                    raise Damage("the file ends early")
-                op, length = _REC.unpack_from(mm, pos)
+                op, length = _record_at(mm, pos, size)
                 body = pos + 9
-                if body + length > size:
-                    raise Damage(f"the record at byte {pos} is cut short: the file ends early")
-                if op == 0:
-                    raise Damage(f"the record at byte {pos} has opcode 0, which MCAP never uses")
                 if op == MESSAGE_INDEX and pending is not None:
-                    (cid,) = struct.unpack_from("<H", mm, body)
-                    (n,) = struct.unpack_from("<I", mm, body + 2)
-                    if 6 + n > length:
-                        raise Damage(f"the message index at byte {pos} is longer than its record")
-                    indexes[cid] = np.frombuffer(mm, _INDEX, n // 16, body + 6).copy()
+                    cid, index = _message_index(mm, pos, length)
+                    indexes[cid] = index
                 else:
                     if pending is not None:
                         # taken before it is read: a chunk that is damage is not read again
@@ -239,16 +230,7 @@ class Mcap(Source):
                     elif op == CHANNEL:
                         self._channel(mm, body)
                     elif op == MESSAGE:
-                        cid, _, t, _ = _MSG.unpack_from(mm, body)
-                        if t > NS_MAX or length < _MSG.size:
-                            raise Damage(_bad_message(pos, t))
-                        self._count += 1
-                        self._last_t = t
-                        k = ids.get(self._channels.get(cid, ("", 0))[0], -1)
-                        if k >= 0:
-                            loose[0].append(t)
-                            loose[1].append(k)
-                            loose[2].append(mm[body + _MSG.size : body + length])
+                        self._loose_message(mm, pos, length, ids, loose)
                     elif op == CHUNK_OP:
                         if loose[0]:
                             yield raw_chunk(*loose).in_order()
@@ -268,10 +250,7 @@ class Mcap(Source):
                     yield from self._chunk(mm, pending, {}, ids)
                 except (Damage, struct.error, ValueError, UnicodeDecodeError):
                     pass  # damaged too: the damage found first is the one said
-            where = f"after byte {pos}, {self._count} messages read"
-            if self._last_t is not None:
-                where += f", the last at t_ns {self._last_t}"
-            raise Damage(f"damaged: {e} ({where})") from None
+            raise Damage(f"damaged: {e} (after byte {pos}, {self._read_so_far()})") from None
         if pending is not None:
             yield from self._chunk(mm, pending, indexes, ids)
         if loose[0]:
@@ -279,10 +258,39 @@ class Mcap(Source):
         if not head and mm[size - len(MAGIC) :] != MAGIC:
             # every message is read, but the summary after them is cut: damage all
             # the same (truncation anywhere is, docs/reference/commands.md)
-            where = f"{self._count} messages read"
-            if self._last_t is not None:
-                where += f", the last at t_ns {self._last_t}"
-            raise Damage(f"damaged: the file is cut short at byte {size}, after its data ({where})")
+            raise Damage(
+                f"damaged: the file is cut short at byte {size}, after its data "
+                f"({self._read_so_far()})"
+            )
+
+    def _loose_message(
+        self,
+        mm: mmap.mmap,
+        pos: int,
+        length: int,
+        ids: dict[str, int],
+        loose: tuple[list[int], list[int], list[bytes]],
+    ) -> None:
+        """A message record outside any chunk: counted, and kept in ``loose`` when its
+        channel's topic is wanted."""
+        body = pos + 9
+        cid, _, t, _ = _MSG.unpack_from(mm, body)
+        if t > NS_MAX or length < _MSG.size:
+            raise Damage(_bad_message(pos, t))
+        self._count += 1
+        self._last_t = t
+        k = ids.get(self._channels.get(cid, ("", 0))[0], -1)
+        if k >= 0:
+            loose[0].append(t)
+            loose[1].append(k)
+            loose[2].append(mm[body + _MSG.size : body + length])
+
+    def _read_so_far(self) -> str:
+        """Where reading got to, for a damage line."""
+        where = f"{self._count} messages read"
+        if self._last_t is not None:
+            where += f", the last at t_ns {self._last_t}"
+        return where
 
     def _chunk(
         self,
@@ -395,3 +403,25 @@ def _bad_message(pos: int, t: int) -> str:
     if t > NS_MAX:
         return f"the message at byte {pos} has a log time past 2^63-1 ns ({t})"
     return f"the message record at byte {pos} is shorter than a message header"
+
+
+def _record_at(mm: mmap.mmap, pos: int, size: int) -> tuple[int, int]:
+    """The opcode and body length of the record at ``pos``, whole within the file."""
+    if pos + 9 > size:
+        raise Damage("the file ends early")
+    op, length = _REC.unpack_from(mm, pos)
+    if pos + 9 + length > size:
+        raise Damage(f"the record at byte {pos} is cut short: the file ends early")
+    if op == 0:
+        raise Damage(f"the record at byte {pos} has opcode 0, which MCAP never uses")
+    return op, length
+
+
+def _message_index(mm: mmap.mmap, pos: int, length: int) -> tuple[int, np.ndarray]:
+    """A chunk's message index record at ``pos``: its channel and (time, offset) rows."""
+    body = pos + 9
+    (cid,) = struct.unpack_from("<H", mm, body)
+    (n,) = struct.unpack_from("<I", mm, body + 2)
+    if 6 + n > length:
+        raise Damage(f"the message index at byte {pos} is longer than its record")
+    return cid, np.frombuffer(mm, _INDEX, n // 16, body + 6).copy()

@@ -306,6 +306,64 @@ def _leaf_type(store: Typestore, msgtype: str, path: str) -> str:
     raise AssertionError("unreachable")
 
 
+@dataclass
+class _Columns:
+    """What ``Recording._decode`` builds from one raw chunk, and the first message
+    that did not decode (``bad``, its row; ``error``, the located line)."""
+
+    raw: Raw
+    first: int  # messages read before this chunk
+    values: dict[str, np.ndarray] = field(default_factory=dict)
+    records: dict[int, dict[str, Any]] = field(default_factory=dict)
+    given: dict[str, np.ndarray] = field(default_factory=dict)
+    odd: dict[int, list[tuple[str, Any]]] = field(default_factory=dict)
+    bad: int = -1
+    error: str | None = None
+
+    def __post_init__(self) -> None:
+        self.bad = self.n
+
+    @property
+    def n(self) -> int:
+        return len(self.raw)
+
+    def fail(self, i: int, topic: str, what: str) -> None:
+        """Row ``i`` did not decode: the batch ends before the earliest such row."""
+        if i < self.bad:
+            t = int(self.raw.t_ns[i])
+            self.bad = i
+            self.error = f"message {self.first + i + 1} read (topic {topic}, t_ns {t}) {what}"
+
+    def trace_values(self, rd: _TopicReader, rows: np.ndarray) -> None:
+        """A JSON-lines trace's rows of one topic: each line sets one variable."""
+        items, n = self.raw.items, self.n
+        assert items is not None
+        for i in rows.tolist():
+            if rd.record:
+                self.records[i] = items[i]
+        for v in rd.variables:
+            col = np.zeros(n, dtype=DTYPES[v.type])
+            mask = np.zeros(n, dtype=np.bool_)
+            for i in rows.tolist():
+                name, value = items[i]
+                if name == v.name:
+                    col[i], mask[i] = value, True
+            self.values[v.name], self.given[v.name] = col, mask
+
+    def batch(self, topics: list[str]) -> Batch:
+        """The rows before the first that did not decode."""
+        bad, raw = self.bad, self.raw
+        return Batch(
+            raw.t_ns[:bad],
+            raw.topic[:bad],
+            topics,
+            {k: c[:bad] for k, c in self.values.items()},
+            {i: r for i, r in self.records.items() if i < bad},
+            {k: m[:bad] for k, m in self.given.items()},
+            {i: x for i, x in self.odd.items() if i < bad},
+        )
+
+
 class Recording:
     """Recordings opened for a config; see the module docstring."""
 
@@ -471,113 +529,100 @@ class Recording:
     ) -> tuple[Batch, str | None]:
         """Columns of one raw chunk; on a message that does not decode, the columns
         of the messages before it and the located error."""
-        n = len(raw)
-        top = raw.topic
+        out = _Columns(raw, first)
         arr = np.frombuffer(raw.buf, np.uint8)
-        values: dict[str, np.ndarray] = {}
-        records: dict[int, dict[str, Any]] = {}
-        given: dict[str, np.ndarray] = {}
-        odd: dict[int, list[tuple[str, Any]]] = {}
-        bad = n
-        error: str | None = None
-
-        def fail(i: int, topic: str, what: str) -> None:
-            nonlocal bad, error
-            if i < bad:
-                t = int(raw.t_ns[i])
-                bad, error = i, f"message {first + i + 1} read (topic {topic}, t_ns {t}) {what}"
-
         for tid, rd in readers.items():
-            rows = np.flatnonzero(top == tid)
+            rows = np.flatnonzero(raw.topic == tid)
             if not len(rows):
                 continue
             if raw.items is not None:  # a JSON-lines trace: values already checked
-                for i in rows.tolist():
-                    item = raw.items[i]
-                    if rd.record:
-                        records[i] = item
-                for v in rd.variables:
-                    col = np.zeros(n, dtype=DTYPES[v.type])
-                    mask = np.zeros(n, dtype=np.bool_)
-                    for i in rows.tolist():
-                        name, value = raw.items[i]
-                        if name == v.name:
-                            col[i], mask[i] = value, True
-                    values[v.name], given[v.name] = col, mask
+                out.trace_values(rd, rows)
+            elif rd.record:
+                self._decode_records(src, rd, rows, out)
+            else:
+                slow = self._gather(src, rd, arr, rows, out)
+                if slow:
+                    self._deserialize(src, rd, rows, slow, out)
+        return out.batch(self.topics), out.error
+
+    def _decode_records(
+        self, src: Source, rd: _TopicReader, rows: np.ndarray, out: _Columns
+    ) -> None:
+        """The parsed record of each row of a record topic, up to the first that fails."""
+        for i in rows.tolist():
+            try:
+                out.records[i] = self._record(src, out.raw.payload(i))
+            except ValueError as e:
+                out.fail(i, rd.topic, str(e))
+                break
+
+    def _gather(
+        self, src: Source, rd: _TopicReader, arr: np.ndarray, rows: np.ndarray, out: _Columns
+    ) -> list[tuple[Variable, Callable[[Any], Any]]]:
+        """The columns read in bulk from the payloads at their planned offsets; returns
+        the variables (with their readers) that need each message deserialised."""
+        raw, n = out.raw, out.n
+        slow: list[tuple[Variable, Callable[[Any], Any]]] = []
+        for j, (v, plan) in enumerate(zip(rd.variables, rd.plans, strict=True)):
+            if arrival_only(v):
+                # true on every message of its topic: its arrival is the value
+                col = np.zeros(n, dtype=np.bool_)
+                col[rows] = True
+                out.values[v.name] = col
                 continue
-            if rd.record:
-                for i in rows.tolist():
-                    try:
-                        records[i] = self._record(src, raw.payload(i))
-                    except ValueError as e:
-                        fail(i, rd.topic, str(e))
-                        break
+            got = plan.gather(arr, raw.start[rows], raw.end[rows]) if plan else None
+            if got is not None and not plan.fixed and not self._agrees(src, rd, v, raw, rows, got):  # type: ignore[union-attr]
+                rd.plans[j] = None  # the layout guess is wrong for this data
+                got = None
+            if got is None:
+                slow.append((v, rd.readers[j]))
                 continue
-            slow: list[tuple[Variable, Callable[[Any], Any]]] = []
-            for j, (v, plan) in enumerate(zip(rd.variables, rd.plans, strict=True)):
-                if arrival_only(v):
-                    # true on every message of its topic: its arrival is the value
-                    col = np.zeros(n, dtype=np.bool_)
-                    col[rows] = True
-                    values[v.name] = col
+            col = np.zeros(n, dtype=rd.dtypes[j])
+            col[rows] = got != 0 if col.dtype == np.bool_ else got
+            out.values[v.name] = col
+        return slow
+
+    @staticmethod
+    def _deserialize(
+        src: Source,
+        rd: _TopicReader,
+        rows: np.ndarray,
+        slow: list[tuple[Variable, Callable[[Any], Any]]],
+        out: _Columns,
+    ) -> None:
+        """One deserialisation per message for all of the topic's ``slow`` fields."""
+        n = out.n
+        dtype_of = dict(zip((v.name for v in rd.variables), rd.dtypes, strict=True))
+        cols = {v.name: np.zeros(n, dtype=dtype_of[v.name]) for v, _ in slow}
+        # A message may carry no value for a variable (a service event of the
+        # other direction, an element past the end): not given on its row.
+        has = {v.name: np.ones(n, dtype=np.bool_) for v, _ in slow}
+        for i in rows.tolist():
+            if i >= out.bad:
+                break
+            try:
+                msg = src.store.deserialize_cdr(out.raw.payload(i), rd.msgtype)
+            except Exception as e:  # noqa: BLE001 - any failure here is the data's
+                out.fail(i, rd.topic, f"does not decode as {rd.msgtype} ({e})")
+                break
+            for v, read in slow:
+                try:
+                    x = read(msg)
+                except (ReadError, AttributeError, TypeError, ValueError) as e:
+                    x = Unread(str(e))
+                if x is SKIP:
+                    has[v.name][i] = False
                     continue
-                got = plan.gather(arr, raw.start[rows], raw.end[rows]) if plan else None
-                if (
-                    got is not None
-                    and not plan.fixed
-                    and not self._agrees(src, rd, v, raw, rows, got)
-                ):  # type: ignore[union-attr]
-                    rd.plans[j] = None  # the layout guess is wrong for this data
-                    got = None
-                if got is None:
-                    slow.append((v, rd.readers[j]))
-                    continue
-                col = np.zeros(n, dtype=rd.dtypes[j])
-                col[rows] = got != 0 if col.dtype == np.bool_ else got
-                values[v.name] = col
-            if slow:
-                # One deserialisation per message for all of the topic's other fields.
-                dtype_of = dict(zip((v.name for v in rd.variables), rd.dtypes, strict=True))
-                cols = {v.name: np.zeros(n, dtype=dtype_of[v.name]) for v, _ in slow}
-                # A message may carry no value for a variable (a service event of the
-                # other direction, an element past the end): not given on its row.
-                has = {v.name: np.ones(n, dtype=np.bool_) for v, _ in slow}
-                for i in rows.tolist():
-                    if i >= bad:
-                        break
+                if not isinstance(x, Unread):
                     try:
-                        msg = src.store.deserialize_cdr(raw.payload(i), rd.msgtype)
-                    except Exception as e:  # noqa: BLE001 - any failure here is the data's
-                        fail(i, rd.topic, f"does not decode as {rd.msgtype} ({e})")
-                        break
-                    for v, read in slow:
-                        try:
-                            x = read(msg)
-                        except (ReadError, AttributeError, TypeError, ValueError) as e:
-                            x = Unread(str(e))
-                        if x is SKIP:
-                            has[v.name][i] = False
-                            continue
-                        if not isinstance(x, Unread):
-                            try:
-                                cols[v.name][i] = x
-                                continue
-                            except (OverflowError, ValueError, TypeError):
-                                pass  # -inf for an int64: the runtime rejects it
-                        has[v.name][i] = False
-                        odd.setdefault(i, []).append((v.name, x))
-                values.update(cols)
-                given.update({k: m for k, m in has.items() if not m[rows].all()})
-        batch = Batch(
-            raw.t_ns[:bad],
-            top[:bad],
-            self.topics,
-            {k: c[:bad] for k, c in values.items()},
-            {i: r for i, r in records.items() if i < bad},
-            {k: m[:bad] for k, m in given.items()},
-            {i: x for i, x in odd.items() if i < bad},
-        )
-        return batch, error
+                        cols[v.name][i] = x
+                        continue
+                    except (OverflowError, ValueError, TypeError):
+                        pass  # -inf for an int64: the runtime rejects it
+                has[v.name][i] = False
+                out.odd.setdefault(i, []).append((v.name, x))
+        out.values.update(cols)
+        out.given.update({k: m for k, m in has.items() if not m[rows].all()})
 
     @staticmethod
     def _agrees(

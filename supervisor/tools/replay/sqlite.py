@@ -7,10 +7,11 @@ import gc
 import os
 import struct
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from contextlib import contextmanager
 from itertools import chain, islice
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 import apsw
@@ -48,6 +49,49 @@ _FETCH = 4096  # rows per fetch, so that a chunk stops at CHUNK_BYTES of payload
 _ROWS = 8192
 
 
+def _check_topics(con: apsw.Connection, rows: list[Any], label: str) -> None:
+    """Raises UserError for a topics row that is not (whole number, name, type), or
+    a topic in a serialization replay cannot read."""
+    for k, row in enumerate(rows, 1):
+        if not (isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)):
+            shown = printable(repr(tuple(row))[:120])
+            raise UserError(
+                f"row {k} of table topics is {shown}: not (whole number, name, type)", file=label
+            )
+    try:
+        for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
+            if isinstance(name, str) and isinstance(fmt, str):
+                refuse_serialization(name, fmt, label)
+    except apsw.Error:
+        pass  # no such column: CDR, the only serialization of that bag's rosbag2
+
+
+def _definitions(con: apsw.Connection) -> list[tuple[str, str, str]]:
+    """The bag's message definitions (type, encoding, text); none before version 8."""
+    try:
+        return [
+            d
+            for d in con.execute(
+                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions"
+            )
+            if all(isinstance(x, str) for x in d)
+        ]
+    except apsw.Error:
+        return []  # bags before version 8 have no definitions
+
+
+def _rows_of_no_topic(con: apsw.Connection) -> int:
+    """Message rows of no topic (NULL or unknown id): never replayed, counted."""
+    try:
+        (lost,) = con.execute(
+            "SELECT count(*) FROM messages "
+            "WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)"
+        ).fetchone()
+    except apsw.Error:
+        return 0  # no readable messages table: reading it says where
+    return lost
+
+
 class Sqlite(Source):
     def __init__(
         self,
@@ -65,6 +109,33 @@ class Sqlite(Source):
         self._tmp: Path | None = None
         self._cut = False  # truncated: read a copy whose header counts the pages present
         self._cut_at: int | None = _cut_short(path)  # the file's size, if shorter than it says
+        con, rows = self._read_topics(topics)
+        if not rows and topics and self._cut_at is not None:
+            self._ids: dict[int, str] = {}
+            self.topics = dict(topics)
+            self.store = typestore_of([])
+            return
+        try:
+            _check_topics(con, rows, self.label)
+        except UserError:
+            con.close()
+            self._drop()
+            raise
+        self._ids = {tid: name for tid, name, _ in rows}
+        self.topics = {name: normalise_type(typ) for _, name, typ in rows}
+        defs = _definitions(con)
+        lost = _rows_of_no_topic(con)
+        if lost:
+            self.warnings.append(
+                f"warning: {self.label}: {lost} message rows name no topic of the bag: not replayed"
+            )
+        con.close()
+        self._drop()
+        self.store = typestore_of(defs, self.topics.values(), self.warnings, self.label)
+
+    def _read_topics(self, topics: dict[str, str] | None) -> tuple[apsw.Connection, list[Any]]:
+        """The open database and its topics table's rows (none when the table is past
+        the damage of a truncated file and the bag's metadata names the topics)."""
         try:
             con = self._connect()
             rows = con.execute("SELECT id, name, type FROM topics").fetchall()
@@ -86,61 +157,7 @@ class Sqlite(Source):
                 # the topics table is past the damage: the bag's metadata names them,
                 # and reading says where the damage is
                 rows = []
-        if not rows and topics and self._cut_at is not None:
-            self._ids: dict[int, str] = {}
-            self.topics = dict(topics)
-            self.store = typestore_of([])
-            return
-        for k, row in enumerate(rows, 1):
-            if not (
-                isinstance(row[0], int) and isinstance(row[1], str) and isinstance(row[2], str)
-            ):
-                con.close()
-                self._drop()
-                shown = printable(repr(tuple(row))[:120])
-                raise UserError(
-                    f"row {k} of table topics is {shown}: not (whole number, name, type)",
-                    file=self.label,
-                )
-        try:
-            for name, fmt in con.execute("SELECT name, serialization_format FROM topics"):
-                if isinstance(name, str) and isinstance(fmt, str):
-                    refuse_serialization(name, fmt, self.label)
-        except apsw.Error:
-            pass  # no such column: CDR, the only serialization of that bag's rosbag2
-        except UserError:
-            con.close()
-            self._drop()
-            raise
-        self._ids = {tid: name for tid, name, _ in rows}
-        self.topics = {name: normalise_type(typ) for _, name, typ in rows}
-        defs: list[tuple[str, str, str]] = []
-        try:
-            defs = [
-                d
-                for d in con.execute(
-                    "SELECT topic_type, encoding, encoded_message_definition "
-                    "FROM message_definitions"
-                )
-                if all(isinstance(x, str) for x in d)
-            ]
-        except apsw.Error:
-            pass  # bags before version 8 have no definitions
-        try:
-            # rows of no topic (NULL or unknown id) are never replayed: counted, said
-            (lost,) = con.execute(
-                "SELECT count(*) FROM messages "
-                "WHERE topic_id IS NULL OR topic_id NOT IN (SELECT id FROM topics)"
-            ).fetchone()
-        except apsw.Error:
-            lost = 0  # no readable messages table: reading it says where
-        if lost:
-            self.warnings.append(
-                f"warning: {self.label}: {lost} message rows name no topic of the bag: not replayed"
-            )
-        con.close()
-        self._drop()
-        self.store = typestore_of(defs, self.topics.values(), self.warnings, self.label)
+        return con, rows
 
     def _connect(self) -> apsw.Connection:
         path = self._patched() if self._cut else self.path
@@ -224,27 +241,7 @@ class Sqlite(Source):
                 while True:
                     # Columns per fetch, joined once per chunk: no Python code per row
                     # (docs/BENCHMARKS.md, "Replay throughput").
-                    tparts: list[tuple[object, ...]] = []
-                    kparts: list[tuple[object, ...]] = []
-                    dparts: list[tuple[object, ...]] = []
-                    count = size = 0
-                    most = min(chunk, _ROWS)
-                    bad: tuple[object, ...] | None = None
-                    with _gc_paused():
-                        while count < most and size < CHUNK_BYTES and bad is None:
-                            got = list(islice(cur, min(_FETCH, most - count)))
-                            if not got:
-                                break
-                            ts, tids, data, ok = zip(*got, strict=True)
-                            if not all(ok):
-                                good = ok.index(0)
-                                bad = got[good]
-                                ts, tids, data = ts[:good], tids[:good], data[:good]
-                            tparts.append(ts)
-                            kparts.append(tids)
-                            dparts.append(data)
-                            count += len(ts)
-                            size += sum(map(len, data))  # type: ignore[arg-type]
+                    tparts, kparts, dparts, count, bad = _fetch(cur, min(chunk, _ROWS))
                     if count:
                         raw = _columns(tparts, dparts, count)
                         # the query matched these ids: numbers equal to a wanted one
@@ -269,48 +266,96 @@ class Sqlite(Source):
                 # ``last``, and ``at_last`` of those at it), so that every readable
                 # message is replayed (docs/reference/commands.md, "Damaged input").
                 at_last = 0 if last is None else _count_at(self._given.tolist(), last)
-                ts_: list[int] = []
-                tops: list[int] = []
-                data_: list[bytes] = []
-                try:
-                    cur = con.execute(
-                        f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages NOT INDEXED "
-                        f"WHERE topic_id IN ({marks}) ORDER BY rowid",
-                        list(wanted),
-                    )
-                    while row := cur.fetchone():
-                        if not row[3]:
-                            if ts_:
-                                yield raw_chunk(ts_, tops, data_).in_order()
-                            raise Damage(_bad_row(n + len(ts_), row, last))
-                        if last is not None and row[0] <= last:
-                            if row[0] < last or at_last > 0:
-                                at_last -= row[0] == last
-                                continue
-                        ts_.append(row[0])
-                        tops.append(wanted[row[1]])
-                        data_.append(row[2])
-                except apsw.Error as e:
-                    failed = e
-                else:
-                    failed = None
-                if ts_:
-                    yield raw_chunk(ts_, tops, data_).in_order()
-                    n += len(ts_)
-                    last = max(ts_)
+                n, last, failed = yield from _in_table_order(con, marks, wanted, n, last, at_last)
             if failed is not None or self._cut_at is not None:
-                where = f"{n} messages read" + (
-                    f", the last at t_ns {last}" if last is not None else ""
-                )
-                said = f" ({failed})" if failed is not None else ""
-                if self._cut_at is not None:
-                    raise Damage(
-                        f"damaged: the file is cut short at byte {self._cut_at}{said}; {where}"
-                    )
-                raise Damage(f"damaged database{said}; {where}")
+                raise Damage(_damage(n, last, failed, self._cut_at))
         finally:
             con.close()
             self._drop()
+
+
+_Parts = list[tuple[object, ...]]
+
+
+def _fetch(
+    cur: apsw.Cursor, most: int
+) -> tuple[_Parts, _Parts, _Parts, int, tuple[object, ...] | None]:
+    """Up to ``most`` rows (and CHUNK_BYTES of payloads) as columns per fetch: times,
+    topic ids, payloads, how many, and the first row that is not as it should be."""
+    tparts: _Parts = []
+    kparts: _Parts = []
+    dparts: _Parts = []
+    count = size = 0
+    bad: tuple[object, ...] | None = None
+    with _gc_paused():
+        while count < most and size < CHUNK_BYTES and bad is None:
+            got = list(islice(cur, min(_FETCH, most - count)))
+            if not got:
+                break
+            ts, tids, data, ok = zip(*got, strict=True)
+            if not all(ok):
+                good = ok.index(0)
+                bad = got[good]
+                ts, tids, data = ts[:good], tids[:good], data[:good]
+            tparts.append(ts)
+            kparts.append(tids)
+            dparts.append(data)
+            count += len(ts)
+            size += sum(map(len, data))  # type: ignore[arg-type]
+    return tparts, kparts, dparts, count, bad
+
+
+def _in_table_order(
+    con: apsw.Connection,
+    marks: str,
+    wanted: dict[int, int],
+    n: int,
+    last: int | None,
+    at_last: int,
+) -> Generator[Raw, None, tuple[int, int | None, apsw.Error | None]]:
+    """The wanted rows in the table's own order (no index) up to the damage, leaving
+    out those given already (all before ``last``, and ``at_last`` of those at it);
+    returns the messages read, the last time, and the read's failure if any."""
+    ts_: list[int] = []
+    tops: list[int] = []
+    data_: list[bytes] = []
+    failed: apsw.Error | None
+    try:
+        cur = con.execute(
+            f"SELECT timestamp, topic_id, data, {_ROW_OK} FROM messages NOT INDEXED "
+            f"WHERE topic_id IN ({marks}) ORDER BY rowid",
+            list(wanted),
+        )
+        while row := cur.fetchone():
+            if not row[3]:
+                if ts_:
+                    yield raw_chunk(ts_, tops, data_).in_order()
+                raise Damage(_bad_row(n + len(ts_), row, last))
+            if last is not None and row[0] <= last:
+                if row[0] < last or at_last > 0:
+                    at_last -= row[0] == last
+                    continue
+            ts_.append(row[0])
+            tops.append(wanted[row[1]])
+            data_.append(row[2])
+    except apsw.Error as e:
+        failed = e
+    else:
+        failed = None
+    if ts_:
+        yield raw_chunk(ts_, tops, data_).in_order()
+        n += len(ts_)
+        last = max(ts_)
+    return n, last, failed
+
+
+def _damage(n: int, last: int | None, failed: apsw.Error | None, cut_at: int | None) -> str:
+    """The damage line: where reading stopped, and why."""
+    where = f"{n} messages read" + (f", the last at t_ns {last}" if last is not None else "")
+    said = f" ({failed})" if failed is not None else ""
+    if cut_at is not None:
+        return f"damaged: the file is cut short at byte {cut_at}{said}; {where}"
+    return f"damaged database{said}; {where}"
 
 
 @contextmanager

@@ -213,6 +213,10 @@ def test_a_db3_cut_anywhere_is_read_up_to_the_damage_then_says_the_byte(tmp_path
     text = str(err)
     assert "\n" not in text and str(f) in text
     assert f"damaged: the file is cut short at byte {cut}" in text
+    # then why sqlite stopped, if it did, and where: the messages read and the last time
+    assert re.search(
+        rf"cut short at byte {cut}( \(.+\))?; \d+ messages read(, the last at t_ns \d+)?$", text
+    ), text
 
 
 @pytest.mark.parametrize("quarter", [1, 2, 3])

@@ -358,10 +358,11 @@ def test_a_hostile_sqlite_row_is_damage_at_its_place(
     assert f"replayed {before} messages" in LAST_OUT[0], LAST_OUT[0]
 
 
+ROW_1 = "row 1 of table topics is ("  # the row the check refused, by number
 REFUSED = [
-    ("UPDATE topics SET name = NULL", "table topics"),
-    ("UPDATE topics SET type = 7", "table topics"),
-    ("UPDATE topics SET id = 'one'", "table topics"),
+    ("UPDATE topics SET name = NULL", ROW_1),
+    ("UPDATE topics SET type = 7", ROW_1),
+    ("UPDATE topics SET id = 'one'", ROW_1),
     ("DROP TABLE topics", "no such table: topics"),
 ]
 
@@ -374,6 +375,8 @@ def test_a_hostile_topics_table_is_one_located_line(
     rc, err = in_process(capsys, "replay", str(cfg), str(f), "--quiet")
     line = assert_one_located_line(err, str(f))
     assert rc == 1 and words in line, line
+    if words == ROW_1:
+        assert line.endswith("): not (whole number, name, type)"), line
 
 
 @pytest.mark.parametrize(
@@ -621,3 +624,31 @@ def test_a_huge_topic_id_is_read_without_a_table_of_its_size(
                 "UPDATE messages SET topic_id = 4611686018427387904")  # fmt: skip
     rc, err = in_process(capsys, "replay", str(cfg), str(f), "--quiet")
     assert rc == 0 and "replayed 5 messages" in LAST_OUT[0], err
+
+
+def _loose_then(tail: bytes) -> tuple[bytes, int]:
+    """Three good messages outside any chunk, then ``tail``; the bytes and where
+    ``tail`` starts."""
+    good = _head() + b"".join(_message(1, i, 1000 + i, ser_int64(i)) for i in range(3))
+    return good + tail, len(good)
+
+
+@pytest.mark.parametrize(
+    "tail,words",
+    [
+        (_rec(0, b""), "the record at byte {at} has opcode 0, which MCAP never uses"),
+        (b"\x05\x00", "the file ends early"),
+        (_rec(5, b"\0" * 30)[:20], "the record at byte {at} is cut short: the file ends early"),
+    ],
+)
+def test_a_damaged_mcap_record_after_loose_messages_is_one_line_with_where(
+    tmp_path: Path, cfg: Path, capsys: Any, tail: bytes, words: str
+) -> None:
+    data, at = _loose_then(tail)
+    bag = tmp_path / "loose.mcap"
+    bag.write_bytes(data)
+    rc, err = in_process(capsys, "replay", str(cfg), str(bag), "--quiet")
+    line = assert_one_located_line(err, str(bag))
+    where = f"(after byte {at}, 3 messages read, the last at t_ns 1002)"
+    assert rc == 1 and line.endswith(f"damaged: {words.format(at=at)} {where}"), line
+    assert "replayed 3 messages" in LAST_OUT[0], LAST_OUT[0]
