@@ -27,6 +27,7 @@ from __future__ import annotations
 import json
 import math
 import queue
+import struct
 import sys
 import threading
 import time
@@ -152,6 +153,9 @@ class Hub:
     def on_status(self, doc: dict[str, Any]) -> None:
         entries = []
         with self._lock:
+            if self.status is not None and _identity(self.status) != _identity(doc):
+                # the feed goes on across daemons: say where the previous one's ends
+                entries.append(_restart_entry(self.status, doc))
             self.status = doc
             self._status_at = self._clock()
             for ev in doc.get("events") or []:
@@ -174,7 +178,7 @@ class Hub:
             "ts": record.get("ts") or utc_now(),
             "requirement": rid,
             "what": "violated",
-            "detail": _inputs_text(record.get("inputs")),
+            "detail": _inputs_text(record.get("inputs"), self._precisions()),
             "tick": record.get("tick"),
             "text": record.get("text"),
             "formula": record.get("formula"),
@@ -183,6 +187,12 @@ class Hub:
             self._pending[(rid, record.get("tick"))] += 1
             self._feed.append(entry)
         self._broadcast({"type": "violation", "record": record, "feed": [entry]})
+
+    def _precisions(self) -> dict[str, str | None]:
+        """Each input's ``precision`` as the latest status document gives it."""
+        with self._lock:
+            inputs = (self.status or {}).get("inputs") or []
+        return {i["name"]: i.get("precision") for i in inputs}
 
     def on_diagnostics(self, statuses: list[tuple[str, int, str, dict[str, str]]]) -> None:
         """``(name, level, message, values)`` per status of one DiagnosticArray."""
@@ -281,10 +291,52 @@ class Hub:
         }
 
 
-def _inputs_text(inputs: Any) -> str:
+def _identity(doc: dict[str, Any]) -> tuple[Any, ...]:
+    """Which daemon sent a status document: a restarted one has another pid and start."""
+    return doc.get("supervisor"), doc.get("pid"), doc.get("started")
+
+
+def _restart_entry(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """The feed's mark between two daemons' entries (docs/reference/commands.md, ui)."""
+    return {
+        "event": "restart",
+        "ts": after.get("started") or utc_now(),
+        "requirement": "",
+        "what": f"supervisor started: pid {after.get('pid')}",
+        "detail": f"the entries before this are the previous supervisor's "
+        f"(pid {before.get('pid')}, started {before.get('started')})",
+        "tick": None,
+    }
+
+
+def value_text(value: Any, precision: str | None = None) -> str:
+    """An input's value as a page shows it: at its type's precision (a float32
+    field's shortest text that reads back as the same float32: 0.8, not
+    0.800000011920929), a double as Python writes it, an integer as one."""
+    if isinstance(value, bool) or value is None:
+        return json.dumps(value)
+    if isinstance(value, float) and precision == "float32" and _f32(value) == value:
+        for digits in range(1, 10):  # 9 significant digits always read back
+            short = float(f"{value:.{digits - 1}e}")
+            if _f32(short) == value:
+                return repr(short)
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)  # an integer, or the daemon's "nan", "inf", "-inf"
+
+
+def _f32(x: float) -> float:
+    """``x`` rounded to the nearest float32, as a float."""
+    try:
+        return float(struct.unpack("f", struct.pack("f", x))[0])
+    except OverflowError:
+        return math.nan  # beyond float32: no float32 field gave it
+
+
+def _inputs_text(inputs: Any, precisions: dict[str, str | None]) -> str:
     if not isinstance(inputs, dict):
         return ""
-    return ", ".join(f"{k}={json.dumps(v)}" for k, v in inputs.items())
+    return ", ".join(f"{k}={value_text(v, precisions.get(k))}" for k, v in inputs.items())
 
 
 def _int(text: str | None) -> int | None:
