@@ -34,6 +34,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Callable
 from datetime import UTC, datetime
+from decimal import ROUND_HALF_UP, Context
 from typing import Any
 
 from monitors.untrusted import Untrusted, printable
@@ -317,7 +318,8 @@ def value_text(value: Any, precision: str | None = None) -> str:
         return json.dumps(value)
     if isinstance(value, float) and precision == "float32" and _f32(value) == value:
         for digits in range(1, 10):  # 9 significant digits always read back
-            short = float(f"{value:.{digits - 1}e}")
+            # rounded as the page's toExponential rounds: ties away from zero
+            short = float(Context(prec=digits, rounding=ROUND_HALF_UP).create_decimal(value))
             if _f32(short) == value:
                 return repr(short)
     if isinstance(value, float):

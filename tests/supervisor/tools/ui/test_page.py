@@ -9,7 +9,10 @@ leaving the page's origin.
 
 from __future__ import annotations
 
+import math
+import random
 import re
+import struct
 import threading
 import time
 from collections.abc import Iterator
@@ -21,7 +24,7 @@ from typing import Any
 import pytest
 from browser import open_page
 
-from supervisor.tools.ui.hub import Hub
+from supervisor.tools.ui.hub import Hub, value_text
 from supervisor.tools.ui.server import UiServer, reset_availability
 from tests.system.test_ui import TOKEN, FakeControl, status_doc, wait_js
 
@@ -186,3 +189,177 @@ def test_the_hold_is_an_option_of_ui_and_bad_values_are_one_line() -> None:
         assert code == 2 and out == "", (bad, code, out, err)
         assert err.strip().splitlines()[-1].startswith("safety-supervisor ui: error: "), err
         assert "Traceback" not in err and f"'{bad}'" in err, err
+
+
+# ---------------------------------------------------------------- values
+
+
+def f32(x: float) -> float:
+    return float(struct.unpack("f", struct.pack("f", x))[0])
+
+
+# (value as the daemon sends it, type, precision, as shown)
+VALUES = [
+    (f32(0.8), "double", "float32", "0.8"),
+    (f32(0.1), "double", "float32", "0.1"),
+    (f32(1e-7), "double", "float32", "1e-07"),
+    (f32(123456789.0), "double", "float32", "123456790.0"),
+    (f32(3.4e38), "double", "float32", "3.4e+38"),
+    (3.0, "double", "float32", "3.0"),
+    (f32(0.8), "double", None, "0.800000011920929"),  # a float64 field: all of it
+    (0.1 + 0.2, "double", None, "0.30000000000000004"),
+    (5.0, "double", None, "5.0"),
+    (1e16, "double", None, "1e+16"),
+    (-2.5e-5, "double", None, "-2.5e-05"),
+    (123456.789, "double", None, "123456.789"),
+    (7, "int64", None, "7"),
+    (-9007199254740991, "int64", None, "-9007199254740991"),
+    (True, "bool", None, "true"),
+    ("nan", "double", None, "nan"),
+    ("-inf", "double", "float32", "-inf"),
+]
+
+
+def test_values_are_written_at_their_types_precision() -> None:
+    """The feed's text of a violation's inputs (hub.value_text), as the page's."""
+    for value, _type, precision, shown in VALUES:
+        assert value_text(value, precision) == shown, (value, precision)
+
+
+def test_a_float32_is_its_shortest_text_that_reads_back() -> None:
+    rng = random.Random(27)
+    for _ in range(20_000):
+        x = f32(
+            rng.choice([rng.uniform(-10, 10), math.ldexp(rng.random(), rng.randint(-140, 120))])
+        )
+        text = value_text(x, "float32")
+        assert f32(float(text)) == x, (x, text)
+        digits = len(text.lstrip("-").split("e")[0].replace(".", "").strip("0") or "0")
+        assert digits <= 9 and (digits == 1 or f32(float(f"{x:.{digits - 2}e}")) != x), (x, text)
+
+
+@pytest.mark.slow
+def test_the_page_shows_values_at_their_types_precision(tmp_path: Path) -> None:
+    sock = str(tmp_path / "ctl.sock")
+    inputs = [
+        {"name": f"v{i}", "topic": "/t", "type": t, "precision": p, "value": v, "age_s": 0.1,
+         "stale": False, "messages": 1, "lost": 0}
+        for i, (v, t, p, _shown) in enumerate(VALUES)
+    ]  # fmt: skip
+    doc = status_doc(sock, now=iso(datetime.now(UTC)), inputs=inputs)
+    with page_of(tmp_path, doc) as (hub, page, _console, _requests, _sock):
+        shown = page.eval_on_selector_all(
+            "tr.input",
+            "rs => rs.map(r => [r.dataset.input, r.querySelector('.value').textContent])",
+        )
+        assert shown == [[f"v{i}", s] for i, (_v, _t, _p, s) in enumerate(VALUES)]
+        # a violation's inputs in the feed, at the precision the document gives
+        hub.on_violation({"event": "violation", "requirement": "state_req103", "tick": 3,
+                          "inputs": {"v0": f32(0.8), "v6": f32(0.8), "v12": 7}})  # fmt: skip
+        page.wait_for_selector("#feed li[data-event='violation']")
+        text = page.inner_text("#feed li[data-event='violation']")
+        assert "v0=0.8, v6=0.800000011920929, v12=7" in text, text
+        # the page's own formatting agrees with the hub's on many values
+        rng = random.Random(5)
+        xs = [f32(math.ldexp(rng.random() - 0.5, rng.randint(-130, 120))) for _ in range(3000)]
+        xs += [rng.uniform(-1e6, 1e6) for _ in range(1000)]
+        for precision in ("float32", None):
+            page_text = page.evaluate(
+                "([xs, p]) => xs.map(x => fmtValue(x, 'double', p))", [xs, precision]
+            )
+            assert page_text == [value_text(x, precision) for x in xs]
+
+
+# ---------------------------------------------------------------- layout
+
+# Every sparkline: whole (its 120 px) and inside its own cell and its section; no
+# section wider than it shows, and no page wider than the window.
+LAYOUT = """() => {
+  const side = document.getElementById('side').getBoundingClientRect();
+  const out = [];
+  for (const svg of document.querySelectorAll('tr.input svg.spark')) {
+    const s = svg.getBoundingClientRect(), td = svg.closest('td').getBoundingClientRect();
+    if (Math.abs(s.width - 120) > 0.5 || s.left < td.left - 0.5 || s.right > td.right + 0.5 ||
+        s.left < side.left || s.right > side.right) out.push([svg.closest('tr').dataset.input.slice(0, 20),
+        s.left, s.right, td.left, td.right, side.left, side.right]);
+  }
+  for (const sec of document.querySelectorAll('section'))
+    if (sec.scrollWidth > sec.clientWidth + 1) out.push(['section ' + sec.id, sec.scrollWidth, sec.clientWidth]);
+  if (document.documentElement.scrollWidth > window.innerWidth + 1)
+    out.push(['page', document.documentElement.scrollWidth, window.innerWidth]);
+  return out;
+}"""
+
+
+@pytest.mark.slow
+def test_long_input_names_keep_the_sparklines_whole(tmp_path: Path) -> None:
+    sock = str(tmp_path / "ctl.sock")
+
+    def inputs(k: int) -> list[dict[str, Any]]:
+        return [
+            {"name": f"input_{i}_" + "very_long_name_without_spaces" * (1 + i % 7),
+             "topic": "/" + "deeply/nested/namespace/" * (1 + i % 4) + f"topic_{i}",
+             "type": "double", "value": (k * 7 + i) % 11 * 1.0e-3 + (1e15 if i % 5 == 0 else 0),
+             "age_s": 0.01, "stale": i % 3 == 0, "messages": 10, "lost": 0}
+            for i in range(40)
+        ]  # fmt: skip
+
+    doc = status_doc(sock, now=iso(datetime.now(UTC)), inputs=inputs(0))
+    with page_of(tmp_path, doc) as (hub, page, _console, _requests, _sock):
+        for k in range(1, 4):  # values over time: a sparkline each
+            hub.on_status(status_doc(sock, now=iso(datetime.now(UTC)), inputs=inputs(k)))
+            page.wait_for_timeout(30)
+        wait_js(page, "document.querySelectorAll('tr.input svg.spark polyline').length === 40")
+        for width in (1300, 1000, 700):
+            page.set_viewport_size({"width": width, "height": 900})
+            page.wait_for_timeout(50)  # a layout pass
+            assert page.evaluate(LAYOUT) == [], width
+
+
+# ---------------------------------------------------------------- restarts
+
+
+def test_the_feed_marks_where_a_restarted_daemon_begins() -> None:
+    hub = Hub(lambda _doc: {"available": False, "why": "test"})
+    ev = [{"event": "violation", "ts": "t1", "requirement": "r1", "tick": 5}]
+    first = status_doc("/none", pid=100, started="2026-11-27T10:00:00.000000Z", events=ev)
+    hub.on_status(first)
+    hub.on_status(status_doc("/none", pid=100, started=first["started"], events=[]))
+    hub.on_status(status_doc("/none", pid=100, started=first["started"], events=[],
+                             reloads=1, config_sha256="cd" * 32))  # fmt: skip  # a reload
+    assert [e["event"] for e in hub.snapshot()["feed"]] == ["violation"]
+    ev2 = [{"event": "violation", "ts": "t2", "requirement": "r1", "tick": 1}]
+    second = status_doc("/none", pid=200, started="2026-11-27T10:05:00.000000Z", events=ev2)
+    hub.on_status(second)
+    feed = hub.snapshot()["feed"]
+    assert [(e["event"], e["tick"]) for e in feed] == [
+        ("violation", 5),
+        ("restart", None),
+        ("violation", 1),
+    ]
+    assert "pid 200" in feed[1]["what"] and feed[1]["ts"] == second["started"]
+    assert "pid 100" in feed[1]["detail"] and first["started"] in feed[1]["detail"]
+
+
+@pytest.mark.slow
+def test_the_page_shows_a_daemon_restart_in_the_feed(tmp_path: Path) -> None:
+    sock = str(tmp_path / "ctl.sock")
+    ev = [{"event": "violation", "ts": "2026-11-27T10:04:00Z", "requirement": "old", "tick": 5}]
+    doc = status_doc(sock, pid=100, started="2026-11-27T10:00:00.000000Z", events=ev)
+    with page_of(tmp_path, doc) as (hub, page, _console, _requests, _sock):
+        page.wait_for_selector("#feed li[data-requirement='old']")
+        ev2 = [
+            {"event": "violation", "ts": "2026-11-27T10:06:00Z", "requirement": "new", "tick": 1}
+        ]
+        hub.on_status(status_doc(sock, pid=200, started="2026-11-27T10:05:00.000000Z", events=ev2))
+        page.wait_for_selector("#feed li[data-requirement='new']")
+        feed = page.eval_on_selector_all(
+            "#feed li", "ls => ls.map(l => [l.dataset.event, l.dataset.requirement])"
+        )
+        assert feed == [["violation", "new"], ["restart", ""], ["violation", "old"]]  # newest first
+        mark = page.locator("#feed li.restart")
+        assert "supervisor started: pid 200" in mark.inner_text()
+        style = mark.evaluate(
+            "l => [getComputedStyle(l).borderTopWidth, getComputedStyle(l).fontWeight]"
+        )
+        assert style == ["2px", "600"]
