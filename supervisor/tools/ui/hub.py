@@ -72,6 +72,7 @@ class Hub:
         self._reset_state = reset_state  # whether resets can reach the daemon, and why not
         self._clock = clock
         self.status: dict[str, Any] | None = None
+        self._precisions: dict[str, str | None] = {}
         self._status_at: float | None = None
         self._diagnostics: dict[str, Any] = {"requirements": {}, "inputs": {}, "at": None}
         self._feed: deque[dict[str, Any]] = deque(maxlen=FEED_LENGTH)
@@ -158,6 +159,8 @@ class Hub:
                 # the feed goes on across daemons: say where the previous one's ends
                 entries.append(_restart_entry(self.status, doc))
             self.status = doc
+            # each input's precision, for the violation records' values (value_text)
+            self._precisions = {i["name"]: i.get("precision") for i in doc.get("inputs") or []}
             self._status_at = self._clock()
             for ev in doc.get("events") or []:
                 if not isinstance(ev, dict):
@@ -179,7 +182,7 @@ class Hub:
             "ts": record.get("ts") or utc_now(),
             "requirement": rid,
             "what": "violated",
-            "detail": _inputs_text(record.get("inputs"), self._precisions()),
+            "detail": _inputs_text(record.get("inputs"), self._precisions),
             "tick": record.get("tick"),
             "text": record.get("text"),
             "formula": record.get("formula"),
@@ -188,12 +191,6 @@ class Hub:
             self._pending[(rid, record.get("tick"))] += 1
             self._feed.append(entry)
         self._broadcast({"type": "violation", "record": record, "feed": [entry]})
-
-    def _precisions(self) -> dict[str, str | None]:
-        """Each input's ``precision`` as the latest status document gives it."""
-        with self._lock:
-            inputs = (self.status or {}).get("inputs") or []
-        return {i["name"]: i.get("precision") for i in inputs}
 
     def on_diagnostics(self, statuses: list[tuple[str, int, str, dict[str, str]]]) -> None:
         """``(name, level, message, values)`` per status of one DiagnosticArray."""
