@@ -73,6 +73,10 @@ class Hub:
         self._clock = clock
         self.status: dict[str, Any] | None = None
         self._precisions: dict[str, str | None] = {}
+        # the daemon that started last of those seen: (its start, its document).  Only
+        # a later start is a restart, so a second publisher of the topic (forged
+        # documents, ros-interfaces.md) cannot fill the feed with restart lines.
+        self._daemon: tuple[datetime, dict[str, Any]] | None = None
         self._status_at: float | None = None
         self._diagnostics: dict[str, Any] = {"requirements": {}, "inputs": {}, "at": None}
         self._feed: deque[dict[str, Any]] = deque(maxlen=FEED_LENGTH)
@@ -155,9 +159,12 @@ class Hub:
     def on_status(self, doc: dict[str, Any]) -> None:
         entries = []
         with self._lock:
-            if self.status is not None and _identity(self.status) != _identity(doc):
-                # the feed goes on across daemons: say where the previous one's ends
-                entries.append(_restart_entry(self.status, doc))
+            started = _started(doc)
+            if started is not None and (self._daemon is None or started > self._daemon[0]):
+                if self._daemon is not None:
+                    # the feed goes on across daemons: say where the previous one's ends
+                    entries.append(_restart_entry(self._daemon[1], doc))
+                self._daemon = (started, doc)
             self.status = doc
             # each input's precision, for the violation records' values (value_text)
             self._precisions = {i["name"]: i.get("precision") for i in doc.get("inputs") or []}
@@ -289,9 +296,13 @@ class Hub:
         }
 
 
-def _identity(doc: dict[str, Any]) -> tuple[Any, ...]:
-    """Which daemon sent a status document: a restarted one has another pid and start."""
-    return doc.get("supervisor"), doc.get("pid"), doc.get("started")
+def _started(doc: dict[str, Any]) -> datetime | None:
+    """When the daemon of a status document started (its ``started``), if readable."""
+    try:
+        t = datetime.fromisoformat(str(doc.get("started")))
+    except ValueError:
+        return None
+    return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
 
 
 def _restart_entry(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:

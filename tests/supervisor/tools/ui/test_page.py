@@ -339,6 +339,14 @@ def test_the_feed_marks_where_a_restarted_daemon_begins() -> None:
     ]
     assert "pid 200" in feed[1]["what"] and feed[1]["ts"] == second["started"]
     assert "pid 100" in feed[1]["detail"] and first["started"] in feed[1]["detail"]
+    # only a later start is a restart: a second publisher's documents (an old daemon's,
+    # a forger's) do not fill the feed with restart lines
+    for doc in (first, second, status_doc("/none", pid=300, started="<b>x</b>"), second):
+        hub.on_status({**doc, "events": []})
+    assert [e["event"] for e in hub.snapshot()["feed"]] == ["violation", "restart", "violation"]
+    third = status_doc("/none", pid=300, started="2026-11-27T10:09:00", events=[])  # no zone
+    hub.on_status(third)
+    assert [e["event"] for e in hub.snapshot()["feed"]][-1] == "restart"
 
 
 @pytest.mark.slow
