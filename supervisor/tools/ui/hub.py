@@ -312,7 +312,7 @@ def _restart_entry(before: dict[str, Any], after: dict[str, Any]) -> dict[str, A
         "ts": after.get("started") or utc_now(),
         "requirement": "",
         "what": f"supervisor started: pid {after.get('pid')}",
-        "detail": f"the entries before this are the previous supervisor's "
+        "detail": f"the entries below are the previous supervisor's "
         f"(pid {before.get('pid')}, started {before.get('started')})",
         "tick": None,
     }

@@ -32,6 +32,7 @@ table { border-collapse: collapse; width: 100%; }
 td, th { text-align: left; padding: 3px 6px; border-bottom: 1px solid #eee; vertical-align: top; }
 /* a long name or value wraps inside its cell, never widens the table past its section */
 td { overflow-wrap: anywhere; }
+td button { overflow-wrap: normal; white-space: nowrap; }
 th { font-weight: 600; color: #555; }
 code { font-size: 12px; word-break: break-word; }
 .muted { color: #777; }
