@@ -9,6 +9,7 @@ leaving the page's origin.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import random
 import re
@@ -38,10 +39,11 @@ def iso(t: datetime) -> str:
 
 @contextmanager
 def page_of(
-    tmp_path: Path, doc: dict[str, Any], **server: Any
+    tmp_path: Path, doc: dict[str, Any], feed: list[dict[str, Any]] | None = None, **server: Any
 ) -> Iterator[tuple[Hub, Any, list[str], list[str], str]]:
     """The UI's server with ``doc`` shown, and its page in Chromium: (hub, page,
-    console, requests, socket path)."""
+    console, requests, socket path).  ``feed``: the requirements of a document sent
+    every 0.3 s from before the page opens (:func:`feeding`), so it stays live."""
     control = FakeControl(tmp_path / "ctl.sock")
     hub = Hub(lambda _doc: reset_availability(str(control.path), TOKEN))
     ui = UiServer(("127.0.0.1", 0), hub, TOKEN, lambda: str(control.path), **server)
@@ -49,11 +51,14 @@ def page_of(
     hub.on_status(doc)
     pw = None
     try:
-        pw, page, console, requests = open_page(ui.url())
-        page.wait_for_selector("tr.req, tr.input")
-        yield hub, page, console, requests, str(control.path)
-        assert console == [], console
-        assert all(u.startswith(ui.url()) for u in requests), requests
+        with contextlib.ExitStack() as stack:
+            if feed is not None:
+                stack.enter_context(feeding(hub, str(control.path), feed))
+            pw, page, console, requests = open_page(ui.url())
+            page.wait_for_selector("tr.req, tr.input")
+            yield hub, page, console, requests, str(control.path)
+            assert console == [], console
+            assert all(u.startswith(ui.url()) for u in requests), requests
     finally:
         if pw is not None:
             pw.stop()
@@ -110,23 +115,21 @@ def test_a_violation_reset_at_once_stays_shown_and_comes_first(tmp_path: Path) -
     """A policy resets a requirement within milliseconds: the page still shows it
     violated, in red, "violated N s ago" counting up, for ``--violated-for`` after
     each violation, and lists the most recently violated first."""
-    hold = 3.0
-    t0 = datetime.now(UTC)
+    hold = 5.0
     reqs = [requirement("a"), requirement("b"), requirement("c")]
     sock = str(tmp_path / "ctl.sock")
-    doc = status_doc(sock, now=iso(t0), requirements=reqs, events=[])
-    with page_of(tmp_path, doc, violated_for_s=hold) as (hub, page, _console, _req, sock):
+    doc = status_doc(sock, now=iso(datetime.now(UTC)), requirements=reqs, events=[])
+    with page_of(tmp_path, doc, feed=reqs, violated_for_s=hold) as (hub, page, _c, _r, sock):
         assert rows(page) == [(r, "holding", GREEN_BADGE) for r in "abc"]
 
         # c is violated and reset before the next document: the topic's record, then
-        # a document that says holding again
+        # documents that say it holds again
         hub.on_violation({"event": "violation", "requirement": "c", "tick": 7,
                           "ts": iso(datetime.now(UTC)), "inputs": {"x": 1}})  # fmt: skip
         seen_c = time.monotonic()
         reqs[2] = requirement("c", violations=1, last_violation=iso(datetime.now(UTC)))
-        with feeding(hub, sock, reqs):
-            wait_js(page, "document.querySelector('tr.req').dataset.requirement === 'c'")
-            held(page, hub, sock, reqs, seen_c, hold)
+        wait_js(page, "document.querySelector('tr.req').dataset.requirement === 'c'")
+        held(page, hub, sock, reqs, seen_c, hold)
 
 
 def held(
@@ -141,7 +144,7 @@ def held(
         ("a", "holding", GREEN_BADGE),
         ("b", "holding", GREEN_BADGE),
     ]
-    assert re.fullmatch(r"violated [0-2] s ago", badge(page, "c")), badge(page, "c")
+    assert re.fullmatch(r"violated \d s ago", badge(page, "c")), badge(page, "c")
 
     # b is violated later, seen in a document only (no violations topic): first
     t_b = datetime.now(UTC)
@@ -155,12 +158,12 @@ def held(
     ]
     # "N s ago" counts up
     wait_js(page, "document.querySelector(\"tr.req[data-requirement='c'] .state\")"
-            ".textContent.includes('violated 2 s ago')", 5)  # fmt: skip
+            ".textContent.match(/violated [2-9] s ago/)", 5)  # fmt: skip
 
     # past the hold, c shows the state the documents give (holding) again; the
     # order stays by recency
     wait_js(page, "document.querySelector(\"tr.req[data-requirement='c']\")"
-            ".dataset.state === 'holding'", 5)  # fmt: skip
+            ".dataset.state === 'holding'", hold + 5)  # fmt: skip
     assert time.monotonic() - seen_c >= hold - 0.3
     assert rows(page)[1] == ("c", "holding", GREEN_BADGE)
     assert [r[0] for r in rows(page)] == ["b", "c", "a"]
@@ -177,7 +180,7 @@ def test_a_latched_requirement_keeps_its_state_and_says_when_it_was_violated(
     with page_of(tmp_path, doc) as (_hub, page, _console, _requests, _sock):
         assert rows(page)[0][:2] == ("l", "latched")
         text = page.inner_text("tr.req[data-requirement='l'] td:nth-child(2)")
-        assert re.search(r"violated [0-2] s ago", text), text
+        assert re.search(r"violated \d+ s ago", text), text
 
 
 def test_the_hold_is_an_option_of_ui_and_bad_values_are_one_line() -> None:
