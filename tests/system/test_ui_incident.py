@@ -85,8 +85,8 @@ def test_an_incident_on_the_page_with_the_real_daemon(tmp_path: Path, robot_node
         badge = page.inner_text("tr.req[data-requirement='limit'] .state")
         assert badge.startswith("violated ") and badge.endswith(" s ago"), badge
 
-        # the daemon restarts: its first document marks the feed
-        d.terminate()
+        # the daemon dies and is started again: the new one's first document marks the feed
+        d.child.kill()
         d2 = Daemon(second, config)
         d2.wait_notify("READY=1", timeout=60)
         pid = d2.proc.pid
