@@ -374,3 +374,39 @@ def test_the_page_shows_a_daemon_restart_in_the_feed(tmp_path: Path) -> None:
             "l => [getComputedStyle(l).borderTopWidth, getComputedStyle(l).fontWeight]"
         )
         assert style == ["2px", "600"]
+
+
+@pytest.mark.ros
+def test_ui_serves_the_hold_it_was_given(tmp_path: Path) -> None:
+    """``ui --violated-for`` reaches the page the command serves (and the default
+    without it)."""
+    import sys
+
+    from rosutil import DOMAIN_ID
+
+    from supervisor.tools.children import Child, ros_env
+    from tests.system.test_ui import ROOT, free_port, http
+
+    token_file = tmp_path / "ui.token"
+    token_file.write_bytes(TOKEN + b"\n")
+    token_file.chmod(0o640)
+    for extra, shown in (["--violated-for", "7.5"], "7.5"), ([], "60.0"):
+        port = free_port()
+        argv = [sys.executable, "-m", "supervisor", "ui", "--bind", f"127.0.0.1:{port}",
+                "--token-file", str(token_file), *extra]  # fmt: skip
+        child = Child("ui", argv, env=ros_env(DOMAIN_ID), cwd=ROOT, stderr=tmp_path / "ui.err")
+        try:
+            deadline = time.monotonic() + 30
+            while True:
+                try:
+                    code, _headers, body = http(f"http://127.0.0.1:{port}/")
+                    break
+                except OSError:
+                    assert child.alive() and time.monotonic() < deadline, (
+                        tmp_path / "ui.err"
+                    ).read_text()
+                    time.sleep(0.1)
+            assert code == 200
+            assert f'const HOLD_S = Number("{shown}") >= 0' in body.decode(), extra
+        finally:
+            child.stop()
