@@ -10,7 +10,9 @@ Sybil finds the examples; the convention (docs/README.md, "Generated and execute
 - an example that cannot run here (it needs root, a robot, a running daemon) is
   preceded by ``<!-- skip: next "why" -->`` (Sybil's skip directive): reported as
   skipped with that reason, never silently;
-- any other block is not an example (a synopsis, a config), and may not hold a
+- a ```` ```yaml ```` block that begins with ``component:`` is a whole config: it
+  must pass ``safety-supervisor check`` (an excerpt begins with another key);
+- any other block is not an example (a synopsis, an excerpt), and may not hold a
   ``$ `` prompt line (test below).
 
 Each block runs in a fresh directory of its own, with its own HOME and XDG
@@ -110,6 +112,29 @@ def _run(example: Example, console: bool) -> str | None:
     return None
 
 
+def _check_config(example: Example) -> str | None:
+    """A whole config shown in the docs passes `check` (warnings allowed)."""
+    if not example.parsed.startswith("component:"):
+        return None
+    with tempfile.TemporaryDirectory(prefix="docs-config-") as tmp:
+        path = Path(tmp) / "shown.yaml"
+        path.write_text(example.parsed)
+        done = subprocess.run(
+            [sys.executable, "-m", "supervisor", "check", str(path)],
+            cwd=tmp,
+            env=_environment(Path(tmp)),
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+    if done.returncode != 0:
+        return f"the config shown does not pass check (exit {done.returncode}):\n" + "\n".join(
+            line for line in (done.stdout + done.stderr).splitlines() if not line.startswith("ok ")
+        )
+    return None
+
+
 def _evaluator(console: bool):  # noqa: ANN202 (Sybil's evaluator protocol)
     def evaluate(example: Example) -> str | None:
         return _run(example, console)
@@ -120,6 +145,7 @@ def _evaluator(console: bool):  # noqa: ANN202 (Sybil's evaluator protocol)
 PARSERS = [
     CodeBlockParser("console", _evaluator(console=True)),
     CodeBlockParser("sh", _evaluator(console=False)),
+    CodeBlockParser("yaml", _check_config),
     SkipParser(),
 ]
 
