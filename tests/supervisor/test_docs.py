@@ -114,3 +114,27 @@ def test_check_mode_exits_1_and_names_the_command_on_a_stale_file(tmp_path, monk
     monkeypatch.setattr(docs, "ROOT", root)
     assert docs.main(["--check"]) == 1
     assert docs.COMMAND in capsys.readouterr().err
+
+
+def test_the_options_described_by_hand_are_the_parsers():
+    """commands.md's hand-written option tables (the longer explanations beside the
+    generated tables) name only options the command has."""
+    from supervisor.cli import build_parser
+
+    parsers = docs._subparsers(build_parser())
+    unknown = []
+    section, header = None, ""
+    for line in (ROOT / docs.COMMANDS_MD).read_text().splitlines():
+        if m := re.match(r"^## (\S+)$", line):
+            section = m.group(1)
+        elif line.startswith("| ") and not line.startswith(("| `", "| ---")):
+            header = line
+        elif section in parsers and header.startswith("| option |") and line.startswith("| `-"):
+            known = {o for a in parsers[section]._actions for o in a.option_strings}
+            first = line.split("|")[1]
+            unknown += [
+                f"{section}: {o}"
+                for o in re.findall(r"(?<![\w-])(--?[a-z][\w-]*)", first)
+                if o not in known
+            ]
+    assert not unknown, unknown
