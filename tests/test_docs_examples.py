@@ -16,8 +16,8 @@ Sybil finds the examples; the convention (docs/README.md, "Generated and execute
   ``$ `` prompt line (test below).
 
 Each block runs in a fresh directory of its own, with its own HOME and XDG
-directories, ``config/`` and ``packaging/`` of the checkout linked in, and nothing of
-systemd's environment.
+directories, ``config/`` and ``packaging/`` of the checkout linked in, the test run's
+own ROS domain, and nothing of systemd's environment.
 """
 
 from __future__ import annotations
@@ -46,6 +46,8 @@ SKIPPED_AT_MOST = 12
 
 
 def _environment(home: Path) -> dict[str, str]:
+    from rosutil import ROS_ENV  # this test run's own DDS domain, localhost only
+
     env = {
         k: v
         for k, v in os.environ.items()
@@ -61,6 +63,7 @@ def _environment(home: Path) -> dict[str, str]:
         "PATH": f"{Path(sys.executable).parent}:{env.get('PATH', '/usr/bin:/bin')}",
         "COLUMNS": "100",
         "LC_ALL": "C.UTF-8",
+        **ROS_ENV,
     }
     return env
 
@@ -103,8 +106,8 @@ def _run(example: Example, console: bool) -> str | None:
             if want and EXIT.match(want[-1]):
                 status = int(EXIT.match(want[-1]).group(1))  # type: ignore[union-attr]
                 want.pop()
-            got = "\n".join(line.rstrip() for line in done.stdout.splitlines())
-            expected = "\n".join(line.rstrip() for line in want)
+            got = "\n".join(line.rstrip() for line in done.stdout.splitlines()).rstrip("\n")
+            expected = "\n".join(line.rstrip() for line in want).rstrip("\n")
             if done.returncode != status:
                 return f"$ {command}\nexit {done.returncode}, the doc shows {status}\n{got}"
             if console and not CHECKER.check_output(expected + "\n", got + "\n", doctest.ELLIPSIS):
@@ -154,7 +157,15 @@ def _examples(path: Path) -> list[Example]:
     return list(Document.parse(str(path), *PARSERS))
 
 
-@pytest.mark.parametrize("path", DOCS, ids=[str(p.relative_to(ROOT)) for p in DOCS])
+def _marks(path: Path) -> list[pytest.MarkDecorator]:
+    # The demo runs the daemon and the simulated robot over DDS (on the test's own
+    # ROS_DOMAIN_ID, which the examples inherit).
+    return [pytest.mark.ros] if "\n$ safety-supervisor demo " in path.read_text() else []
+
+
+@pytest.mark.parametrize(
+    "path", [pytest.param(p, marks=_marks(p), id=str(p.relative_to(ROOT))) for p in DOCS]
+)
 def test_the_shell_examples_print_what_the_docs_show(path: Path) -> None:
     failures: list[str] = []
     for example in _examples(path):
