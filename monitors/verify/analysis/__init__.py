@@ -41,6 +41,7 @@ within the memory limit), ``consistency`` and
 ``run`` (``analyse``, all of them in order)."""
 
 from monitors.verify.analysis.requirements import (
+    DEFAULT_RLIMIT,
     DEFAULT_TIMEOUT_S,
     Req,
     VarInfo,
@@ -72,6 +73,7 @@ def __getattr__(name: str) -> object:
 
 
 __all__ = [
+    "DEFAULT_RLIMIT",
     "DEFAULT_TIMEOUT_S",
     "SEVERITIES",
     "Analysis",
