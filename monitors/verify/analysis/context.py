@@ -211,11 +211,11 @@ class Context:
         xs = self.at(self.reqs[rid].activation)
         return self.lit(("fired", rid, n), lambda: z3.Or(xs[:n]) if n > 1 else xs[0])
 
-    def check(self, lits: Sequence[z3.BoolRef]) -> z3.CheckSatResult:
+    def check(self, lits: Sequence[z3.BoolRef], rlimit: int | None = None) -> z3.CheckSatResult:
         """z3's answer; OutOfTime when z3 gave up because the budget ran out (its own
         timer may stop it a little before the deadline), so the analysis is reported
         as stopped by the budget rather than as undecided."""
-        r = self.run(self.solver, lits)
+        r = self.run(self.solver, lits, rlimit)
         if r == z3.unknown and self.stopped_by is Limit.SOLVER_TIMEOUT:
             if self.deadline is not None and self.last_cap_ms < self.per_call_ms:
                 raise OutOfTime()
