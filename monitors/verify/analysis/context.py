@@ -89,6 +89,7 @@ class Context:
         self.stopped_by: Limit | None = None
         self.last_steps = 0  # z3's resource units the last call took
         self.last_cap_ms = self.per_call_ms  # its wall-clock cap
+        self.max_steps = 0  # the most any one call took (bench: choosing analysis.rlimit)
         self.deadline = deadline  # time.monotonic() when the analyses' budget runs out
         self.vars = vars_
         self.types = {v.name: v.type for v in vars_.values()}
@@ -148,6 +149,7 @@ class Context:
         before = steps_taken(s)
         r = s.check(*assumptions)
         self.last_steps = steps_taken(s) - before
+        self.max_steps = max(self.max_steps, self.last_steps)
         self.last_cap_ms = timeout
         if r == z3.unknown:
             # z3 words both limits alike ("canceled"): the count of steps tells them apart

@@ -91,6 +91,8 @@ class Analysis:
     find_examples: ExampleFinder | None = field(default=None, repr=False)
     # analysis name -> why it was skipped or stopped (the time budget, docs/reference/faults.md)
     skipped: dict[str, Skip] = field(default_factory=dict)
+    # the most z3 resource units one query of the analyses took (analysis.rlimit)
+    max_steps: int = 0
 
     @property
     def errors(self) -> list[Finding]:

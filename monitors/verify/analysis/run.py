@@ -99,6 +99,7 @@ def analyse(
     seconds, skipped, memout = steps.seconds, steps.skipped, steps.memout
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
+    max_steps = ctx.max_steps
     findings.sort(key=lambda f: order[f.severity])
     return Analysis(
         k,
@@ -111,6 +112,7 @@ def analyse(
         seconds,
         None if memout else partial(examples, ctx),
         skipped,
+        max_steps,
     )
 
 
