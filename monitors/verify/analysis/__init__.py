@@ -37,7 +37,8 @@ The modules, one job each: ``requirements`` (what is analysed), ``results``
 (what is reported), ``context`` (the shared solver), ``solvers`` (every solver
 within the memory limit), ``consistency`` and
 ``conflicts``, ``realizability`` with ``game``, ``arena`` and ``exists_forall``,
-``vacuity``, ``redundancy``, ``examples`` (example traces for the report), and
+``vacuity``, ``redundancy``, ``examples`` (example traces for the report) with
+``readable`` (readable values in them), and
 ``run`` (``analyse``, all of them in order)."""
 
 from monitors.verify.analysis.requirements import (
