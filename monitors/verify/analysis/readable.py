@@ -16,8 +16,9 @@ from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.results import Trace
 from monitors.verify.bmc import OutOfTime, z3_value
 
-# The polishing calls get this share of the resource limit each: a trace the
-# solver found is kept as it is rather than spending the analyses' budget on looks.
+# The polishing calls of one trace get this share of the resource limit together: a
+# trace the solver found is kept as it is rather than spending the analyses' budget
+# on looks.
 RLIMIT_SHARE = 10
 MAX_TRIES = 48  # solver calls for the cell-by-cell fallback
 SIGNIFICANT = 6  # digits a readable number has at most
@@ -102,12 +103,13 @@ def _polished(
         x, vt = ctx.rows[t][name], ctx.types[name]
         return z3.Or([_is(x, vt, c) for c in cands[vt]])
 
-    units = max(1, ctx.rlimit // RLIMIT_SHARE)
+    left = max(1, ctx.rlimit // RLIMIT_SHARE)
     every = ctx.fresh_lit("readable", lambda: z3.And([one_of(t, m) for t, m in cells]))
-    if ctx.check([*lits, every], rlimit=units) == z3.sat:
+    if ctx.check([*lits, every], rlimit=left) == z3.sat:
         return ctx.model_trace(ctx.solver.model(), n)
     trace = ctx.model_trace(model, n)
     fixed: list[z3.BoolRef] = []
+    left -= ctx.last_steps
     tries = MAX_TRIES
     for t, name in cells:
         v = trace[t][name]
@@ -116,12 +118,14 @@ def _polished(
         if isinstance(v, int) and not isinstance(v, bool) and abs(v) < 10**SIGNIFICANT:
             continue
         for c in cands[ctx.types[name]]:
-            if tries == 0:
+            if tries == 0 or left <= 0:
                 break
             tries -= 1
             x, vt = ctx.rows[t][name], ctx.types[name]
             lit = ctx.fresh_lit("readable", lambda x=x, vt=vt, c=c: _is(x, vt, c))
-            if ctx.check([*lits, *fixed, lit], rlimit=units) == z3.sat:
+            found = ctx.check([*lits, *fixed, lit], rlimit=left) == z3.sat
+            left -= ctx.last_steps
+            if found:
                 fixed.append(lit)
                 model = ctx.solver.model()
                 break
