@@ -16,9 +16,10 @@ from monitors.verify.analysis.context import Context
 from monitors.verify.analysis.results import Trace
 from monitors.verify.bmc import OutOfTime, z3_value
 
-# The polishing calls of one trace get this share of the resource limit together: a
-# trace the solver found is kept as it is rather than spending the analyses' budget
-# on looks.
+# The polishing of one trace gets this share of the resource limit for the one call
+# asking for every value readable, and the same again for the cell-by-cell fallback
+# together: a trace the solver found is kept as it is rather than spending the
+# analyses' budget on looks.
 RLIMIT_SHARE = 10
 MAX_TRIES = 48  # solver calls for the cell-by-cell fallback
 SIGNIFICANT = 6  # digits a readable number has at most
@@ -109,7 +110,7 @@ def _polished(
         return ctx.model_trace(ctx.solver.model(), n)
     trace = ctx.model_trace(model, n)
     fixed: list[z3.BoolRef] = []
-    left -= ctx.last_steps
+    left = max(1, ctx.rlimit // RLIMIT_SHARE)
     tries = MAX_TRIES
     for t, name in cells:
         v = trace[t][name]
