@@ -25,7 +25,10 @@ MITIGATION_KINDS = ("publish", "ssh", "command", "log")
 PUBLISH_QOS = ("latched", "reliable", "best_effort")  # latched: reliable + transient_local
 # Keys of a mitigation's mapping beside its kind; retries and timeout_s there
 # count as settings of the kinds that have them.
-ENTRY_KEYS = {"retries", "timeout_s", "description"}
+ENTRY_KEYS = {"retries", "timeout_s", "description", "expected"}
+# ``expected``: why the warnings ``check`` gives about this mitigation are expected
+# in this config, printed at the end of each (docs/reference/config.md, "mitigations").
+MAX_EXPECTED_CHARS = 300
 
 # kind: (required settings, allowed settings)
 SETTING_KEYS: dict[str, tuple[set[str], set[str]]] = {
@@ -110,6 +113,7 @@ class Mitigation:
     kind: str  # one of MITIGATION_KINDS
     line: int | None
     settings: Settings
+    expected: str = ""  # why check's warnings about it are expected here
 
 
 class SettingsError(ValueError):
@@ -157,7 +161,25 @@ def parse_mitigation(name: str, entry: Mapping[str, Any], line: int | None = Non
             if k in allowed:
                 _check_types(name, kind, {k: entry[k]}, k)
             params[k] = entry[k]  # kept as written even where the kind ignores it
-    return Mitigation(name, kind, line, _typed(kind, params))
+    return Mitigation(name, kind, line, _typed(kind, params), _expected(name, entry))
+
+
+def _expected(name: str, entry: Mapping[str, Any]) -> str:
+    """The entry's ``expected`` reason: one line of text, bounded."""
+    text = entry.get("expected", "")
+    if text is None:
+        return ""
+    if (
+        not isinstance(text, str)
+        or len(text) > MAX_EXPECTED_CHARS
+        or any(not c.isprintable() for c in text)
+    ):
+        raise SettingsError(
+            f"mitigation '{name}': expected must be one line of text of at most "
+            f"{MAX_EXPECTED_CHARS} characters (why check's warnings about it are expected)",
+            "expected",
+        )
+    return text.strip()
 
 
 def parse_settings(kind: str, params: Mapping[str, Any], name: str = "") -> Settings:

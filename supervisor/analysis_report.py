@@ -20,6 +20,7 @@ BUDGET_KEY = "limits.analysis_budget_s"
 # Each limit of the analyses as the user sets it (docs/reference/config.md).
 SETTING = {
     Limit.TRACE_LENGTH: "analysis.k",
+    Limit.SOLVER_RLIMIT: "analysis.rlimit",
     Limit.SOLVER_TIMEOUT: "analysis.timeout_s",
     Limit.TIME_BUDGET: BUDGET_KEY,
     Limit.MEMORY: "limits.analysis_memory_mb",

@@ -204,10 +204,12 @@ def cmd_check(args: argparse.Namespace) -> int:
     from monitors.backends.load import load_monitor
     from supervisor.analysis_report import format_analysis
     from supervisor.pipeline import monitor_library
+    from supervisor.progress import Progress
     from supervisor.validation import validate
 
     t0 = time.perf_counter()
-    checked = validate(args.config, args.k)  # the same validation as run and reload
+    progress = Progress()  # one line per stage on stderr, only on a terminal
+    checked = validate(args.config, args.k, progress)  # the same validation as run and reload
     project = checked.project
     failures = _print_project(project)
     _print_variables(project)
@@ -223,7 +225,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     elif checked.report is not None:  # from the start-up cache (supervisor/cache.py)
         _out(checked.report)
     spec = project.spec()
-    with tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp:
+    with (
+        progress.stage("compile"),
+        tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp,
+    ):
         load_monitor(monitor_library(spec, Path(tmp), checked.cache, checked.key), spec)
     dt = time.perf_counter() - t0
     if checked.errors:

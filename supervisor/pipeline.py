@@ -305,6 +305,7 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
     errors: list[UserError] = []
     warnings: list[str] = []
     for m in cfg.mitigations.values():
+        found = len(warnings)
         s = m.settings
         if isinstance(s, PublishSettings):
             if ros:
@@ -330,6 +331,8 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
 
             for problem in preflight(s):
                 warnings.append(f"{cfg.path}:{m.line}: mitigation '{m.name}': {problem}")
+        if m.expected:  # the config says why: each of its warnings carries the reason
+            warnings[found:] = [f"{w} (expected here: {m.expected})" for w in warnings[found:]]
     return errors, warnings
 
 

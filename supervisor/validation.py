@@ -20,8 +20,9 @@ from monitors.ir.spec import Define, expand_defines
 from monitors.verify.analysis import Analysis, Finding, Req, VarInfo, activation
 from supervisor.analysis_report import fix_text, format_analysis
 from supervisor.cache import Cache
-from supervisor.config import ConfigSource
-from supervisor.pipeline import Project, project_for
+from supervisor.config import ConfigSource, load_config
+from supervisor.pipeline import Project, build_project
+from supervisor.progress import Progress
 
 # ------------------------------------------------------------------ project -> analysis
 
@@ -49,9 +50,11 @@ def project_requirements(project: Project) -> tuple[list[Req], list[VarInfo]]:
     return reqs, roles
 
 
-def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
+def analyse_project(
+    project: Project, k: int | None = None, progress: Progress | None = None
+) -> Analysis | None:
     """The analyses with the config's settings (``k`` overrides analysis.k); None
-    when the config switches them off."""
+    when the config switches them off.  ``progress`` shows each analysis."""
     settings = project.config.analysis
     if not settings.enabled:
         return None
@@ -64,8 +67,10 @@ def analyse_project(project: Project, k: int | None = None) -> Analysis | None:
         roles,
         k=k or settings.k,
         timeout_s=settings.timeout_s,
+        rlimit=settings.rlimit,
         budget_s=limits.analysis_budget_s,
         memory_mb=max(1, round(limits.analysis_memory_mb)),
+        progress=None if progress is None else progress.step,
     )
 
 
@@ -115,11 +120,19 @@ class Validation:
         )
 
 
-def validate(config: str | Path | ConfigSource, k: int | None = None) -> Validation:
+def validate(
+    config: str | Path | ConfigSource, k: int | None = None, progress: Progress | None = None
+) -> Validation:
     """The one validation of a config, for ``check``, ``run`` and reload alike (the
-    daemon through :class:`supervisor.analysis_child.Aside`)."""
+    daemon through :class:`supervisor.analysis_child.Aside`); ``progress`` shows
+    each stage (``check`` on a terminal)."""
+    progress = progress or Progress(on=False)
     cache = open_cache()
-    return validate_project(project_for(config), k, cache)
+    with progress.stage("parse"):
+        cfg = load_config(config)
+    with progress.stage("formalize"):
+        project = build_project(cfg)
+    return validate_project(project, k, cache, progress=progress)
 
 
 def validate_project(
@@ -127,6 +140,7 @@ def validate_project(
     k: int | None = None,
     cache: Cache | None = None,
     key: str | None = None,
+    progress: Progress | None = None,
 ) -> Validation:
     """:func:`validate` of a loaded project: the analyses' findings from the start-up
     cache when it holds them, else the analyses (whose complete results are stored)."""
@@ -139,7 +153,7 @@ def validate_project(
     cached = cached_findings(project, cache, key)
     if cached is not None:
         return cached
-    analysis = analyse_project(project, k)
+    analysis = analyse_project(project, k, progress)
     assert analysis is not None  # enabled, as judged above
     checked = Validation(project, analysis, partial(analysis.findings), cache=cache, key=key)
     if cache is not None and key is not None and checked.skipped is None:
@@ -208,7 +222,7 @@ def startup_key(
     spec = project.spec()
     reqs, roles = project_requirements(project)
     limits = (cfg.limits.analysis_budget_s, cfg.limits.analysis_memory_mb)
-    settings = (cfg.analysis.k, cfg.analysis.timeout_s, cfg.analysis.enabled)
+    settings = (cfg.analysis.k, cfg.analysis.rlimit, cfg.analysis.timeout_s, cfg.analysis.enabled)
     h = hashlib.sha256()
     for part in (
         "safety-supervisor start-up cache 1",

@@ -1,4 +1,5 @@
-"""The ``analysis:`` section: the trace length, the time per solver call, and
+"""The ``analysis:`` section: the trace length, z3's resource limit and the
+wall-clock cap per solver call, and
 whether ``check``, ``run`` and reload analyse at all (docs/reference/config.md).
 
 Read with the rest of the file, so that its errors carry their line without the
@@ -12,19 +13,21 @@ from dataclasses import dataclass
 from typing import Any
 
 from monitors.errors import UserError
-from monitors.verify.analysis.requirements import DEFAULT_TIMEOUT_S
+from monitors.verify.analysis.requirements import DEFAULT_RLIMIT, DEFAULT_TIMEOUT_S
 from supervisor.config.fields import as_mapping
 from supervisor.config.yamlload import LineDict
 
-ANALYSIS_KEYS = {"k", "timeout_s", "enabled"}
+ANALYSIS_KEYS = {"k", "rlimit", "timeout_s", "enabled"}
 MAX_K = 100_000  # ticks; far past what the analyses' memory limit lets run
+MAX_RLIMIT = 2**32 - 1  # z3 takes the resource limit as an unsigned 32-bit number
 
 
 @dataclass(frozen=True)
 class AnalysisConfig:
     k: int | None = None  # None: the analyses' default_k
-    timeout_s: float = DEFAULT_TIMEOUT_S  # one solver call
+    timeout_s: float = DEFAULT_TIMEOUT_S  # wall-clock cap per solver call (a safety net)
     enabled: bool = True
+    rlimit: int = DEFAULT_RLIMIT  # z3 resource units per solver call (deterministic)
 
 
 def load_analysis(doc: LineDict, file: str) -> AnalysisConfig:
@@ -67,5 +70,16 @@ def load_analysis(doc: LineDict, file: str) -> AnalysisConfig:
             file=file,
             line=line("timeout_s"),
         )
+    rlimit: Any = sec.get("rlimit", DEFAULT_RLIMIT)
+    try:
+        rlimit = int(str(rlimit))
+    except ValueError:
+        rlimit = 0
+    if not 1 <= rlimit <= MAX_RLIMIT:
+        raise UserError(
+            f"analysis.rlimit must be a whole number of z3 resource units from 1 to {MAX_RLIMIT}",
+            file=file,
+            line=line("rlimit"),
+        )
     enabled = str(sec.get("enabled", True)).lower() not in ("false", "no", "0", "off")
-    return AnalysisConfig(k, timeout, enabled)
+    return AnalysisConfig(k, timeout, enabled, rlimit)

@@ -536,10 +536,17 @@ SECTIONS: tuple[Section, ...] = (
                 "length of the analysed traces in ticks (`--k` overrides it)",
             ),
             Key(
+                "rlimit",
+                "whole number, 1 to 4294967295",
+                "`{}`",
+                "z3's resource limit per query: a count of z3's own steps, so the same config gives the same findings on any machine and under any load. A query that reaches it is reported as `z3 gave up: resource limit N` (raise it to decide more)",
+                default_of="supervisor.config.analysis:AnalysisConfig.rlimit",
+            ),
+            Key(
                 "timeout_s",
                 "number > 0",
                 "`{}`",
-                "per z3 query; a query that runs out is reported as not decided",
+                "wall-clock cap per z3 query, a safety net far above what `rlimit` takes; a query it stops is reported as `z3 gave up: wall-clock cap S s`",
                 default_of="supervisor.config.analysis:AnalysisConfig.timeout_s",
             ),
             Key(

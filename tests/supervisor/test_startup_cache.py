@@ -267,3 +267,24 @@ def test_parser_tables_others_can_write_are_not_loaded(site: Site) -> None:
     r = site.check()
     assert r.returncode == 0, r.stdout + r.stderr
     assert table.read_bytes() == b"not lark's"  # neither read nor replaced
+
+
+def test_the_analyses_resource_limit_is_in_the_key(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # z3's resource count decides which findings a budgeted analysis reaches: cached
+    # findings of one limit must not stand for another (the same file bytes can mean
+    # another limit when the default changes, so the key takes the value itself).
+    from dataclasses import replace
+
+    from supervisor.pipeline import project_for
+    from supervisor.validation import open_cache, startup_key
+
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
+    project = project_for(SROBOT)
+    _, before = startup_key(project, None, open_cache())
+    _, again = startup_key(project, None, open_cache())
+    analysis = project.config.analysis
+    object.__setattr__(project.config, "analysis", replace(analysis, rlimit=analysis.rlimit + 1))
+    _, after = startup_key(project, None, open_cache())
+    assert before is not None and before == again and after is not None and before != after

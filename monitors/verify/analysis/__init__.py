@@ -37,10 +37,12 @@ The modules, one job each: ``requirements`` (what is analysed), ``results``
 (what is reported), ``context`` (the shared solver), ``solvers`` (every solver
 within the memory limit), ``consistency`` and
 ``conflicts``, ``realizability`` with ``game``, ``arena`` and ``exists_forall``,
-``vacuity``, ``redundancy``, ``examples`` (example traces for the report), and
+``vacuity``, ``redundancy``, ``examples`` (example traces for the report) with
+``readable`` (readable values in them), and
 ``run`` (``analyse``, all of them in order)."""
 
 from monitors.verify.analysis.requirements import (
+    DEFAULT_RLIMIT,
     DEFAULT_TIMEOUT_S,
     Req,
     VarInfo,
@@ -72,6 +74,7 @@ def __getattr__(name: str) -> object:
 
 
 __all__ = [
+    "DEFAULT_RLIMIT",
     "DEFAULT_TIMEOUT_S",
     "SEVERITIES",
     "Analysis",

@@ -198,7 +198,6 @@ def _atom_solver(ctx: Context, fs: list[Formula]) -> tuple[z3.Solver, list[z3.Bo
     names = list(dict.fromkeys(v for f in fs for v in variables(f)))
     row = fresh_row(ctx.types, names, "atom")
     s = ctx.new_solver()
-    s.set(timeout=ctx.timeout_ms)
     for n in names:
         if n in ctx.ranges:
             s.add(tick_encoding(ctx.types, ctx.ranges[n], row))
@@ -211,7 +210,7 @@ def _feasible(ctx: Context, fs: list[Formula]) -> list[tuple[bool, ...]]:
     s, xs, _ = _atom_solver(ctx, fs)
     combos = []
     while True:
-        r = s.check()
+        r = ctx.run(s)
         if r == z3.unknown:
             raise NoAbstraction("feasible comparisons not decided")
         if r == z3.unsat:
@@ -226,7 +225,7 @@ def _realize(ctx: Context, fs: list[Formula], want: list[bool]) -> dict[str, z3.
     """Values within the ranges that give the comparisons ``fs`` the truth values ``want``."""
     s, xs, row = _atom_solver(ctx, fs)
     s.add([x == z3.BoolVal(v) for x, v in zip(xs, want, strict=True)])
-    assert s.check() == z3.sat, "a feasible comparison combination has no values"
+    assert ctx.run(s) == z3.sat, "a feasible comparison combination has no values"
     m = s.model()
     return {n: m.eval(x, model_completion=True) for n, x in row.items()}
 

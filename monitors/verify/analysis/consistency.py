@@ -20,7 +20,7 @@ def consistency(ctx: Context, findings: list[Finding]) -> tuple[bool | None, str
     if r == z3.sat:
         return True, f"consistent: a {k}-tick trace satisfies all {len(ctx.reqs)} requirements"
     if r != z3.unsat:
-        return None, f"unknown: z3 gave up ({ctx.solver.reason_unknown()})"
+        return None, f"unknown: {ctx.stop_text()}"
     active = list(items)
     for _ in range(5):  # report independent conflicts, not only the first
         core = ctx.minimal_core(active, k)

@@ -10,9 +10,9 @@ from collections.abc import Callable, Iterable, Sequence
 import z3
 
 from monitors.ir.formula import Formula, variables
-from monitors.verify.analysis.requirements import Req, VarInfo, range_formula
-from monitors.verify.analysis.results import Trace
-from monitors.verify.analysis.solvers import solver
+from monitors.verify.analysis.requirements import DEFAULT_RLIMIT, Req, VarInfo, range_formula
+from monitors.verify.analysis.results import Limit, Trace
+from monitors.verify.analysis.solvers import solver, steps_taken
 from monitors.verify.bmc import (
     Encoder,
     OutOfTime,
@@ -79,10 +79,17 @@ class Context:
         timeout_s: float,
         deadline: float | None = None,
         memory_mb: int | None = None,
+        rlimit: int = DEFAULT_RLIMIT,
     ) -> None:
         self.k = k
         self.memory_mb = memory_mb
-        self.per_call_ms = int(timeout_s * 1000)  # one solver call
+        self.rlimit = rlimit  # z3 resource units per solver call
+        self.per_call_ms = int(timeout_s * 1000)  # the wall-clock cap per solver call
+        # which limit stopped the last solver call that gave up (None: neither)
+        self.stopped_by: Limit | None = None
+        self.last_steps = 0  # z3's resource units the last call took
+        self.last_cap_ms = self.per_call_ms  # its wall-clock cap
+        self.max_steps = 0  # the most any one call took (bench: choosing analysis.rlimit)
         self.deadline = deadline  # time.monotonic() when the analyses' budget runs out
         self.vars = vars_
         self.types = {v.name: v.type for v in vars_.values()}
@@ -124,6 +131,45 @@ class Context:
         check_deadline(self.deadline)
         left = int((self.deadline - time.monotonic()) * 1000)
         return max(1, min(self.per_call_ms, left))
+
+    def run(
+        self,
+        s: z3.Solver,
+        assumptions: Sequence[z3.BoolRef] = (),
+        rlimit: int | None = None,
+        cap_ms: int | None = None,
+    ) -> z3.CheckSatResult:
+        """``s.check(*assumptions)`` within z3's resource limit (``rlimit``, default
+        the context's) and, as a safety net, the wall-clock cap (at most ``cap_ms``);
+        when z3 gives up, ``stopped_by`` says which limit stopped it, and
+        ``last_steps`` is what the call took (every solver call starts here)."""
+        units = max(1, self.rlimit if rlimit is None else rlimit)
+        timeout = self.timeout_ms if cap_ms is None else max(1, min(cap_ms, self.timeout_ms))
+        s.set(rlimit=units, timeout=timeout)
+        before = steps_taken(s)
+        r = s.check(*assumptions)
+        self.last_steps = steps_taken(s) - before
+        self.max_steps = max(self.max_steps, self.last_steps)
+        self.last_cap_ms = timeout
+        if r == z3.unknown:
+            # z3 words both limits alike ("canceled"): the count of steps tells them apart
+            why = s.reason_unknown()
+            self.stopped_by = (
+                Limit.SOLVER_RLIMIT
+                if self.last_steps >= units or "resource limit" in why
+                else Limit.SOLVER_TIMEOUT
+                if "timeout" in why or "canceled" in why
+                else None
+            )
+        return r
+
+    def stop_text(self) -> str:
+        """What stopped the last solver call that gave up, for a finding's message."""
+        if self.stopped_by is Limit.SOLVER_RLIMIT:
+            return f"z3 gave up: resource limit {self.rlimit}"
+        if self.stopped_by is Limit.SOLVER_TIMEOUT:
+            return f"z3 gave up: wall-clock cap {self.per_call_ms / 1000:g} s"
+        return "z3 gave up (its methods are incomplete here)"
 
     # -------------------------------------------------------------- building blocks
 
@@ -167,15 +213,14 @@ class Context:
         xs = self.at(self.reqs[rid].activation)
         return self.lit(("fired", rid, n), lambda: z3.Or(xs[:n]) if n > 1 else xs[0])
 
-    def check(self, lits: Sequence[z3.BoolRef]) -> z3.CheckSatResult:
+    def check(self, lits: Sequence[z3.BoolRef], rlimit: int | None = None) -> z3.CheckSatResult:
         """z3's answer; OutOfTime when z3 gave up because the budget ran out (its own
         timer may stop it a little before the deadline), so the analysis is reported
         as stopped by the budget rather than as undecided."""
-        timeout = self.timeout_ms
-        self.solver.set(timeout=timeout)
-        r = self.solver.check(*lits)
-        if r == z3.unknown and self.deadline is not None and timeout < self.per_call_ms:
-            raise OutOfTime()
+        r = self.run(self.solver, lits, rlimit)
+        if r == z3.unknown and self.stopped_by is Limit.SOLVER_TIMEOUT:
+            if self.deadline is not None and self.last_cap_ms < self.per_call_ms:
+                raise OutOfTime()
         return r
 
     def minimal_core(

@@ -7,7 +7,9 @@ from collections.abc import Callable
 
 import z3
 
+from monitors.ir.formula import variables
 from monitors.verify.analysis.context import Context
+from monitors.verify.analysis.readable import readable_trace
 from monitors.verify.analysis.results import Example, Trace
 from monitors.verify.analysis.wording import and_list
 
@@ -52,8 +54,9 @@ def _example_for(
     others = [i for i in ctx.assumption_items() + ctx.all_items() if i != rid]
     others = list(dict.fromkeys(others))
     for n in range(1, ctx.k + 1):
-        if ctx.check([*base(n), *(ctx.ok_lit(i, n) for i in others)]) == z3.sat:
-            trace = ctx.model_trace(ctx.solver.model(), n)
+        lits = [*base(n), *(ctx.ok_lit(i, n) for i in others)]
+        if ctx.check(lits) == z3.sat:
+            trace = readable_trace(ctx, lits, n, _shown(ctx, [rid]))
             ctx.assert_agrees(trace, others, viol)
             note = f"a {n}-tick trace where {what} and every other requirement holds"
             return _example(ctx, trace, [rid], note)
@@ -64,13 +67,21 @@ def _example_for(
         for i in others:
             if ctx.check([*base(n), *(ctx.ok_lit(j, n) for j in [*kept, i])]) == z3.sat:
                 kept.append(i)
-        assert ctx.check([*base(n), *(ctx.ok_lit(j, n) for j in kept)]) == z3.sat
-        trace = ctx.model_trace(ctx.solver.model(), n)
-        ctx.assert_agrees(trace, kept, viol)
+        lits = [*base(n), *(ctx.ok_lit(j, n) for j in kept)]
+        assert ctx.check(lits) == z3.sat
         broken = [i for i in others if i not in kept]
+        trace = readable_trace(ctx, lits, n, _shown(ctx, [rid, *broken]))
+        ctx.assert_agrees(trace, kept, viol)
         note = f"a {n}-tick trace where {what}; only possible by also breaking {and_list(broken)}"
         return _example(ctx, trace, [rid, *(b for b in broken if b in ctx.reqs)], note)
     return None
+
+
+def _shown(ctx: Context, ids: list[str]) -> list[str]:
+    """The variables an example's table shows (``Context.columns``)."""
+    return list(
+        dict.fromkeys(v for i in ids if i in ctx.reqs for v in variables(ctx.reqs[i].formula))
+    )
 
 
 def _example(ctx: Context, trace: Trace, ids: list[str], note: str) -> Example:

@@ -71,9 +71,7 @@ class Game:
         win = z3.And([self._tick(i, row) for i in self.out_items] or [z3.BoolVal(True)])
         ivars = [row[n] for n in self.ins]
         ovars = [row[n] for n in self.outs]
-        status, model = exists_forall(
-            z3.And(env, z3.Not(win)), ivars, ovars, ctx.timeout_ms, ctx.memory_mb
-        )
+        status, model = exists_forall(ctx, z3.And(env, z3.Not(win)), ivars, ovars)
         if status == "unsat":
             return (
                 "realizable, proved for all time: every requirement is a per-tick invariant, "
@@ -82,7 +80,7 @@ class Game:
             )
         if status == "unknown":
             self._unknown(findings, "per-tick")
-            return "unknown (z3 could not decide within the time limit)"
+            return f"unknown ({ctx.stop_text()})"
         assert model is not None
         pinned = {n: model.eval(row[n], model_completion=True) for n in self.ins}
         self._defeat(findings, [pinned], 0)
@@ -124,13 +122,7 @@ class Game:
         win = z3.And([self.win_at(t, n) for t in range(n)])
         ivars = [v for t in range(n) for v in self.vars_at(self.arena.ins, t)]
         ovars = [v for t in range(n) for v in self.vars_at(self.arena.outs, t)]
-        return exists_forall(
-            z3.And(self.env_ok(n), z3.Not(win)),
-            ivars,
-            ovars,
-            self.ctx.timeout_ms,
-            self.ctx.memory_mb,
-        )
+        return exists_forall(self.ctx, z3.And(self.env_ok(n), z3.Not(win)), ivars, ovars)
 
     def causal(self, n: int) -> str:
         """The bounded game: forall i0 exists o0 forall i1 exists o1 ... (outputs at
@@ -143,9 +135,8 @@ class Game:
             if i:
                 body = z3.ForAll(i, body)
         s = self.ctx.new_solver()
-        s.set(timeout=self.ctx.timeout_ms)
         s.add(body)
-        r = s.check()
+        r = self.ctx.run(s)
         return "sat" if r == z3.sat else "unsat" if r == z3.unsat else "unknown"
 
     def bounded(self, findings: list[Finding]) -> tuple[str, str]:
@@ -187,9 +178,9 @@ class Game:
                     f"only the weaker check passed: for every input sequence of {k} ticks "
                     "there are outputs satisfying the guarantees, but those outputs may depend "
                     "on future inputs; whether a controller that only knows past and present "
-                    f"inputs exists was not decided within {ctx.per_call_ms / 1000:g} s",
+                    f"inputs exists was not decided ({ctx.stop_text()})",
                     "lower the time bounds / k",
-                    remedy=Remedy(Limit.SOLVER_TIMEOUT),
+                    remedy=self._remedy(),
                 )
             )
             return (
@@ -233,12 +224,17 @@ class Game:
                 "realizability",
                 "warning",
                 tuple(self.guarantees),
-                f"realizability ({what}) not decided: z3 gave up within "
-                f"{self.ctx.per_call_ms / 1000:g} s (double arithmetic is the usual cause)",
+                f"realizability ({what}) not decided: {self.ctx.stop_text()} "
+                "(double arithmetic is the usual cause)",
                 "give the double variables ranges",
-                remedy=Remedy(Limit.SOLVER_TIMEOUT),
+                remedy=self._remedy(),
             )
         )
+
+    def _remedy(self) -> Remedy:
+        """The limit to raise: the one that stopped z3 (its resource limit when z3
+        stopped for neither, as more steps may still decide it)."""
+        return Remedy(self.ctx.stopped_by or Limit.SOLVER_RLIMIT)
 
     def _defeat(
         self, findings: list[Finding], pinned: list[dict[str, z3.ExprRef]], last: int

@@ -1,7 +1,7 @@
 """What the analyses report: findings, example traces, and the whole analysis.
 
-The analyses speak of their own limits (the trace length, the time per solver
-call, the time budget, z3's memory) as :class:`Limit` values, never by the name a
+The analyses speak of their own limits (the trace length, z3's resource limit
+and the wall-clock cap per solver call, the time budget, z3's memory) as :class:`Limit` values, never by the name a
 caller gives them (a config key, a command-line option): the caller words them
 (supervisor/analysis_report.py for the supervisor's ``check`` and ``explain``).
 """
@@ -23,7 +23,8 @@ class Limit(enum.Enum):
     """A limit the caller sets on the analyses (the arguments of ``analyse``)."""
 
     TRACE_LENGTH = "k"  # ticks per analysed trace
-    SOLVER_TIMEOUT = "timeout_s"  # seconds per solver call
+    SOLVER_RLIMIT = "rlimit"  # z3 resource units per solver call (deterministic)
+    SOLVER_TIMEOUT = "timeout_s"  # wall-clock cap per solver call (a safety net)
     TIME_BUDGET = "budget_s"  # seconds for all the analyses together
     MEMORY = "memory_mb"  # what z3 may hold
 
@@ -90,6 +91,8 @@ class Analysis:
     find_examples: ExampleFinder | None = field(default=None, repr=False)
     # analysis name -> why it was skipped or stopped (the time budget, docs/reference/faults.md)
     skipped: dict[str, Skip] = field(default_factory=dict)
+    # the most z3 resource units one query of the analyses took (analysis.rlimit)
+    max_steps: int = 0
 
     @property
     def errors(self) -> list[Finding]:

@@ -15,6 +15,7 @@ from monitors.verify.analysis.examples import examples
 from monitors.verify.analysis.realizability import realizability
 from monitors.verify.analysis.redundancy import redundancy
 from monitors.verify.analysis.requirements import (
+    DEFAULT_RLIMIT,
     DEFAULT_TIMEOUT_S,
     Req,
     VarInfo,
@@ -33,6 +34,12 @@ ANALYSES = ("consistency", "realizability", "vacuity", "redundancy")
 # budget at this rate is not started.
 CELLS_PER_S = 200_000
 BUDGET, MEMORY = Limit.TIME_BUDGET, Limit.MEMORY
+# A stage's name and, once it has ended, its seconds (None when it starts).
+Progress = Callable[[str, float | None], None]
+
+
+def _silent(name: str, seconds: float | None) -> None:
+    """No progress to show."""
 
 
 def analyse(
@@ -43,10 +50,15 @@ def analyse(
     timeout_s: float = DEFAULT_TIMEOUT_S,
     budget_s: float | None = None,
     memory_mb: int | None = None,
+    rlimit: int = DEFAULT_RLIMIT,
+    progress: Progress | None = None,
 ) -> Analysis:
     """Run every analysis on traces of ``k`` ticks (default: ``default_k``), each solver
-    call within ``timeout_s`` and all of them within ``budget_s`` (None: no budget),
-    z3 within ``memory_mb`` MB (None: no limit).  What the budget or the memory limit
+    call within ``rlimit`` of z3's resource units (deterministic: the findings do not
+    depend on the machine) and, as a safety net, ``timeout_s`` of wall-clock time, all
+    of them within ``budget_s`` (None: no budget), z3 within ``memory_mb`` MB (None:
+    no limit).  ``progress`` is told when each stage (the unrolling, each analysis)
+    starts (seconds None) and how long it took.  What the budget or the memory limit
     cut short is in ``Analysis.skipped``, with the reason."""
     if not isinstance(vars_, dict):
         vars_ = {v.name: v for v in vars_}
@@ -65,8 +77,10 @@ def analyse(
 
     if budget_s is not None and (why := _too_large(reqs, vars_, k, budget_s)) is not None:
         return give_up(why)
+    tell = progress or _silent
+    tell("unroll", None)
     try:
-        ctx = Context(reqs, vars_, k, timeout_s, deadline, memory_mb)
+        ctx = Context(reqs, vars_, k, timeout_s, deadline, memory_mb, rlimit)
     except OutOfTime:
         return give_up(
             Skip(
@@ -76,13 +90,16 @@ def analyse(
         )
     except TooLarge as e:
         return give_up(Skip(f"{e} (traces of k = {k} ticks)", BUDGET, (Limit.TRACE_LENGTH, BUDGET)))
+    finally:
+        tell("unroll", time.perf_counter() - t0)
     findings = _left_out(reqs, ctx)
-    steps = _Steps(deadline, budget_s, memory_mb)
+    steps = _Steps(deadline, budget_s, memory_mb, tell)
     steps.seconds["encode"] = time.perf_counter() - t0
     consistent, consistency_text, realizability_text = _run_analyses(ctx, findings, steps)
     seconds, skipped, memout = steps.seconds, steps.skipped, steps.memout
     seconds["total"] = time.perf_counter() - t0
     order = {s: i for i, s in enumerate(SEVERITIES)}
+    max_steps = ctx.max_steps
     findings.sort(key=lambda f: order[f.severity])
     return Analysis(
         k,
@@ -95,6 +112,7 @@ def analyse(
         seconds,
         None if memout else partial(examples, ctx),
         skipped,
+        max_steps,
     )
 
 
@@ -150,9 +168,14 @@ class _Steps:
     what either cut short is recorded in ``skipped`` with the reason."""
 
     def __init__(
-        self, deadline: float | None, budget_s: float | None, memory_mb: int | None
+        self,
+        deadline: float | None,
+        budget_s: float | None,
+        memory_mb: int | None,
+        progress: Progress = _silent,
     ) -> None:
         self.deadline, self.budget_s = deadline, budget_s
+        self.progress = progress
         self.seconds: dict[str, float] = {}
         self.skipped: dict[str, Skip] = {}
         self.reached = f"z3 reached its memory limit of {memory_mb} MB"
@@ -166,6 +189,7 @@ class _Steps:
         before or during it (findings it made before that stay: each was checked on
         its own)."""
         t = time.perf_counter()
+        self.progress(name, None)
         if self.memout:
             self.skipped[name] = Skip(f"{self.reached} before it", MEMORY)
             return default
@@ -189,6 +213,7 @@ class _Steps:
             return default
         finally:
             self.seconds[name] = time.perf_counter() - t
+            self.progress(name, self.seconds[name])
 
 
 def _run_analyses(
@@ -211,13 +236,19 @@ def _run_analyses(
     if consistent:
         step("redundancy", lambda: redundancy(ctx, findings, vacuous), None)
     skipped = step.skipped
-    # z3 giving up within its time per call is reported against the budget too: a
-    # larger one gives the later analyses the time to try again.
-    undecided = skipped.get("consistency") or Skip(
-        f"consistency was not decided: the time budget of {step.budget_s:g} s ran out during it"
+    # The later analyses need consistency decided: they are skipped for the limit
+    # that stopped it.
+    undecided = skipped.get("consistency") or (
+        Skip(
+            f"consistency was not decided: the time budget of {step.budget_s:g} s ran out "
+            "during it",
+            BUDGET,
+        )
         if step.out_of_time()
-        else "consistency was not decided (z3 gave up)",
-        BUDGET,
+        else Skip(
+            f"consistency was not decided ({ctx.stop_text()})",
+            ctx.stopped_by or Limit.SOLVER_RLIMIT,
+        )
     )
     if consistent is None and "redundancy" not in skipped:
         skipped["redundancy"] = undecided

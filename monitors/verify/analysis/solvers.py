@@ -22,3 +22,13 @@ def solver(memory_mb: int | None) -> z3.Solver:
     if memory_mb is not None:
         s.set("max_memory", memory_mb)
     return s
+
+
+def steps_taken(s: z3.Solver) -> int:
+    """z3's resource count so far (its own steps, counted for every solver of the
+    context together): the difference around a call is what that call took."""
+    st = s.statistics()
+    for key in st.keys():
+        if key == "rlimit count":
+            return int(st.get_key_value(key))
+    return 0

@@ -302,6 +302,22 @@ def test_every_yaml_number_is_finite_wherever_it_is(tmp_path):
     assert error_of(tmp_path, text).line == 12
 
 
+@pytest.mark.parametrize("value", ["0", "-5", "1.5", "4294967296", "lots", "[1]"])
+def test_the_resource_limit_is_a_whole_number_of_z3_units_at_its_line(tmp_path, value):
+    e = error_of(tmp_path, BASE + f"analysis:\n  k: 4\n  rlimit: {value}\n")
+    assert e.line == 14 and "analysis.rlimit must be a whole number" in str(e), str(e)
+
+
+def test_the_resource_limit_is_read_and_defaults_to_the_analyses(tmp_path):
+    from monitors.verify.analysis import DEFAULT_RLIMIT
+
+    path = tmp_path / "c.yaml"
+    path.write_text(BASE + "analysis: {rlimit: 1234}\n")
+    assert load_config(path).analysis.rlimit == 1234
+    path.write_text(BASE)
+    assert load_config(path).analysis.rlimit == DEFAULT_RLIMIT
+
+
 @pytest.mark.parametrize(
     ("range_", "needle"),
     [("[2, 0]", "is empty"), ("[a, 1]", "must be a number"), ("['nan', 1]", "finite")],
