@@ -64,6 +64,12 @@ MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STATUS_EVERY_NS = 1_000_000_000
 
 
+def _said_by_its_record(_text: str) -> None:
+    """The daemon's core and loss reports warn with a record each, which the log
+    echoes on stderr or sends to the journal (docs/reference/log.md): a print as
+    well would say every warning twice.  (``replay`` keeps the core's warnings.)"""
+
+
 class SupervisorNode:
     """One rclpy node feeding a Session through its Core; :meth:`run` is the receive loop."""
 
@@ -118,7 +124,7 @@ class SupervisorNode:
             lambda request: self.engine.submit(request),
             published=self.interfaces.unpublished.append,
             marker=self._marker if recorder is not None else None,
-            warn=warn,
+            warn=_said_by_its_record,
         )
         self.reloader = Reloader(
             self.core,
@@ -130,7 +136,7 @@ class SupervisorNode:
             status_line=self.status_line,
         )
         self.resets = Resets(self.core, log, control, self.reloader.asked)
-        self.loss = LossReports(log, warn)
+        self.loss = LossReports(log, _said_by_its_record)
         self.receiver = Receiver(self.core, log, self.inputs, self._own, self.interfaces, recorder)
         # Each record also goes to the status topic's feed, and to the recording.
         self.status = StatusBoard(cfg.ros.node_name, self.node.get_namespace())
@@ -358,11 +364,10 @@ class SupervisorNode:
         return stop_stats(self.core.input_stats(), streams)
 
     def _outcomes(self) -> None:
+        # A failed attempt's warning is its mitigation record (ok false), which the
+        # log echoes on stderr: the outcomes need nothing more of the loop.
         with self._done_lock:
-            done, self._done = self._done, []
-        for request, action, outcome in done:
-            if not outcome.ok:
-                warn(f"mitigation {action} for {request.requirement} failed: {outcome.error}")
+            self._done.clear()
 
     # ------------------------------------------------------------ reload
 
