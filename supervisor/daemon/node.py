@@ -55,7 +55,7 @@ from supervisor.daemon.receive import Receiver
 from supervisor.daemon.reload import Reloader, keep_policies
 from supervisor.daemon.resets import Resets
 from supervisor.daemon.session import Session
-from supervisor.daemon.status import StatusBoard
+from supervisor.daemon.status import StatusBoard, status_answer
 
 if TYPE_CHECKING:  # rosbags loads only when recording is on
     from supervisor.daemon.recorder import Recorder
@@ -135,7 +135,9 @@ class SupervisorNode:
             swap=self._swap,
             status_line=self.status_line,
         )
-        self.resets = Resets(self.core, log, control, self.reloader.asked)
+        self.resets = Resets(
+            self.core, log, control, self.reloader.asked, status=self._status_answer
+        )
         self.loss = LossReports(log, _said_by_its_record)
         self.receiver = Receiver(self.core, log, self.inputs, self._own, self.interfaces, recorder)
         # Each record also goes to the status topic's feed, and to the recording.
@@ -168,6 +170,20 @@ class SupervisorNode:
         # A page tells a dead supervisor from a slow one by this (ros-interfaces.md, Status).
         doc["status_period_s"] = self.session.config.ros.status_ms / 1000
         self.interfaces.publish_status(doc)
+
+    def _status_answer(self) -> dict[str, Any]:
+        """What ``safety-supervisor status`` shows: the status document without its
+        event feed (left for the status topic), flat and small."""
+        doc = self.status.document(
+            self.core,
+            now_ns=time.monotonic_ns(),
+            reloads=self.reloads,
+            recording=self.recorder is not None,
+            watchdog_s=self.watchdog_ns / 1e9 if self.watchdog_ns else None,
+            control_socket=self.control.path if self.control is not None else None,
+            peek=True,
+        )
+        return status_answer(doc, self.status.started_wall, time.time())
 
     def _marker(self, what: str, t: int, fields: dict[str, Any]) -> None:
         assert self.recorder is not None

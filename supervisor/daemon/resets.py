@@ -31,11 +31,13 @@ class Resets:
         log: ViolationLog,
         control: ControlServer | None,
         reload: Callable[[ControlRequest], None],
+        status: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         self.core = core
         self.log = log
         self.control = control
         self._reload = reload  # a reload asked for on the socket
+        self._status = status  # the answer to a status request (read-only)
         self._gate = ResetGate()
         self._refusals = Refusals()
         cfg = core.session.config.control
@@ -76,6 +78,10 @@ class Resets:
                     continue
                 if req.command == "reload":
                     self._reload(req)
+                    continue
+                if req.command == "status":
+                    state = self._status() if self._status is not None else {}
+                    req.answer({"ok": True, "message": "running", "status": state})
                     continue
                 ok, message, refused = self.operator_reset(
                     via=req.via or "control_socket",
