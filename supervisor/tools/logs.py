@@ -535,6 +535,7 @@ def _follow(files: list[LogFile], args: argparse.Namespace, skipped: str) -> int
 
 
 def cmd_logs(args: argparse.Namespace) -> int:
+    args.files = _files(args.files)
     if args.verify:
         return verify_files(args.files)
     if args.follow:
@@ -552,6 +553,16 @@ def cmd_logs(args: argparse.Namespace) -> int:
         records = records[len(records) - args.lines :] if args.lines else []
     Printer(args.json, _width(records))(records)
     return 0
+
+
+def _files(paths: list[str]) -> list[str]:
+    """A recording directory (demo --record) stands for its violation log's files."""
+    from supervisor.tools.recording import is_recording_dir, recording_dir
+
+    out: list[str] = []
+    for p in paths:
+        out += [str(f) for f in recording_dir(p, log=True).logs] if is_recording_dir(p) else [p]
+    return out
 
 
 def _width(records: list[dict[str, Any]]) -> int:
@@ -625,7 +636,8 @@ def add_parser(sub: Any) -> None:
         "files",
         nargs="+",
         metavar="FILE",
-        help="violation logs, rotated ones (.1, .2.gz) too, in any order",
+        help="violation logs, rotated ones (.1, .2.gz) too, in any order; a recording "
+        "directory (demo --record DIR) for its log",
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
