@@ -307,17 +307,27 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+class _Version(argparse.Action):
+    """``--version``, its metadata read only when asked: every other start skips
+    importlib.metadata (docs/BENCHMARKS.md, "Start-up")."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(
+            option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0,
+            help=str(kwargs.get("help")),
+        )  # fmt: skip
+
+    def __call__(self, parser: argparse.ArgumentParser, *_args: object) -> None:
+        print(f"{parser.prog} {_version()}", flush=True)
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="safety-supervisor",
         description="Runtime-verification safety supervisor for ROS 2 robots.",
     )
-    p.add_argument(
-        "--version",
-        action="version",
-        version=f"%(prog)s {_version()}",
-        help="the installed package's version, and exit",
-    )
+    p.add_argument("--version", action=_Version, help="the installed package's version, and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_init_parser(sub)
 
