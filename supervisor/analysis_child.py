@@ -10,13 +10,14 @@ SHA-256 of what it judged, which the daemon compares with its own
 (docs/ARCHITECTURE.md, "The stages").
 
 The child: ``python -m supervisor.analysis_child FILE SHA256 [--k K]`` with the
-config's bytes on stdin (FILE names them in errors and resolves the files they
-import); its answer is one JSON line on stdout, ``{"sha256": ..., "findings":
+config's bytes and those of the files it imports, as the daemon read them, on
+stdin (one JSON document; FILE names them in errors); its answer is one JSON line on stdout, ``{"sha256": ..., "findings":
 [...]}`` (no traces).
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import subprocess
 import sys
@@ -88,9 +89,10 @@ class Aside:
             argv += [] if k is None else ["--k", str(k)]
             # The bytes in an unnamed file: the child reads them when it is ready,
             # while this thread compiles the monitor (a pipe would block on a large
-            # config until the child reads).
+            # config until the child reads). The files it imports go with it, as
+            # read here: the child judges this version of them, not the disk's.
             with tempfile.TemporaryFile() as stdin:
-                stdin.write(source.data)
+                stdin.write(_payload(source))
                 stdin.seek(0)
                 self._proc = start(
                     argv,
@@ -137,6 +139,20 @@ class Aside:
             self._proc.communicate()
 
 
+def _payload(source: ConfigSource) -> bytes:
+    """What the child reads on stdin: the config's bytes and its imports'."""
+    b64 = base64.b64encode
+    files = {p: b64(d).decode() for p, d in source.imports.files().items()}
+    return json.dumps({"config": b64(source.data).decode(), "imports": files}).encode()
+
+
+def _source(path: str, payload: bytes) -> ConfigSource:
+    """The parent's :func:`_payload` back as a :class:`ConfigSource`."""
+    doc = json.loads(payload)
+    imports = {p: base64.b64decode(d) for p, d in doc["imports"].items()}
+    return ConfigSource.of(path, base64.b64decode(doc["config"]), imports)
+
+
 def main(argv: list[str]) -> int:
     """The child (module docstring): the analyses of the config on stdin."""
     import argparse
@@ -146,7 +162,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("sha256")
     p.add_argument("--k", type=int, default=None)
     args = p.parse_args(argv)
-    source = ConfigSource.of(args.file, sys.stdin.buffer.read())
+    source = _source(args.file, sys.stdin.buffer.read())
     if source.sha256 != args.sha256:
         print(f"the config on stdin is not sha256 {args.sha256}", file=sys.stderr)
         return 1

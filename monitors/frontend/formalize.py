@@ -357,9 +357,7 @@ def formalize(
     kind = req.scope.kind if req.scope else "null"
     cond = req.condition
 
-    # persisted/occurred/prevOcc count from the start of the scope's interval (FRET's
-    # $Left$); in the scope's own mode they have no such start (FRET's "NoBounds" forms).
-    m = _starting_at(req.scope.mode, FALSE, bounded=False) if req.scope is not None else None
+    m = _mode(req)
     if m is None:
         left, right, negate = FTP, LAST, False
     else:
@@ -388,6 +386,30 @@ def formalize(
 
     monotone = (timing, negate) not in _PENDING
     return Formalization(simplify(formula), monotone, None if monotone else _note(timing, negate))
+
+
+def _mode(req: Requirement) -> Formula | None:
+    # persisted/occurred/prevOcc count from the start of the scope's interval (FRET's
+    # $Left$); in the scope's own mode they have no such start (FRET's "NoBounds" forms).
+    return _starting_at(req.scope.mode, FALSE, bounded=False) if req.scope is not None else None
+
+
+def interval_started(req: Requirement) -> Requirement:
+    """``req`` with the start of its scope's interval put into its temporal functions,
+    as ``formalize`` puts it: the scope's mode, the condition and the response then
+    read only declared variables (the analyses read them apart from the formula)."""
+    m = _mode(req)
+    left = FTP if m is None else _interval(req.scope.kind, m)[0]  # type: ignore[union-attr]
+    t = req.timing
+    return dataclasses.replace(
+        req,
+        scope=None if req.scope is None else dataclasses.replace(req.scope, mode=m),
+        condition=None
+        if req.condition is None
+        else dataclasses.replace(req.condition, expr=_starting_at(req.condition.expr, left)),
+        timing=t if t.stop is None else dataclasses.replace(t, stop=_starting_at(t.stop, left)),
+        response=_starting_at(req.response, left),
+    )
 
 
 def _starting_at(f: Formula, start: Formula, *, bounded: bool = True) -> Formula:

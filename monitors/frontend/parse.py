@@ -18,17 +18,17 @@ Deliberate differences from FRET 3.0 (documented extensions / refusals):
   reserved names (``O H S Y Z X F G U V T A E abs max min mode next``) are
   refused unquoted everywhere a name is expected; quoted (``"T"``) they are names,
   as FRET's quoted names are (docs/reference/fretish.md, "Names").
-- Functions: ``persisted(n, p)`` (p held at each of the last n+1 ticks, and
-  n ticks have passed) and ``occurred(m, n, p)`` (p happened between m and n
-  ticks ago), with the formulas FRET prints for them; ``occurred(n, p)`` is
-  read as ``occurred(0, n, p)`` (no FRET example to check it against); they
-  count from the start of the scope's interval (INTERVAL_START, set by formalize);
+- Functions: ``persisted(m, n, p)`` (p held from m to n ticks ago, and n ticks
+  have passed) and ``occurred(m, n, p)`` (p happened between m and n ticks ago),
+  with the formulas FRET prints for them; ``(n, p)`` is ``(0, n, p)``, and a
+  window written far end first (``(3, 1, p)``) is refused; they count from the
+  start of the scope's interval (INTERVAL_START, set by formalize);
   ``at the previous occurrence of p, q`` (also ``prevOcc(p, q)``) likewise, with
   FRET's unbounded form in the scope's mode (BOUNDED, set by formalize);
   ``preBool(init, p)`` (p at the previous tick, init at the first) with FRET's
   formula; the arithmetic functions of monitors/ir/formula.py (ARITH_FUNCTIONS:
-  sqrt, sin, ...; FRET reserves abs, min and max in sentences, as here: they may
-  be used in defines, and FRET's absReal, minInt ... anywhere); ``preInt`` and
+  abs, min, max, sqrt, sin, ...; FRET refuses abs, min and max in sentences, as
+  NuSMV keywords, and we accept them: they are its absReal, minReal ...); ``preInt`` and
   ``preReal`` (a number's previous value).  Any other call is kept as FRET keeps
   it, for the config's ``functions`` to define; FRET's future-time predicates
   (``persists``, ``occurs``, ``nextOcc``) are refused.
@@ -54,7 +54,6 @@ from lark.exceptions import (
 
 from monitors.errors import UserError
 from monitors.ir.formula import (
-    ARITH_FUNCTIONS,
     EXPRESSION_NESTING,
     FALSE,
     FTP,
@@ -92,6 +91,10 @@ _RESERVED_HINT = (
     'quote it ("T") or rename it'
 )
 RESERVED = frozenset("O H S Y Z X F G U V T A E abs max min mode next".split())
+# Reserved as names, yet functions in a sentence.  FRET refuses them there too, as
+# NuSMV keywords; a monitor does not go through NuSMV, and they are FRET's absReal,
+# minReal, maxReal (docs/reference/fretish.md, "Deliberate differences from FRET").
+SENTENCE_FUNCTIONS = frozenset({"abs", "min", "max"})
 
 
 @dataclass(frozen=True)
@@ -628,27 +631,18 @@ class _Build(Transformer):
         name = str(fn)
         if name == "prevOcc" and len(args) == 2:  # FRET's name for the same thing
             return previous_occurrence(args[0], args[1])
-        if name == "persisted" and len(args) == 2:
-            n = _tick_arg(args[0], fn)
-            # FRET: p held at each of the last n+1 ticks and those ticks exist.
-            if n == 0:
-                return args[1]
-            return and_(Past("H", args[1], 0, n), Past("H", Not(INTERVAL_START), 0, n - 1))
-        if name == "occurred" and len(args) == 2:
-            return Since("S", Not(INTERVAL_START), args[1], 0, _tick_arg(args[0], fn))
-        if name == "occurred" and len(args) == 3:
-            lo, hi = _tick_arg(args[0], fn), _tick_arg(args[1], fn)
-            return Since("S", Not(INTERVAL_START), args[2], lo, hi)
+        if name in ("persisted", "occurred") and len(args) in (2, 3):
+            lo, hi = _window(args, fn)
+            if name == "occurred":  # FRET: (! $Left$) S[m,n] p
+                return Since("S", Not(INTERVAL_START), args[-1], lo, hi)
+            # FRET: (H[m,n] p) & (H[<n] ! $Left$): p held from m to n ticks ago, and n
+            # ticks have passed in the scope's interval.  H[<0] is TRUE.
+            if hi == 0:
+                return args[-1]
+            return and_(Past("H", args[-1], lo, hi), Past("H", Not(INTERVAL_START), 0, hi - 1))
         line, col = _at(fn)
-        if name in RESERVED:  # FRET refuses abs, min and max here too
-            raise _Located(
-                f"'{name}' is reserved in FRETISH and cannot be used",
-                line,
-                col,
-                hint=f"{name}(...) may be used in a define (an internal variable)"
-                if name in ARITH_FUNCTIONS
-                else None,
-            )
+        if name in RESERVED and name not in SENTENCE_FUNCTIONS:
+            raise _Located(f"'{name}' is reserved in FRETISH and cannot be used", line, col)
         if name == "preBool" and len(args) == 2:
             # FRET: ((Z FALSE) & init) | ((Y TRUE) & (Y p)), from the trace's start in
             # every scope (FRET's mode-relative version is not the one it uses).
@@ -672,7 +666,7 @@ class _Build(Transformer):
 
 # FRET's temporal functions this reader expands, and the arguments they take.
 _FRET_TEMPORAL = {
-    "persisted": "2 arguments (n, p)",
+    "persisted": "2 or 3 arguments (n, p) or (m, n, p)",
     "occurred": "2 or 3 arguments (n, p) or (m, n, p)",
     "prevOcc": "2 arguments (p, q)",
     "preBool": "2 arguments (init, p)",
@@ -715,12 +709,30 @@ def _name(tok: Token) -> str:
     return name
 
 
+def _window(args: list[Formula], fn: Token) -> tuple[int, int]:
+    """The ticks-ago window (m, n) of persisted/occurred: (0, n) for (n, p).  FRET
+    prints H[3,1] for persisted(3, 1, p), an empty window: refused, as nobody means it."""
+    counts = [_tick_arg(a, fn) for a in args[:-1]]
+    lo, hi = (0, counts[0]) if len(counts) == 1 else (counts[0], counts[1])
+    if lo > hi:
+        line, col = _at(fn)
+        raise _Located(
+            f"{fn}({lo}, {hi}, ...) looks from {lo} to {hi} ticks ago: the window is empty",
+            line,
+            col,
+            hint=f"the nearer tick comes first: {fn}({hi}, {lo}, ...)",
+        )
+    return lo, hi
+
+
 def _tick_arg(f: Formula, fn: Token) -> int:
     if isinstance(f, Const) and isinstance(f.value, int) and not isinstance(f.value, bool):
         if f.value >= 0:
             return f.value
     line, col = _at(fn)
-    raise _Located(f"{fn}(...) needs a tick count (a whole number >= 0) first", line, col)
+    raise _Located(
+        f"{fn}(...) needs a tick count (a whole number >= 0) before its last argument", line, col
+    )
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,14 @@ from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
-from supervisor.config.imported import Fields, c_identifiers, named, read_json, top_list
+from supervisor.config.imported import (
+    Fields,
+    Imports,
+    c_identifiers,
+    named,
+    read_json,
+    top_list,
+)
 from supervisor.config.limits import MAX_FORMULA_CHARS, MAX_ID_CHARS, MAX_TEXT_CHARS
 from supervisor.config.model import RequirementEntry
 
@@ -66,6 +73,7 @@ def load_fret_export(
     component: str | None = None,
     notes: list[str] | None = None,
     taken: set[str] | frozenset[str] = frozenset(),
+    imports: Imports | None = None,
 ) -> tuple[list[RequirementEntry], list[dict[str, Any]], list[dict[str, Any]]]:
     """Any of FRET's files: its requirements, its internal variables (with a define)
     and its other variables (inputs and outputs, to be read from topics).  With a
@@ -80,7 +88,7 @@ def load_fret_export(
     The file is read within the import bounds and every field read is type-checked
     here, where it enters (supervisor/config/imported.py)."""
     file = str(path)
-    data = read_json(path, "FRET file")
+    data = read_json(path, "FRET file", imports=imports)
     if isinstance(data, list):
         reqs, internal, other = _database(data, [], file, component, notes)
     elif isinstance(data, dict) and isinstance(data.get("requirements"), list):

@@ -47,6 +47,27 @@ def read_bytes(path: Path | str, what: str, max_bytes: int = MAX_IMPORT_BYTES) -
         ) from None
 
 
+class Imports:
+    """The files a config imports (``variables_from``, ``requirements_from``), each
+    read once per load and kept: a FRET file that gives both variables and
+    requirements is one version of it, and the analyses' child process is given
+    these bytes, not the paths (docs/ARCHITECTURE.md, "The stages")."""
+
+    def __init__(self, given: dict[str, bytes] | None = None) -> None:
+        self._files: dict[str, bytes] = dict(given or {})
+
+    def read(self, path: Path | str, what: str) -> bytes:
+        """The file at ``path``: the bytes read before, else read now (bounded)."""
+        key = str(path)
+        if key not in self._files:
+            self._files[key] = read_bytes(path, what)
+        return self._files[key]
+
+    def files(self) -> dict[str, bytes]:
+        """Every file read so far, by the path it was read at."""
+        return dict(self._files)
+
+
 def decode(data: bytes, file: str) -> str:
     """``data`` as UTF-8; an invalid byte is an error at its line and offset."""
     try:
@@ -56,12 +77,15 @@ def decode(data: bytes, file: str) -> str:
         raise UserError(f"not UTF-8 (byte {e.start})", file=file, line=line) from None
 
 
-def read_json(path: Path | str, what: str, text: str | None = None) -> Any:
+def read_json(
+    path: Path | str, what: str, text: str | None = None, imports: Imports | None = None
+) -> Any:
     """One JSON document from a file (or its ``text``, read already with
     :func:`read_bytes`), within the import bounds."""
     file = str(path)
     if text is None:
-        text = decode(read_bytes(path, what), file)
+        data = (imports or Imports()).read(path, what)
+        text = decode(data, file)
     try:
         return load_json(text, max_bytes=MAX_IMPORT_BYTES, max_depth=MAX_IMPORT_DEPTH)
     except Untrusted as e:

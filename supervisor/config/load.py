@@ -11,7 +11,7 @@ mitigations and variables used elsewhere).
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from monitors.errors import UserError
@@ -20,7 +20,7 @@ from supervisor.config.analysis import load_analysis
 from supervisor.config.control import load_control
 from supervisor.config.fields import check_keys, error_at
 from supervisor.config.functions import load_functions
-from supervisor.config.imported import decode, read_bytes
+from supervisor.config.imported import Imports, decode, read_bytes
 from supervisor.config.limits import MAX_CONFIG_BYTES, load_limits
 from supervisor.config.mitigations import load_mitigations, load_on_stale
 from supervisor.config.model import Config
@@ -62,10 +62,14 @@ class ConfigSource:
     path: str  # for error positions and the files it imports, relative to it
     data: bytes
     sha256: str
+    # The files it imports, read at its first load and kept (given to the child).
+    imports: Imports = field(default_factory=Imports, compare=False)
 
     @classmethod
-    def of(cls, path: str | Path, data: bytes) -> ConfigSource:
-        return cls(str(Path(path)), data, hashlib.sha256(data).hexdigest())
+    def of(
+        cls, path: str | Path, data: bytes, imports: dict[str, bytes] | None = None
+    ) -> ConfigSource:
+        return cls(str(Path(path)), data, hashlib.sha256(data).hexdigest(), Imports(imports))
 
 
 def read_config(path: str | Path) -> ConfigSource:
@@ -101,7 +105,7 @@ def load_config(source: str | Path | ConfigSource) -> Config:
 
     # The order of the sections is the order their errors are found in.
     step = load_step(doc)
-    variables = load_variables(doc, path)
+    variables = load_variables(doc, path, source.imports)
     functions = load_functions(doc)
     for v in variables.values():  # a define may call the config's functions
         if v.define is not None:
@@ -112,7 +116,7 @@ def load_config(source: str | Path | ConfigSource) -> Config:
                     f"define of '{v.name}' {e.message}", file=file, line=v.line, hint=e.hint
                 ) from None
     notes: list[str] = []
-    requirements = load_requirements(doc, path, notes)
+    requirements = load_requirements(doc, path, notes, source.imports)
     mitigations = load_mitigations(doc)
     log_path, recent, log_retry_buffer = load_violation_log(doc)
     log_durability = load_durability(doc)

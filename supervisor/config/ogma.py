@@ -8,7 +8,7 @@ from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
-from supervisor.config.imported import Fields, decode, named, read_bytes, read_json, top_list
+from supervisor.config.imported import Fields, Imports, decode, named, read_json, top_list
 from supervisor.config.limits import MAX_TEXT_CHARS
 
 _OGMA_LINE = re.compile(r'^\(\s*"([^"]+)"\s*,\s*"([^"]+)"\s*,\s*"([^"]*)"\s*,\s*"([^"]+)"\s*\)\s*$')
@@ -45,12 +45,12 @@ def _topic_type(name: str) -> tuple[str | None, str | None]:
     return f"std_msgs/msg/{msg.replace('Uint', 'UInt')}", ogma_type(t)
 
 
-def load_ogma_variables(path: Path) -> list[dict[str, Any]]:
+def load_ogma_variables(path: Path, imports: Imports | None = None) -> list[dict[str, Any]]:
     """OGMA's variable database: JSON (OGMA 1.7+) or the older one-tuple-per-line format.
     Read within the import bounds, every field read type-checked
     (supervisor/config/imported.py)."""
     file = str(path)
-    text = decode(read_bytes(path, "OGMA variable database"), file)
+    text = decode((imports or Imports()).read(path, "OGMA variable database"), file)
     if text.lstrip().startswith("{"):
         return _json_database(read_json(path, "OGMA variable database", text), file)
     out: list[dict[str, Any]] = []

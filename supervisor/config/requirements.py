@@ -30,7 +30,7 @@ from supervisor.config.fields import (
     suggest,
 )
 from supervisor.config.fret import load_fret_export
-from supervisor.config.imported import control_at, is_c_identifier
+from supervisor.config.imported import Imports, control_at, is_c_identifier
 from supervisor.config.limits import MAX_ID_CHARS, MAX_TEXT_CHARS
 from supervisor.config.model import RequirementEntry, Variable
 from supervisor.config.yamlload import LineDict, LineList
@@ -40,7 +40,7 @@ DEFAULTS_KEYS = {"on_violation", "policy", "on_pending"}
 
 
 def load_requirements(
-    doc: LineDict, path: Path, notes: list[str] | None = None
+    doc: LineDict, path: Path, notes: list[str] | None = None, imports: Imports | None = None
 ) -> list[RequirementEntry]:
     """The config's requirements, imported ones first.  What an import leaves out
     (other components' requirements, FRET's parent requirements) is appended to
@@ -48,7 +48,7 @@ def load_requirements(
     defaults = _defaults(doc)
     reqs: list[RequirementEntry] = []
     by_id: dict[str, RequirementEntry] = {}
-    left_out = _import_requirements(doc, path, defaults, reqs, by_id)
+    left_out = _import_requirements(doc, path, defaults, reqs, by_id, imports or Imports())
     if notes is not None:
         notes.extend(left_out)
     raw = doc.get("requirements")
@@ -113,6 +113,7 @@ def _import_requirements(
     defaults: LineDict,
     reqs: list[RequirementEntry],
     by_id: dict[str, RequirementEntry],
+    imports: Imports,
 ) -> list[str]:
     """Appends the ``requirements_from:`` files' requirements to ``reqs`` and
     ``by_id``, with the defaults' mitigations and policy; returns the notes on
@@ -126,6 +127,7 @@ def _import_requirements(
             str(component) if isinstance(component, str) else None,
             file_notes,
             taken=frozenset(by_id),
+            imports=imports,
         )
         line = doc.key_line("requirements_from")
         left_out += [f"{path}:{line}: note: {entry_path}: {n}" for n in file_notes]

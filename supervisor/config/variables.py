@@ -23,6 +23,7 @@ from supervisor.config.fields import (
     whole_number,
 )
 from supervisor.config.fret import load_fret_export
+from supervisor.config.imported import Imports
 from supervisor.config.model import Variable
 from supervisor.config.ogma import load_ogma_variables
 from supervisor.config.yamlload import LineDict
@@ -102,7 +103,7 @@ def parse_define(text: str, file: str, line: int | None) -> Formula:
         ) from None
 
 
-def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
+def _imported(doc: LineDict, path: Path, imports: Imports) -> dict[str, Variable]:
     """Variables from FRET's files, then OGMA's databases: a later source refines an
     earlier one, and ``variables:`` refines both (docs/reference/config.md)."""
     out: dict[str, Variable] = {}
@@ -112,7 +113,7 @@ def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
         fret_file = relative_to(path, entry_path)
         component = doc.get("component")
         _reqs, internal, other = load_fret_export(
-            fret_file, str(component) if isinstance(component, str) else None
+            fret_file, str(component) if isinstance(component, str) else None, imports=imports
         )
         for v in other + internal:
             check_name(v["name"], doc, "requirements_from")
@@ -137,7 +138,7 @@ def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
                     raise
             out[v["name"]] = var
     for entry_path in file_names(doc.get("variables_from"), doc, "variables_from"):
-        for v in load_ogma_variables(relative_to(path, entry_path)):
+        for v in load_ogma_variables(relative_to(path, entry_path), imports):
             check_name(v["name"], doc, "variables_from")
             fret = out.get(v["name"])
             out[v["name"]] = Variable(
@@ -154,8 +155,10 @@ def _imported(doc: LineDict, path: Path) -> dict[str, Variable]:
     return out
 
 
-def load_variables(doc: LineDict, path: Path) -> dict[str, Variable]:
-    out = _imported(doc, path)
+def load_variables(
+    doc: LineDict, path: Path, imports: Imports | None = None
+) -> dict[str, Variable]:
+    out = _imported(doc, path, imports or Imports())
     raw = doc.get("variables")
     if raw is None:
         return out

@@ -15,6 +15,7 @@ LOG_KEYS = {"violations", "recent", "stderr", "retry_buffer", "durability"}
 MAX_RETRY = 1_000_000
 # recent: ticks of context each violation record carries (kept in memory per input).
 MAX_RECENT = 10_000
+RECENT = 10  # the default
 
 
 def load_violation_log(doc: LineDict) -> tuple[str | None, int, int]:
@@ -23,7 +24,9 @@ def load_violation_log(doc: LineDict) -> tuple[str | None, int, int]:
     logging = as_mapping(doc.get("logging") or LineDict(), doc, "logging", "logging")
     if logging:
         check_keys(logging, LOG_KEYS, "logging")
-    recent = whole_number(logging, "recent", "logging", default=10, minimum=0, maximum=MAX_RECENT)
+    recent = whole_number(
+        logging, "recent", "logging", default=RECENT, minimum=0, maximum=MAX_RECENT
+    )
     retry_buffer = whole_number(
         logging, "retry_buffer", "logging", default=RETRY_BUFFER, minimum=1, maximum=MAX_RETRY
     )

@@ -14,12 +14,14 @@ import os
 import socket
 import threading
 from collections import deque
+from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Any
 
 from mitigations.policy import RequirementPolicy
 from mitigations.violationlog.format import json_safe
 from supervisor.daemon.core import Core
+from supervisor.inputs.readers import value_precision
 
 SCHEMA = 1
 ACTIONS_KEPT = 5  # per requirement, the latest
@@ -61,6 +63,8 @@ class StatusBoard:
         self._actions: dict[str, deque[dict[str, Any]]] = {}
         self._last_violation: dict[str, dict[str, Any]] = {}
         self._prev: tuple[int, int, int] | None = None  # (t, ticks, received)
+        # each input's value_precision, looked up once per variable as configured
+        self._precisions: dict[tuple[Any, ...], str | None] = {}
 
     def record(self, line: str) -> None:
         """A record as the log rendered it (ViolationLog.tee)."""
@@ -110,7 +114,7 @@ class StatusBoard:
             self.started_mono = now_ns
         events, dropped, actions, last = self._take_records(take=not peek)
         requirements = _requirements(core, now_ns, actions, last)
-        inputs = _inputs(core, stats, now_ns)
+        inputs = _inputs(core, stats, now_ns, self._precision)
         doc = {
             "schema": SCHEMA,
             "supervisor": self.supervisor,
@@ -138,6 +142,12 @@ class StatusBoard:
             "events_dropped": dropped,
         }
         return json_safe(doc)
+
+    def _precision(self, v: Any) -> str | None:
+        key = (v.name, v.type, v.msg, v.field, v.reduce, v.service, v.call, v.event, v.age_of)
+        if key not in self._precisions:
+            self._precisions[key] = value_precision(v)
+        return self._precisions[key]
 
     def _rates(self, now_ns: int, tick: int, received: int) -> tuple[float, float]:
         """Ticks and messages per second since the previous document (0 at the first)."""
@@ -194,8 +204,14 @@ def _requirements(
     return requirements
 
 
-def _inputs(core: Core, stats: dict[str, dict[str, Any]], now_ns: int) -> list[dict[str, Any]]:
-    """Each input's entry in the document: its latest value, age and counts."""
+def _inputs(
+    core: Core,
+    stats: dict[str, dict[str, Any]],
+    now_ns: int,
+    precision: Callable[[Any], str | None],
+) -> list[dict[str, Any]]:
+    """Each input's entry in the document: its latest value, age and counts, and
+    ``precision`` ("float32" when the value is a float32 field's, else null)."""
     types = {v.name: v for v in core.session.config.inputs}
     inputs = []
     latest = core.snapshot()
@@ -207,6 +223,7 @@ def _inputs(core: Core, stats: dict[str, dict[str, Any]], now_ns: int) -> list[d
                 "name": name,
                 "topic": v.topic if v else None,
                 "type": v.type if v else None,
+                "precision": precision(v) if v else None,
                 "value": latest.get(name),
                 "age_s": None if last_ns is None else round((now_ns - last_ns) / 1e9, 3),
                 "stale": bool(st["stale"]),

@@ -186,6 +186,24 @@ def check_input(v: InputVariable) -> Description:
     return Description(kind, v.msg, v.topic, v.field, v.reduce or "", c_type)
 
 
+def value_precision(v: InputVariable) -> str | None:
+    """``'float32'`` when a double variable's value is a float32 field as it came (the
+    field, an element, or the min or max of a float32 array), so a page shows it at
+    that precision (0.8, not 0.800000011920929); ``None`` otherwise (the value is a
+    double, an integer or a bool; docs/reference/ros-interfaces.md, "Status")."""
+    if v.type != "double" or kind_of(v) != "value" or v.action or v.msg is None:
+        return None
+    if v.reduce not in (None, "min", "max"):
+        return None  # a mean or a sum is computed in double
+    try:
+        klass = _service_part(v) if v.service else message_class(v.msg)
+        pt = path_type(klass, parse_path(v.field))
+    except (UserError, ReadError, LookupError, ValueError, TypeError):
+        return None  # check says why; the page then shows the double
+    leaf = (element_type(pt.leaf) or pt.leaf) if v.reduce else pt.leaf
+    return "float32" if leaf == "float" else None  # rosidl's name of float32
+
+
 # ------------------------------------------------------------ reading
 
 

@@ -3,13 +3,13 @@ latch and operator reset, reset after mitigation (zero blind window), reset afte
 a time, escalation and confirmation.
 
 The policies are a pure state machine (mitigations/policy.py), so these tests
-step them with the reference interpreter as the monitor (no compiler); one test
+step them with the reference interpreter as the monitor (the shipped double
+supervisor.daemon.testing.InterpretedMonitor, no compiler); one test
 runs the same scenarios through a real gcc-built monitor and asks for the same
 effects, tick for tick."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,8 +22,8 @@ from mitigations.supervision import Supervision
 from monitors.backends.load import compile_spec
 from monitors.ir.formula import parse_formula
 from monitors.ir.spec import MonitorSpec, RequirementSpec, VarDecl
-from monitors.verify.interpret import Value, verdicts
 from supervisor.daemon.runtime import InputSpec, Monitor, Runtime, StepResult
+from supervisor.daemon.testing import InterpretedMonitor
 
 MS = 1_000_000
 PERIOD = 10 * MS
@@ -64,31 +64,6 @@ SPEC = MonitorSpec(
         RequirementSpec("halted", parse_formula("halt")),
     ],
 )
-
-
-class InterpretedMonitor:
-    """The runtime's Monitor by the reference interpreter (monitors/verify/interpret.py):
-    each requirement is judged on the trace since its own last reset, which is what a
-    reset means for the compiled monitor (a fresh requirement is at tick 0 again)."""
-
-    def __init__(self, spec: MonitorSpec) -> None:
-        self.spec = spec
-        self._traces: list[list[dict[str, Value]]] = [[] for _ in spec.requirements]
-
-    def tick(self, values: Sequence[Any]) -> bytes:
-        row = dict(zip((v.name for v in self.spec.inputs), values, strict=True))
-        flags = []
-        for req, trace in zip(self.spec.requirements, self._traces, strict=True):
-            trace.append(row)
-            flags.append(0 if verdicts(req.formula, trace)[-1] else 1)
-        return bytes(flags)
-
-    def reset(self) -> None:
-        for trace in self._traces:
-            trace.clear()
-
-    def reset_requirement(self, index: int) -> None:
-        self._traces[index].clear()
 
 
 @pytest.fixture

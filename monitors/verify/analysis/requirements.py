@@ -6,6 +6,7 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from monitors.frontend.formalize import interval_started
 from monitors.frontend.parse import Requirement
 from monitors.ir.formula import TRUE, BinOp, Const, Formula, O, Var, Y, and_, max_bound, not_
 from monitors.ir.formula import H as H_
@@ -43,6 +44,7 @@ def activation(req: Requirement) -> Formula:
     (the constrained part is outside M) while !M; ``after M`` once M has first
     ended; ``before M`` until M first holds; ``only after M`` until M first ends
     (always from tick 0); ``only before M`` once M has held."""
+    req = interval_started(req)  # persisted(...) in a condition or mode: FRET's $Left$
     act: Formula = TRUE
     if req.scope is not None:
         m = req.scope.mode

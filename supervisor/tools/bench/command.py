@@ -289,7 +289,12 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also measure rclpy's default SingleThreadedExecutor (busy: takes a CPU)",
     )
-    p.add_argument("--domain-id", type=int, default=None, help="default: random in 215..232")
+    p.add_argument(
+        "--domain-id",
+        type=int,
+        default=None,
+        help="default: one of 215..232 that no other bench on this host holds",
+    )
     p.add_argument("--json", action="store_true", help="one JSON document instead of tables")
     p.add_argument(
         "--startup",

@@ -12,6 +12,7 @@ import contextlib
 import os
 import random
 import shutil
+import socket
 import sys
 import tempfile
 import threading
@@ -185,12 +186,36 @@ class Daemon(Helper):
         self.notify.close()
 
 
+def claim_domain() -> tuple[int, socket.socket]:
+    """A ROS_DOMAIN_ID of DOMAIN_IDS that no other bench on this host holds, and the
+    claim on it: an abstract Unix socket bound to a name per domain, which the kernel
+    frees when its holder exits however it exits. Two benches in one domain see each
+    other's publishers on the same topics, and their counts mix."""
+    ids = list(range(DOMAIN_IDS[0], DOMAIN_IDS[1] + 1))
+    random.shuffle(ids)
+    for d in ids:
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            s.bind(f"\0safety-supervisor-bench-domain-{d}")
+        except OSError:
+            s.close()
+            continue
+        return d, s
+    raise BenchError(
+        f"every ROS_DOMAIN_ID of {DOMAIN_IDS[0]}..{DOMAIN_IDS[1]} is held by another bench "
+        "on this host; wait for one to finish or give --domain-id"
+    )
+
+
 class Session:
     """The temp dir, the ROS environment and every process started (for cleanup)."""
 
     def __init__(self, domain_id: int | None) -> None:
+        self._claim: socket.socket | None = None
+        if domain_id is None:
+            domain_id, self._claim = claim_domain()
+        self.domain_id = domain_id
         self.tmp = Path(tempfile.mkdtemp(prefix="safety-supervisor-bench-"))
-        self.domain_id = domain_id if domain_id is not None else random.randint(*DOMAIN_IDS)
         (self.tmp / "ros-log").mkdir()
         self.env = ros_env(self.domain_id, log_dir=self.tmp / "ros-log")
         self.children: list[Child] = []
@@ -226,6 +251,9 @@ class Session:
             c.kill()
         self.children = []
         shutil.rmtree(self.tmp, ignore_errors=True)
+        if self._claim is not None:
+            self._claim.close()
+            self._claim = None
 
 
 @contextlib.contextmanager

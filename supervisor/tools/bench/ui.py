@@ -282,6 +282,7 @@ def _daemon(row: dict[str, Any]) -> dict[str, Any]:
         "lost": row["sent"] - d["received"],
         "counted_lost": row["daemon_counted_lost"],
         "loss_agree": row["daemon_loss"]["agree"],
+        "loss": row["daemon_loss"],  # the categories, to see a disagreement
         "cpu_s": d["cpu_s"],
         "cpu_us_per_msg": d["cpu_us_per_msg"],
         "longest_ping_gap_ms": row["longest_ping_gap_ms"],

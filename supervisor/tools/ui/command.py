@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import math
 import re
 import signal
 import sys
@@ -50,6 +51,22 @@ def namespace_arg(text: str) -> str:
     return text
 
 
+MAX_VIOLATED_FOR_S = 7 * 24 * 3600.0
+
+
+def seconds_arg(text: str) -> float:
+    """``--violated-for``: seconds, 0 (never held) to a week, as argparse's type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 <= value <= MAX_VIOLATED_FOR_S:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number of seconds from 0 to {MAX_VIOLATED_FOR_S:.0f}"
+        )
+    return value
+
+
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "ui", help="the operator's web page: live state, events, resets (its own process)"
@@ -83,6 +100,14 @@ def add_parser(sub: Any) -> None:
         "never the path a status document names)",
     )
     p.add_argument(
+        "--violated-for",
+        type=seconds_arg,
+        default=None,
+        metavar="SECONDS",
+        help="how long a requirement shows 'violated N s ago' after each violation, "
+        "though its policy reset it (default 60)",
+    )
+    p.add_argument(
         "--fleet",
         default=None,
         metavar="FILE",
@@ -97,6 +122,10 @@ def _token(args: argparse.Namespace) -> bytes | None:
     if TOKEN_FILE.exists():
         return read_token(TOKEN_FILE)
     return None
+
+
+def _page_options(args: argparse.Namespace) -> dict[str, Any]:
+    return {} if args.violated_for is None else {"violated_for_s": args.violated_for}
 
 
 def cmd_ui(args: argparse.Namespace) -> int:
@@ -115,7 +144,7 @@ def cmd_ui(args: argparse.Namespace) -> int:
 
     hub = Hub(lambda _doc: reset_availability(socket_path(), token))
     try:
-        server = UiServer(args.bind, hub, token, socket_path)
+        server = UiServer(args.bind, hub, token, socket_path, **_page_options(args))
     except OSError as e:
         host, port = args.bind
         raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None
@@ -159,7 +188,7 @@ def _fleet(args: argparse.Namespace, token: bytes | None) -> int:
         robots, lambda doc, sock: local_reset_availability(doc, sock, token, reset_availability)
     )
     try:
-        server = UiServer(args.bind, None, token, lambda: None, fleet=fleet)
+        server = UiServer(args.bind, None, token, lambda: None, fleet=fleet, **_page_options(args))
     except OSError as e:
         host, port = args.bind
         raise UserError(f"cannot listen on {host}:{port}: {e.strerror or e}", file=PROG) from None

@@ -27,12 +27,14 @@ from __future__ import annotations
 import json
 import math
 import queue
+import struct
 import sys
 import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable
 from datetime import UTC, datetime
+from decimal import ROUND_HALF_UP, Context
 from typing import Any
 
 from monitors.untrusted import Untrusted, printable
@@ -70,6 +72,11 @@ class Hub:
         self._reset_state = reset_state  # whether resets can reach the daemon, and why not
         self._clock = clock
         self.status: dict[str, Any] | None = None
+        self._precisions: dict[str, str | None] = {}
+        # the daemon that started last of those seen: (its start, its document).  Only
+        # a later start is a restart, so a second publisher of the topic (forged
+        # documents, ros-interfaces.md) cannot fill the feed with restart lines.
+        self._daemon: tuple[datetime, dict[str, Any]] | None = None
         self._status_at: float | None = None
         self._diagnostics: dict[str, Any] = {"requirements": {}, "inputs": {}, "at": None}
         self._feed: deque[dict[str, Any]] = deque(maxlen=FEED_LENGTH)
@@ -152,7 +159,15 @@ class Hub:
     def on_status(self, doc: dict[str, Any]) -> None:
         entries = []
         with self._lock:
+            started = _started(doc)
+            if started is not None and (self._daemon is None or started > self._daemon[0]):
+                if self._daemon is not None:
+                    # the feed goes on across daemons: say where the previous one's ends
+                    entries.append(_restart_entry(self._daemon[1], doc))
+                self._daemon = (started, doc)
             self.status = doc
+            # each input's precision, for the violation records' values (value_text)
+            self._precisions = {i["name"]: i.get("precision") for i in doc.get("inputs") or []}
             self._status_at = self._clock()
             for ev in doc.get("events") or []:
                 if not isinstance(ev, dict):
@@ -174,7 +189,7 @@ class Hub:
             "ts": record.get("ts") or utc_now(),
             "requirement": rid,
             "what": "violated",
-            "detail": _inputs_text(record.get("inputs")),
+            "detail": _inputs_text(record.get("inputs"), self._precisions),
             "tick": record.get("tick"),
             "text": record.get("text"),
             "formula": record.get("formula"),
@@ -281,10 +296,57 @@ class Hub:
         }
 
 
-def _inputs_text(inputs: Any) -> str:
+def _started(doc: dict[str, Any]) -> datetime | None:
+    """When the daemon of a status document started (its ``started``), if readable."""
+    try:
+        t = datetime.fromisoformat(str(doc.get("started")))
+    except ValueError:
+        return None
+    return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
+
+
+def _restart_entry(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """The feed's mark between two daemons' entries (docs/reference/commands.md, ui)."""
+    return {
+        "event": "restart",
+        "ts": after.get("started") or utc_now(),
+        "requirement": "",
+        "what": f"supervisor started: pid {after.get('pid')}",
+        "detail": f"the entries below are the previous supervisor's "
+        f"(pid {before.get('pid')}, started {before.get('started')})",
+        "tick": None,
+    }
+
+
+def value_text(value: Any, precision: str | None = None) -> str:
+    """An input's value as a page shows it: at its type's precision (a float32
+    field's shortest text that reads back as the same float32: 0.8, not
+    0.800000011920929), a double as Python writes it, an integer as one."""
+    if isinstance(value, bool) or value is None:
+        return json.dumps(value)
+    if isinstance(value, float) and precision == "float32" and _f32(value) == value:
+        for digits in range(1, 10):  # 9 significant digits always read back
+            # rounded as the page's toExponential rounds: ties away from zero
+            short = float(Context(prec=digits, rounding=ROUND_HALF_UP).create_decimal(value))
+            if _f32(short) == value:
+                return repr(short)
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)  # an integer, or the daemon's "nan", "inf", "-inf"
+
+
+def _f32(x: float) -> float:
+    """``x`` rounded to the nearest float32, as a float."""
+    try:
+        return float(struct.unpack("f", struct.pack("f", x))[0])
+    except OverflowError:
+        return math.nan  # beyond float32: no float32 field gave it
+
+
+def _inputs_text(inputs: Any, precisions: dict[str, str | None]) -> str:
     if not isinstance(inputs, dict):
         return ""
-    return ", ".join(f"{k}={json.dumps(v)}" for k, v in inputs.items())
+    return ", ".join(f"{k}={value_text(v, precisions.get(k))}" for k, v in inputs.items())
 
 
 def _int(text: str | None) -> int | None:

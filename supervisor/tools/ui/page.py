@@ -6,7 +6,8 @@ Events): a snapshot first, then each status document, violation record and
 browser from the values it has seen.  ``__NONCE__`` is replaced per response (the
 Content-Security-Policy admits this script only).  ``__BASE__`` is where the page's
 stream and reset are (empty for the one robot; ``/robot/<id>`` in the fleet) and
-``__FLEET__`` the fleet page to link back to (empty: no link).
+``__FLEET__`` the fleet page to link back to (empty: no link); ``__HOLD_S__`` how
+long a violation stays shown after it (``ui --violated-for``).
 docs/reference/commands.md, ``ui``.
 """
 
@@ -29,10 +30,14 @@ section { background: #fff; border: 1px solid #ddd; border-radius: 6px; padding:
 h2 { font-size: 15px; margin: 4px 0 8px; }
 table { border-collapse: collapse; width: 100%; }
 td, th { text-align: left; padding: 3px 6px; border-bottom: 1px solid #eee; vertical-align: top; }
+/* a long name or value wraps inside its cell, never widens the table past its section */
+td { overflow-wrap: anywhere; }
+td button { overflow-wrap: normal; white-space: nowrap; }
 th { font-weight: 600; color: #555; }
 code { font-size: 12px; word-break: break-word; }
 .muted { color: #777; }
 .state { padding: 1px 8px; border-radius: 9px; font-weight: 600; white-space: nowrap; }
+.vago { font-size: 12px; color: #b71c1c; font-weight: 600; white-space: nowrap; }
 .state-holding { background: #c8e6c9; color: #1b5e20; }
 .state-violated, .state-escalated { background: #ffcdd2; color: #b71c1c; }
 .state-latched { background: #f8bbd0; color: #880e4f; }
@@ -51,11 +56,18 @@ body.notlive .ok { color: #555; }
 #feed .k { display: inline-block; min-width: 76px; font-weight: 600; }
 #feed .violation .k { color: #b71c1c; } #feed .mitigation .k { color: #6a1b9a; }
 #feed .reset .k, #feed .ui .k { color: #0d47a1; }
+/* where one daemon's entries end and the next one's begin */
+#feed li.restart { background: #eceff1; border-top: 2px solid #263238; font-weight: 600; padding: 4px; }
 button { cursor: pointer; }
 button:disabled { cursor: not-allowed; }
 #tokenbox { display: none; margin-top: 6px; }
 #resetmsg { margin-left: 8px; }
-svg.spark { width: 120px; height: 24px; }
+svg.spark { display: block; width: 120px; height: 24px; }
+/* fixed columns: the sparkline keeps its 120 px whatever the names (which wrap) */
+table.inputs { table-layout: fixed; }
+table.inputs col.value { width: 7em; } table.inputs col.age { width: 6.5em; }
+table.inputs col.spark { width: 132px; }
+@media (max-width: 900px) { main { grid-template-columns: minmax(0, 1fr); } }
 svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
 .full { grid-column: 1 / -1; }
 #trust { padding: 0 12px; }
@@ -109,7 +121,8 @@ ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE.</p>
     <svg id="opview" viewBox="0 0 460 220" width="100%" role="img"></svg>
   </div>
   <h2>Inputs</h2>
-  <table>
+  <table class="inputs">
+    <colgroup><col><col class="value"><col class="age"><col class="spark"></colgroup>
     <thead><tr><th>input</th><th>value</th><th>age</th><th>last seconds</th></tr></thead>
     <tbody id="inputs"></tbody>
   </table>
@@ -129,6 +142,10 @@ const SPARK_S = 30;          // seconds of values a sparkline shows
 // broken stream is noticed as well as a dead daemon.
 const LIVE_PERIODS = 3, LIVE_MIN_S = 1.0, QUIET_DEFAULT_S = 3.0;
 const FEED_MAX = 200;
+// A requirement shows "violated N s ago", in red, for HOLD_S after each violation
+// (ui --violated-for; a policy often resets it within milliseconds), and the most recently
+// violated come first.
+const HOLD_S = Number("__HOLD_S__") >= 0 ? Number("__HOLD_S__") : 60;
 const TOKEN_KEY = "safety-supervisor-ui-token";
 const BASE = "__BASE__";     // this robot's paths in the fleet ("" for the one robot)
 if (!"__FLEET__") document.getElementById("fleet-link").remove();
@@ -139,6 +156,7 @@ const OPSTATES = {0: "normal", 1: "alert", 2: "alert + slow down", 3: "stop + UV
 const M = {
   status: null, statusAt: null, diag: {requirements: {}, inputs: {}}, diagAt: null,
   learned: {}, seen: {}, values: {}, reset: {available: false, why: "connecting"},
+  lastAt: {},  // requirement -> its last violation on this page's clock (now())
   hist: {}, feed: [], connected: false, invalid: {count: 0}, publishers: [],
 };
 const $ = (id) => document.getElementById(id);
@@ -154,6 +172,38 @@ const obj = (v) => v !== null && typeof v === "object" && !Array.isArray(v) ? v 
 const fixed = (v, d) => num(v) == null ? "?" : num(v).toFixed(d);
 const fmtAge = (s) => num(s) == null ? "never" : (s < 10 ? s.toFixed(1) : s.toFixed(0)) + " s";
 const fmtTs = (ts) => typeof ts === "string" ? ts.replace("T", " ").replace(/\.\d+Z$/, "Z") : "";
+// a daemon's time (microseconds) in ms since the epoch, or NaN
+const parseTs = (ts) => typeof ts === "string" ? Date.parse(ts.replace(/(\.\d{3})\d*Z$/, "$1Z")) : NaN;
+const fmtAgo = (s) => s < 120 ? Math.floor(s) + " s" : Math.floor(s / 60) + " min";
+
+// Values at their type's precision: a double as Python writes it (repr), a float32
+// field's value (precision "float32") as the shortest text that reads back as the
+// same float32 (0.8, not 0.800000011920929), integers and bools as they are.
+function pyFloat(v, digits) {
+  if (Object.is(v, -0)) return "-0.0";
+  if (v === 0) return "0.0";
+  // toExponential() without digits gives the shortest that reads back as v
+  const [m, e] = (digits ? v.toExponential(digits - 1) : v.toExponential()).split("e");
+  const d = m.replace("-", "").replace(".", "").replace(/0+$/, "") || "0";
+  const x = Number(e), sign = v < 0 ? "-" : "";
+  if (x < -4 || x >= 16) {
+    return sign + (d.length > 1 ? d[0] + "." + d.slice(1) : d) + "e" + (x < 0 ? "-" : "+") +
+      String(Math.abs(x)).padStart(2, "0");
+  }
+  if (x < 0) return sign + "0." + "0".repeat(-x - 1) + d;
+  if (d.length <= x + 1) return sign + d + "0".repeat(x + 1 - d.length) + ".0";
+  return sign + d.slice(0, x + 1) + "." + d.slice(x + 1);
+}
+function fmtValue(v, type, precision) {
+  if (v === undefined) return "?";
+  if (typeof v !== "number") return typeof v === "string" ? v : JSON.stringify(v);
+  if (!Number.isFinite(v)) return String(v);
+  if (precision === "float32" && Math.fround(v) === v) {
+    for (let p = 1; p <= 9; p++) if (Math.fround(Number(v.toExponential(p - 1))) === v) return pyFloat(v, p);
+  }
+  if (type === "double") return pyFloat(v);
+  return String(v);
+}
 const fmtDur = (s) => {
   s = Math.floor(num(s) || 0); const h = Math.floor(s / 3600), m = Math.floor(s % 3600 / 60);
   return (h ? h + " h " : "") + (h || m ? m + " min " : "") + (s % 60) + " s";
@@ -164,6 +214,14 @@ function onStatus(doc, age) {
   M.status = doc;
   M.statusAt = now() - 1000 * (num(age) || 0);
   M.seen = {};  // the document's counts include what the topic showed
+  // each last violation on this page's clock: its age at the document's "now"
+  const docNow = parseTs(doc.now);
+  for (const r of arr(doc.requirements)) {
+    const age = (docNow - parseTs(obj(r).last_violation)) / 1000;
+    if (!Number.isFinite(age) || typeof r.id !== "string") continue;
+    const at = M.statusAt - 1000 * Math.max(age, 0);
+    if (!(M.lastAt[r.id] >= at)) M.lastAt[r.id] = at;
+  }
   const t = Date.now() / 1000;
   for (const inp of arr(doc.inputs)) {
     if (typeof inp.name !== "string") continue;
@@ -181,6 +239,7 @@ function onViolation(rec) {
   M.learned[rid] = {text: rec.text, formula: rec.formula};
   const s = M.seen[rid] || (M.seen[rid] = {n: 0});
   s.n += 1; s.last = new Date().toISOString();
+  M.lastAt[rid] = now();
   for (const [k, v] of Object.entries(obj(rec.inputs))) if (!(k in M.values)) M.values[k] = v;
 }
 
@@ -279,11 +338,33 @@ function renderHealth() {
   $("reset-all").disabled = !M.reset.available;
 }
 
+// Seconds since the requirement's last violation while within HOLD_S, else null.
+function heldFor(id) {
+  const at = M.lastAt[id];
+  if (typeof at !== "number") return null;
+  const s = (now() - at) / 1000;
+  return s < HOLD_S ? Math.max(s, 0) : null;
+}
+const PRESSING = ["latched", "escalated", "violated"];
+let heldShown = "";  // the requirements shown as recently violated, to re-render on change
+
 function renderRequirements() {
-  const rows = requirements().map((r) => {
-    r = obj(r);
+  // the most recently violated first; the others in the document's order (stable sort)
+  const list = requirements().map((r) => obj(r));
+  const at = (r) => typeof M.lastAt[r.id] === "number" ? M.lastAt[r.id] : -Infinity;
+  list.sort((a, b) => at(b) - at(a));
+  const held = [];
+  const rows = list.map((r) => {
     const seen = M.seen[r.id];
-    const state = seen ? "violated" : String(r.state || "unknown");
+    const daemonState = seen ? "violated" : String(r.state || "unknown");
+    const ago = heldFor(r.id);
+    if (ago != null) held.push(r.id);
+    // a requirement reset at once still shows its violation, in its colour
+    const state = ago != null && !PRESSING.includes(daemonState) ? "violated" : daemonState;
+    const badge = ago != null && state === "violated"
+      ? `<span class="state state-violated">violated <span class="since" data-at="${esc(M.lastAt[r.id])}">${esc(fmtAgo(ago))}</span> ago</span>`
+      : `<span class="state state-${esc(state)}">${esc(state)}</span>` +
+        (ago != null ? `<div class="vago">violated <span class="since" data-at="${esc(M.lastAt[r.id])}">${esc(fmtAgo(ago))}</span> ago</div>` : "");
     const count = (num(r.violations) || 0) + (seen ? seen.n : 0);
     const last = seen ? seen.last : r.last_violation;
     const acts = arr(r.actions).map((a) => obj(a)).map((a) =>
@@ -295,14 +376,16 @@ function renderRequirements() {
     const formula = r.formula || learned.formula || "";
     const staleIn = arr(r.stale_inputs).map(String);
     const stale = staleIn.length ? `<div class="stale">stale: ${esc(staleIn.join(", "))}</div>` : "";
-    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" data-violations="${esc(count)}">` +
+    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" ` +
+      `data-daemon-state="${esc(daemonState)}" data-violations="${esc(count)}">` +
       `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
-      `<td><span class="state state-${esc(state)}">${esc(state)}</span>${stale}</td>` +
+      `<td>${badge}${stale}</td>` +
       `<td>${esc(count)}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
       `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
   });
   $("requirements").innerHTML = rows.join("") ||
     `<tr><td colspan="6" class="muted">no requirements known yet</td></tr>`;
+  heldShown = held.sort().join("\n");
 }
 
 function spark(name) {
@@ -320,7 +403,7 @@ function renderInputs() {
   const rows = inputs().map((i) => obj(i)).map((i) =>
     `<tr class="input" data-input="${esc(i.name)}" data-stale="${i.stale === true ? 1 : 0}">` +
     `<td><b>${esc(i.name)}</b><div class="muted">${esc(i.topic)}</div></td>` +
-    `<td class="value">${esc(i.value === undefined ? "?" : JSON.stringify(i.value))}</td>` +
+    `<td class="value">${esc(fmtValue(i.value, i.type, i.precision))}</td>` +
     `<td><span class="age" data-age="${esc(num(i.age_s) ?? "")}">${esc(fmtAge(i.age_s))}</span>` +
     `${i.stale === true ? ' <span class="stale">stale</span>' : ""}</td><td>${spark(i.name)}</td></tr>`);
   $("inputs").innerHTML = rows.join("") || `<tr><td colspan="4" class="muted">no inputs known yet</td></tr>`;
@@ -364,6 +447,12 @@ function renderOpView() {
 // Between updates: input ages and uptime tick, and a quiet daemon is said (not live).
 function tick() {
   const t = now();
+  // a violation's "N s ago" counts up; past HOLD_S its requirement shows its own state
+  const held = requirements().map((r) => obj(r).id).filter((id) => heldFor(id) != null);
+  if (held.sort().join("\n") !== heldShown) renderRequirements();
+  for (const el of document.querySelectorAll("span.since[data-at]")) {
+    el.textContent = fmtAgo(Math.max(t - Number(el.dataset.at), 0) / 1000);
+  }
   const since = M.status ? (t - M.statusAt) / 1000 : (M.diagAt == null ? 0 : (t - M.diagAt) / 1000);
   for (const el of document.querySelectorAll(".age")) {
     if (el.dataset.age === "") continue;

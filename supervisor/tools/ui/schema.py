@@ -206,6 +206,8 @@ INPUT = record(
         "name": text(MAX_NAME, optional=False, empty=False),
         "topic": NAME,
         "type": NAME,
+        # "float32": the value is a float32 field's, shown at that precision
+        "precision": NAME,
         "value": value,
         "age_s": number(optional=True),
         "stale": boolean(),

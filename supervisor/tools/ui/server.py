@@ -55,6 +55,7 @@ MAX_REQUIREMENT = 200  # characters of an ID; the control socket's limit of its 
 MAX_CHUNK_LINES = 64  # chunk-size and trailer lines of one chunked body
 IO_TIMEOUT_S = 30.0  # a client that stops sending midway is dropped, its thread freed
 RESET_TIMEOUT_S = 5.0
+VIOLATED_FOR_S = 60.0  # ui --violated-for's default (docs/reference/commands.md, ui)
 # A robot's page in the fleet and its stream, state and reset (fleet names: fleet.NAME_RE)
 ROBOT_PATH = re.compile(r"/robot/([A-Za-z0-9_.-]+)(/events|/api/state|/api/reset)?")
 
@@ -158,8 +159,11 @@ class UiServer(ThreadingHTTPServer):
         token: bytes | None,
         socket_path: Callable[[], str | None],
         fleet: Fleet | None = None,
+        violated_for_s: float = VIOLATED_FOR_S,
     ) -> None:
-        """``fleet``: the fleet view (then ``hub`` is unused: each robot has its own)."""
+        """``fleet``: the fleet view (then ``hub`` is unused: each robot has its own).
+        ``violated_for_s``: how long the page shows a requirement violated after each
+        violation (``ui --violated-for``)."""
         try:
             family = socket.AF_INET6 if ipaddress.ip_address(address[0]).version == 6 else None
         except ValueError:
@@ -169,6 +173,7 @@ class UiServer(ThreadingHTTPServer):
         super().__init__(address, Handler)
         self.hub = hub
         self.fleet = fleet
+        self.violated_for_s = float(violated_for_s)
         self.token = token
         self.socket_path = socket_path
         self.host_ok = allowed_hosts(address[0], self.server_address[1])
@@ -334,6 +339,7 @@ class Handler(BaseHTTPRequestHandler):
         )
         # the single robot's page: its stream and reset at /, no fleet to go back to
         page = page.replace("__BASE__", "").replace("__FLEET__", "")
+        page = page.replace("__HOLD_S__", repr(self.server.violated_for_s))
         body = page.replace("__NONCE__", nonce).encode()
         self._send(
             HTTPStatus.OK,

@@ -357,6 +357,40 @@ def test_previous_occurrence_needs_the_scope_start(ex_id, word, wrong):
     assert any(not all(verdicts(both, t)) for t in traces)
 
 
+# FRET's formulas, printed by FRET, for the forms real projects write: persisted and
+# occurred with three arguments, abs/min/max in a sentence, a comma after the response
+# (tests/data/fret/README.md says how they were made and which sentence FRET was given).
+FORMS = [
+    json.loads(line)
+    for line in (EXAMPLES.parent / "fret" / "forms.jsonl").read_text().splitlines()
+    if line.strip()
+]
+
+
+@pytest.mark.parametrize("ex", FORMS, ids=[d["id"] for d in FORMS])
+def test_forms_real_projects_write_agree_with_fret(ex):
+    ours = formalize(parse_requirement(ex["fretish"])).formula
+    theirs = fret_pt(ex["pt"])
+    both = BinOp("<->", ours, theirs)
+    traces = random_traces(ours, theirs, n=200, rng=random.Random(ex["id"]), max_len=25)
+    for trace in traces:
+        if not all(verdicts(both, trace)):
+            a, b = verdicts(ours, trace), verdicts(theirs, trace)
+            pytest.fail(f"{ex['id']}: ours {a} FRET {b} on {trace}\nours: {ours}")
+    assert any(not all(verdicts(theirs, t)) for t in traces), "traces never violate FRET's"
+
+
+def test_forms_cover_every_scope_and_the_edge_windows():
+    # The table above is worth what it covers: each scope for both functions, and
+    # the windows whose ends are the edge ticks.
+    ids = {d["id"] for d in FORMS}
+    for scope in SCOPES:
+        assert {f"persisted3_{scope}_resp", f"occurred3_{scope}_resp"} <= ids, scope
+    for m, n in [(0, 0), (0, 2), (2, 2), (1, 1), (3, 5)]:
+        assert {f"persisted3_edge_{m}_{n}", f"occurred3_edge_{m}_{n}_null"} <= ids
+    assert {"abs_roll_hold_AP-003B", "abs_eb", "min_max_cond", "trailing_comma"} <= ids
+
+
 # ---------------------------------------------------------------- the whole grid
 
 SCOPES = {

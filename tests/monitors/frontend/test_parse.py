@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from fractions import Fraction
 from pathlib import Path
 
@@ -36,7 +37,10 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "data" / "fret-examples.jsonl"
 ALL = [json.loads(line) for line in EXAMPLES.read_text().splitlines() if line.strip()]
 # FRET rejects these; we accept them on purpose (see monitors/parse.py's docstring).
 EXTENSIONS = {"condform_always_00", "condform_always_03", "condform_11"}
-ERRORS = [d for d in ALL if not d["ok"] and d["id"] not in EXTENSIONS]
+# FRET refuses abs, min and max in a sentence (NuSMV keywords); we accept them
+# (docs/reference/fretish.md, "Deliberate differences from FRET").
+ACCEPTED_FUNCTIONS = {"expr_cond_15"}
+ERRORS = [d for d in ALL if not d["ok"] and d["id"] not in EXTENSIONS | ACCEPTED_FUNCTIONS]
 LOCATED = re.compile(r"^<input>:1:\d+: \S.*$")
 
 
@@ -431,7 +435,9 @@ def test_temporal_functions():
     assert resp("preReal(0.0, x) < x") == BinOp("<", Pre("preReal", Const(0.0), Var("x")), Var("x"))
     for future in ("persists(3, hot)", "occurs(3, hot)", "nextOcc(p, q)"):
         assert "future-time" in err(f"sw shall always satisfy {future}").message
-    assert "persisted takes 2 arguments" in err("sw shall always satisfy persisted(hot)").message
+    assert (
+        "persisted takes 2 or 3 arguments" in err("sw shall always satisfy persisted(hot)").message
+    )
     assert "preInt takes 2 arguments" in err("sw shall always satisfy preInt(x) > 1").message
     assert "tick count" in err("sw shall always satisfy persisted(x, hot)").message
     assert resp("-(x)") == Neg(Var("x"))
@@ -443,6 +449,74 @@ def test_reserved_words(word):
     e = err(f"sw shall always satisfy {word} > 1")
     assert "reserved" in e.message and word in e.message and e.col == 25
     assert e.hint and '"T"' in e.hint  # quoted, FRET takes it
+
+
+def test_three_argument_persisted_and_occurred():
+    # FRET's templates (xform.js): p held from m to n ticks ago, and n ticks have
+    # passed in the scope's interval; p occurred from m to n ticks ago, within it.
+    assert resp("persisted(1, 3, hot)") == BinOp(
+        "&", Past("H", Var("hot"), 1, 3), Past("H", Not(INTERVAL_START), 0, 2)
+    )
+    assert resp("persisted(0, 3, hot)") == resp("persisted(3, hot)")
+    assert resp("persisted(0, 0, hot)") == Var("hot")
+    assert resp("persisted(2, 2, hot)") == BinOp(
+        "&", Past("H", Var("hot"), 2, 2), Past("H", Not(INTERVAL_START), 0, 1)
+    )
+    assert resp("occurred(2, 2, f)") == Since("S", Not(INTERVAL_START), Var("f"), 2, 2)
+
+
+@pytest.mark.parametrize("fn", ["persisted", "occurred"])
+def test_a_window_written_far_end_first_is_refused_in_one_line(fn):
+    # FRET prints H[3,1] / S[3,1] for it: an empty window, never what was meant.
+    e = err(f"sw shall always satisfy x -> {fn}(3, 1, hot)")
+    assert e.col == 30 and "3" in e.message and "1" in e.message and "\n" not in str(e)
+    assert e.hint and f"{fn}(1, 3, " in e.hint
+    assert "tick count" in err(f"sw shall always satisfy {fn}(1, n, hot)").message
+    assert "2 or 3 arguments" in err(f"sw shall always satisfy {fn}(1, 2, 3, hot)").message
+
+
+@pytest.mark.parametrize(
+    "text,formula",
+    [
+        ("abs(roll_angle) < 6.0", "abs(roll_angle) < 6.0"),
+        ("abs(check_1_1 - 1.0) < eps6", "abs(check_1_1 - 1.0) < eps6"),
+        ("min(a, b) > max(c, 2)", "min(a, b) > max(c, 2)"),
+        ("absReal(x) = abs(x)", "abs(x) = abs(x)"),
+    ],
+)
+def test_abs_min_max_are_functions_in_a_sentence(text, formula):
+    assert resp(text) == parse_formula(formula)
+    # the same in a condition and a scope's mode
+    req = P(f"while abs(v) < 2.0 upon {text} sw shall always satisfy q")
+    assert req.condition.expr == parse_formula(formula)
+
+
+def test_abs_min_max_stay_reserved_as_names_and_check_their_arguments():
+    assert "reserved" in err("sw shall always satisfy abs > 1").message
+    assert "reserved" in err("sw shall always satisfy x -> min").message
+    e = err("sw shall always satisfy abs(x, y) > 1")
+    assert "abs" in e.message and e.col == 25
+
+
+@pytest.mark.parametrize("end", [",", " ,", ", .", ",.", "."])
+def test_a_comma_or_a_dot_may_follow_the_response(end):
+    plain = "in cruise mode upon p sw shall within 2 ticks satisfy q & r"
+    assert replace(P(plain + end), text=plain) == P(plain)
+    prev = "sw shall always satisfy at the previous occurrence of p, q"
+    assert P(prev + end).response == P(prev).response
+
+
+@pytest.mark.parametrize(
+    "text,col,words",
+    [
+        ("sw shall always satisfy q,,", 27, "','"),
+        ("sw shall always satisfy q, r", 28, "'r'"),
+        ("sw shall always satisfy q. r", 28, "'r'"),
+    ],
+)
+def test_after_the_trailing_comma_nothing_else(text, col, words):
+    e = err(text)
+    assert e.col == col and words in e.message and "\n" not in str(e)
 
 
 @pytest.mark.parametrize("word", ["T", "Z", "A", "MODE", "mode", "next", "left wheel", "a-b"])

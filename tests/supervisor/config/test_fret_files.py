@@ -373,3 +373,60 @@ def test_an_import_for_another_component_says_which_it_holds(tmp_path):
         load_config(cfg)
     assert "no requirements" in str(e.value)
     assert "12 requirements of other components left out: 'liquid_mixer' (12)" in str(e.value)
+
+
+# Rows of tests/data/fret/forms.jsonl, one per form real projects write: FRET's
+# formula (for the sentence, or for the one FRET was given) is the export's
+# ptExpanded, which check cross-checks against ours on random traces.
+FORM_ROWS = (
+    "persisted3_in_resp",
+    "occurred3_after_whenever",
+    "persisted3_onlyBefore_upon",
+    "persisted3_edge_2_2_null",
+    "abs_roll_hold_AP-003B",
+    "abs_eb",
+    "min_max_cond",
+    "trailing_comma_dot",
+)
+FORM_TYPES = {"Bool": "bool", "Float64": "double"}
+FORM_VARIABLES = {
+    **dict.fromkeys("hot x fan cruise takeoff landing p q r roll_hold ridge_on".split(), "Bool"),
+    **dict.fromkeys(
+        "roll_angle roll_hold_reference det_B_BT eps12 eps6 check_1_1 a b c".split(), "Float64"
+    ),
+}
+
+
+def test_check_takes_the_fret_forms_real_projects_write(tmp_path, monkeypatch, capsys):
+    rows = {
+        d["id"]: d
+        for d in map(json.loads, (DATA / "fret" / "forms.jsonl").read_text().splitlines())
+    }
+    export = [
+        {
+            "reqid": rid,
+            # one component, as a config monitors one
+            "fulltext": rows[rid]["fretish"].replace("RollAutopilot", "sw").replace("EB ", "sw "),
+            "semantics": {"ptExpanded": rows[rid]["pt"]},
+        }
+        for rid in FORM_ROWS
+    ]
+    (tmp_path / "forms.json").write_text(json.dumps(export))
+    variables = "".join(
+        f"  {n}: {{topic: /forms/{n}, msg: std_msgs/msg/{t}, type: {FORM_TYPES[t]}}}\n"
+        for n, t in FORM_VARIABLES.items()
+    )
+    cfg = write(
+        tmp_path,
+        "component: sw\nstep: {policy: periodic, period_ms: 100}\n"
+        # the analyses of these forms: tests/monitors/frontend/test_fret_forms.py
+        "analysis: {enabled: false}\n"
+        "requirements_from: forms.json\n"
+        f"variables:\n{variables}",
+    )
+    monkeypatch.chdir(tmp_path)
+    code = cli_main(["check", str(cfg)])
+    out = capsys.readouterr()
+    assert code == 0, out
+    assert f"{len(FORM_ROWS)} requirements ok, monitor compiled" in out.out
+    assert "differs from FRET" not in out.out + out.err and "not cross-checked" not in out.out

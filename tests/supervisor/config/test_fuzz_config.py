@@ -52,6 +52,8 @@ def _mutate_number(text: str, data: st.DataObject) -> str:
 
 def _mutate_line(text: str, data: st.DataObject) -> str:
     lines = text.splitlines(keepends=True)
+    if not lines:  # an earlier mutation left nothing
+        return text
     i = data.draw(st.integers(0, len(lines) - 1))
     how = data.draw(st.sampled_from(["delete", "duplicate", "truncate"]))
     if how == "delete":

@@ -12,6 +12,7 @@ gcc, the child and z3.
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -105,17 +106,17 @@ def test_findings_for_another_config_are_refused(
 ) -> None:
     # A child given other bytes (and their hash) than the daemon read: it judges
     # them and says so, and the daemon takes none of its findings.
-    from supervisor.analysis_child import Aside
-    from supervisor.config import read_config
+    from supervisor.analysis_child import Aside, _payload
+    from supervisor.config import ConfigSource, read_config
 
     config = tmp_path / "c.yaml"
     config.write_text(GOOD)
     other = tmp_path / "other"
-    other.write_text(BAD)
     real: Callable[..., Any] = children.start
 
     def start(argv: Sequence[str], **kw: Any) -> Any:
         argv = [sha256(BAD) if a == sha256(GOOD) else a for a in argv]
+        other.write_bytes(_payload(ConfigSource.of(config, BAD.encode())))
         with other.open("rb") as stdin:
             return real(argv, **{**kw, "stdin": stdin})
 
@@ -123,6 +124,47 @@ def test_findings_for_another_config_are_refused(
     checked = Aside(read_config(config)).result()
     assert checked.skipped == f"the analyses' process judged another config (sha256 {sha256(BAD)})"
     assert checked.errors == [] and checked.project.config.sha256 == sha256(GOOD)
+
+
+IMPORTING = """\
+component: sw
+step: {policy: periodic, period_ms: 100}
+variables:
+  p: {type: bool, topic: /p, msg: std_msgs/msg/Bool}
+  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64}
+requirements_from: reqs.json
+analysis: {k: 1000}
+"""
+
+
+def _fret(*texts: str) -> str:
+    return json.dumps([{"reqid": f"r{i}", "fulltext": t} for i, t in enumerate(texts, 1)])
+
+
+@pytest.mark.slow
+def test_an_imported_file_edited_mid_reload_is_judged_as_it_was_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The child is given the imported FRET file's bytes as the daemon read them:
+    # the findings are of the requirements compiled, not of the file as it is now.
+    config = tmp_path / "c.yaml"
+    config.write_text(IMPORTING)
+    fret = tmp_path / "reqs.json"
+    fret.write_text(_fret("upon x > 3 sw shall within 1 second satisfy p"))
+    conflict = _fret(
+        "upon x > 3 sw shall within 1 second satisfy p",
+        "sw shall always satisfy !p",
+        "sw shall always satisfy p",
+    )
+    started = edit_when_the_child_starts(monkeypatch, fret, conflict)
+    session = prepare_session(str(config), tmp_path / "build")
+    try:
+        assert started, "the analyses ran in the daemon: the race needs the child"
+        assert fret.read_text() == conflict  # the edit happened, mid-reload
+        assert [r.id for r in session.requirements] == ["r1"]
+    finally:
+        if session.cleanup is not None:
+            session.cleanup()
 
 
 def _analyses_child_of(pid: int) -> bool:

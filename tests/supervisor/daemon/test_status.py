@@ -195,14 +195,14 @@ def test_rates_inputs_and_dropped_events_between_two_documents(tmp_path: Path):
                 "type": "double",
                 **dict(zip(keys, speed, strict=True)),
             }
-            | {"lost": 0},
+            | {"lost": 0, "precision": None},
             {
                 "name": "halted",
                 "topic": "/halted",
                 "type": "bool",
                 **dict(zip(keys, halted, strict=True)),
             }
-            | {"lost": 0},
+            | {"lost": 0, "precision": None},
         ]
 
     assert first == fixed | {
@@ -234,4 +234,45 @@ def test_rates_inputs_and_dropped_events_between_two_documents(tmp_path: Path):
         "violations": 1,
         "inputs": inputs((4.0, 0.596, True, 4), (False, 0.699, True, 1)),
         "events_dropped": 0,
+    }
+
+
+FLOAT32 = """\
+component: R
+step: {policy: on_message}
+variables:
+  f32: {type: double, topic: /f32, msg: std_msgs/msg/Float32}
+  f64: {type: double, topic: /f64, msg: std_msgs/msg/Float64}
+  nearest: {type: double, topic: /scan, msg: sensor_msgs/msg/LaserScan, field: ranges, reduce: min}
+  first: {type: double, topic: /scan, msg: sensor_msgs/msg/LaserScan, field: "ranges[0]"}
+  mean: {type: double, topic: /scan, msg: sensor_msgs/msg/LaserScan, field: ranges, reduce: mean}
+  count: {type: int64, topic: /n, msg: std_msgs/msg/Int64}
+requirements:
+  - id: r
+    text: R shall always satisfy f32 + f64 + nearest + first + mean < 1.0 | count > 0
+    on_violation: [note]
+mitigations:
+  note: {log: {message: violated}}
+"""
+
+
+def test_an_input_says_when_its_value_is_a_float32(tmp_path: Path):
+    """A page shows a float32 field's value at float32 precision (0.8, not
+    0.800000011920929): the document says which values are float32 as they came."""
+    (tmp_path / "c.yaml").write_text(FLOAT32)
+    project = project_for(tmp_path / "c.yaml", ros=False)
+    session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
+    board = StatusBoard("safety_supervisor")
+    core = Core(session, MemoryLog(), lambda _request: None, warn=lambda _t: None)
+    core.start(0)
+    doc = board.document(
+        core, now_ns=MS, reloads=0, recording=False, watchdog_s=None, control_socket=None
+    )
+    assert {i["name"]: i["precision"] for i in doc["inputs"]} == {
+        "f32": "float32",
+        "f64": None,
+        "nearest": "float32",  # the min of float32s is one of them
+        "first": "float32",
+        "mean": None,  # computed in double
+        "count": None,
     }

@@ -68,7 +68,7 @@ def test_bench_ui_load(tmp_path: Path) -> None:
     for name, c in cases.items():
         assert 0 < c["received"] <= c["sent"], name
         assert c["lost"] == c["sent"] - c["received"], name
-        assert c["loss_agree"], name
+        assert c["loss_agree"], (name, c["loss"])
         assert _positive(c["cpu_us_per_msg"]), (name, c)
         assert isinstance(c["cpu_diff_pct"], float), name
     assert cases["no ui"]["ui"] is None

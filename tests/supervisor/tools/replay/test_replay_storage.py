@@ -292,3 +292,40 @@ def test_an_mcap_compressed_per_file_replays_as_the_plain_one(tmp_path):
     assert "compression_mode: FILE" in meta.read_text()
     assert replay([bag], cfg) == expected
     assert replay([packed], cfg) == expected
+
+
+INT64_CONFIG = """\
+component: Robot
+step: {policy: periodic, period_ms: 100}
+variables:
+  x: {type: int64, topic: /x, msg: std_msgs/msg/Int64, field: data}
+requirements:
+  - {id: R1, text: Robot shall always satisfy x < 1000}
+"""
+
+
+def test_an_unchunked_mcap_replays_by_log_time_as_the_mcap_reader_says(tmp_path):
+    # Messages outside any chunk (an MCAP writer without chunking), written out of
+    # log-time order and with publish times that differ: replay orders them by log
+    # time, as the reference reader in log-time order does.
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    bag = tmp_path / "loose.mcap"
+    log_times = [5_000, 1_000, 3_000, 3_000, 9_000, 2_000, 7_000]
+    with bag.open("wb") as f:
+        w = Writer(f, use_chunking=False)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/Int64", "ros2msg", b"int64 data")
+        cid = w.register_channel("/x", "cdr", sid)
+        for k, t in enumerate(log_times):
+            data = TS.serialize_cdr(TS.types["std_msgs/msg/Int64"](data=k), "std_msgs/msg/Int64")
+            w.add_message(cid, log_time=t, data=data, publish_time=10**9 - t, sequence=k)
+        w.finish()
+    with bag.open("rb") as f:
+        expected = [
+            (m.log_time, TS.deserialize_cdr(m.data, "std_msgs/msg/Int64").data)
+            for _, _, m in make_reader(f).iter_messages(log_time_order=True)
+        ]
+    got = [(t, dict(values)["x"]) for t, _, values in replay([bag], config(tmp_path, INT64_CONFIG))]
+    assert got == expected
