@@ -29,9 +29,12 @@ class RecordingDir:
 
 def is_bag(path: Path) -> bool:
     """A rosbag2 bag directory (its metadata, or storage files directly in it)."""
-    return (path / "metadata.yaml").is_file() or any(
-        f.name.endswith(_STORAGE) for f in path.iterdir() if f.is_file()
-    )
+    try:
+        return (path / "metadata.yaml").is_file() or any(
+            f.name.endswith(_STORAGE) for f in path.iterdir() if f.is_file()
+        )
+    except OSError:  # a directory this user cannot list holds nothing it can read
+        return False
 
 
 def is_recording_dir(path: str | Path) -> bool:
