@@ -38,6 +38,8 @@ from supervisor.tools.report.command import add_parser as add_report_parser
 from supervisor.tools.report.command import cmd_report
 from supervisor.tools.reset import add_parser as add_reset_parser
 from supervisor.tools.reset import cmd_reset
+from supervisor.tools.status import add_parser as add_status_parser
+from supervisor.tools.status import cmd_status
 from supervisor.tools.ui.command import add_parser as add_ui_parser
 from supervisor.tools.ui.command import cmd_ui
 
@@ -277,6 +279,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "logs": cmd_logs,
     "run": cmd_run,
     "reset": cmd_reset,
+    "status": cmd_status,
     "reload": cmd_reload,
     "ui": cmd_ui,
     "install-service": cmd_install_service,
@@ -299,11 +302,37 @@ def k_arg(text: str) -> int:
     return k
 
 
+def _version() -> str:
+    """The installed distribution's version (its metadata, as pip shows it)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("safety-supervisor")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        return "unknown (not installed)"
+
+
+class _Version(argparse.Action):
+    """``--version``, its metadata read only when asked: every other start skips
+    importlib.metadata (docs/BENCHMARKS.md, "Start-up")."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: object) -> None:
+        super().__init__(
+            option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, nargs=0,
+            help=str(kwargs.get("help")),
+        )  # fmt: skip
+
+    def __call__(self, parser: argparse.ArgumentParser, *_args: object) -> None:
+        print(f"{parser.prog} {_version()}", flush=True)
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="safety-supervisor",
         description="Runtime-verification safety supervisor for ROS 2 robots.",
     )
+    p.add_argument("--version", action=_Version, help="the installed package's version, and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_init_parser(sub)
 
@@ -350,6 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     add_logs_parser(sub)
     add_reset_parser(sub)
+    add_status_parser(sub)
     add_reload_parser(sub)
     add_ui_parser(sub)
     add_install_parser(sub)

@@ -39,7 +39,7 @@ from monitors.untrusted import Untrusted, load_json, printable
 from supervisor.config.model import ControlConfig
 from supervisor.names import OPERATORS_GROUP, daemon_control_socket
 
-COMMANDS = ("reset", "reload")
+COMMANDS = ("reset", "reload", "status")  # status: read-only, ``safety-supervisor status``
 FIELDS = ("command", "requirement", "via", "client")
 MAX_FIELD = 200  # characters of requirement, via and client
 MAX_REQUEST = 4096  # bytes of one request line
@@ -77,7 +77,7 @@ class Caller:
 class ControlRequest:
     """One request on its way from the socket thread to the loop and back."""
 
-    command: str  # "reset" or "reload"
+    command: str  # "reset", "reload" or "status"
     caller: Caller
     refused: str | None = None  # "permission" or "bad_request": the loop only reports it
     requirement: str | None = None  # reset one requirement; None: every one
@@ -440,8 +440,8 @@ class ControlServer:
         command = doc.get("command")
         if command not in COMMANDS:
             return bad(f"unknown command {_shown(command)}; known: {', '.join(COMMANDS)}")
-        if command == "reload" and doc.get("requirement") is not None:
-            return bad("'requirement' belongs to reset; reload reloads the whole config")
+        if command in ("reload", "status") and doc.get("requirement") is not None:
+            return bad(f"'requirement' belongs to reset; {command} is about the whole supervisor")
         extra = {k: doc.get(k) for k in FIELDS if k != "command"}
         for key, value in extra.items():
             if value is not None and not (

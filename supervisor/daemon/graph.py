@@ -90,8 +90,7 @@ class InputGraph:
                 continue
             klass = message_class(var.msg)
             qos, warning = qos_for(self.node, var)
-            if warning:
-                warn(warning)
+            if warning:  # the record is the warning: the log echoes it on stderr
                 self.log.supervisor("input_no_publisher", input=var.name, topic=var.topic)
             sub = self.node.create_subscription(klass, var.topic, never, qos)
             new = Sub(
@@ -175,7 +174,6 @@ class InputGraph:
             self.offer_qos(s, right)
             if problem != s.problem:
                 if problem is not None and (pubs or s.problem is not None):
-                    warn(f"input '{s.name}': {problem}")
                     self.log.supervisor("input_problem", input=s.name, detail=problem)
                 elif problem is None and s.problem is not None:
                     self.log.supervisor("input_problem_cleared", input=s.name, topic=topic)

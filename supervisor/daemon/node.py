@@ -55,13 +55,19 @@ from supervisor.daemon.receive import Receiver
 from supervisor.daemon.reload import Reloader, keep_policies
 from supervisor.daemon.resets import Resets
 from supervisor.daemon.session import Session
-from supervisor.daemon.status import StatusBoard
+from supervisor.daemon.status import StatusBoard, status_answer
 
 if TYPE_CHECKING:  # rosbags loads only when recording is on
     from supervisor.daemon.recorder import Recorder
 
 MAX_WAIT_NS = 100_000_000  # the loop checks its flags at least this often
 STATUS_EVERY_NS = 1_000_000_000
+
+
+def _said_by_its_record(_text: str) -> None:
+    """The daemon's core and loss reports warn with a record each, which the log
+    echoes on stderr or sends to the journal (docs/reference/log.md): a print as
+    well would say every warning twice.  (``replay`` keeps the core's warnings.)"""
 
 
 class SupervisorNode:
@@ -118,7 +124,7 @@ class SupervisorNode:
             lambda request: self.engine.submit(request),
             published=self.interfaces.unpublished.append,
             marker=self._marker if recorder is not None else None,
-            warn=warn,
+            warn=_said_by_its_record,
         )
         self.reloader = Reloader(
             self.core,
@@ -129,8 +135,10 @@ class SupervisorNode:
             swap=self._swap,
             status_line=self.status_line,
         )
-        self.resets = Resets(self.core, log, control, self.reloader.asked)
-        self.loss = LossReports(log, warn)
+        self.resets = Resets(
+            self.core, log, control, self.reloader.asked, status=self._status_answer
+        )
+        self.loss = LossReports(log, _said_by_its_record)
         self.receiver = Receiver(self.core, log, self.inputs, self._own, self.interfaces, recorder)
         # Each record also goes to the status topic's feed, and to the recording.
         self.status = StatusBoard(cfg.ros.node_name, self.node.get_namespace())
@@ -162,6 +170,20 @@ class SupervisorNode:
         # A page tells a dead supervisor from a slow one by this (ros-interfaces.md, Status).
         doc["status_period_s"] = self.session.config.ros.status_ms / 1000
         self.interfaces.publish_status(doc)
+
+    def _status_answer(self) -> dict[str, Any]:
+        """What ``safety-supervisor status`` shows: the status document without its
+        event feed (left for the status topic), flat and small."""
+        doc = self.status.document(
+            self.core,
+            now_ns=time.monotonic_ns(),
+            reloads=self.reloads,
+            recording=self.recorder is not None,
+            watchdog_s=self.watchdog_ns / 1e9 if self.watchdog_ns else None,
+            control_socket=self.control.path if self.control is not None else None,
+            peek=True,
+        )
+        return status_answer(doc, self.status.started_wall, time.time())
 
     def _marker(self, what: str, t: int, fields: dict[str, Any]) -> None:
         assert self.recorder is not None
@@ -358,11 +380,10 @@ class SupervisorNode:
         return stop_stats(self.core.input_stats(), streams)
 
     def _outcomes(self) -> None:
+        # A failed attempt's warning is its mitigation record (ok false), which the
+        # log echoes on stderr: the outcomes need nothing more of the loop.
         with self._done_lock:
-            done, self._done = self._done, []
-        for request, action, outcome in done:
-            if not outcome.ok:
-                warn(f"mitigation {action} for {request.requirement} failed: {outcome.error}")
+            self._done.clear()
 
     # ------------------------------------------------------------ reload
 

@@ -105,12 +105,12 @@ def open_recorder(cfg: Config, path: str | None, log: ViolationLog) -> Recorder 
 
     topics = list(dict.fromkeys((v.topic or "", v.msg or "") for v in cfg.inputs))
 
+    # Each record is echoed on stderr (or sent to the journal) by the log itself:
+    # a print as well would say every warning twice (docs/reference/log.md).
     def stopped(reason: str) -> None:
-        print(f"safety-supervisor: WARNING: recording stopped: {reason}", file=sys.stderr)
         log.supervisor("record_stopped", reason=reason)
 
     def warning(text: str) -> None:
-        print(f"safety-supervisor: WARNING: recording: {text}", file=sys.stderr)
         log.supervisor("record_warning", detail=text)
 
     try:
@@ -209,7 +209,6 @@ def _log_start(log: ViolationLog, config: str, session: Session, skipped: list[s
     for why in skipped:  # run validates as check does; say what it could not judge
         log.supervisor("analysis_skipped", why=why)
     for w in session.project.warnings:  # e.g. an SSH key the robot does not hold
-        print(f"safety-supervisor: WARNING: {w}", file=sys.stderr, flush=True)
         log.supervisor("check_warning", detail=w)
 
 

@@ -16,7 +16,7 @@ from typing import Any
 
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.daemon.control import ControlRequest
-from supervisor.daemon.core import Core, warn
+from supervisor.daemon.core import Core
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.session import Session
 
@@ -120,7 +120,6 @@ class Reloader:
                 }
             else:
                 why = " ".join(str(result).splitlines())  # one line, wherever it came from
-                warn(f"reload rejected, still running the previous config: {why}")
                 self.log.supervisor("reload", ok=False, why=why, **how)
                 self.notifier.ready(status=f"reload rejected: {why} | {self._status_line()}")
                 reply = {

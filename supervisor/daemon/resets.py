@@ -17,7 +17,7 @@ from typing import Any
 
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.daemon.control import ControlRequest, ControlServer, Refusals, ResetGate
-from supervisor.daemon.core import Core, warn
+from supervisor.daemon.core import Core
 
 CONTROL_RESTARTS = 3  # a control thread that fails again after this many stays down
 
@@ -31,11 +31,13 @@ class Resets:
         log: ViolationLog,
         control: ControlServer | None,
         reload: Callable[[ControlRequest], None],
+        status: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         self.core = core
         self.log = log
         self.control = control
         self._reload = reload  # a reload asked for on the socket
+        self._status = status  # the answer to a status request (read-only)
         self._gate = ResetGate()
         self._refusals = Refusals()
         cfg = core.session.config.control
@@ -58,7 +60,6 @@ class Resets:
         if control is None or control.running() or self._down:
             return
         error = control.health()["error"] or "it ended"
-        warn(f"control socket {control.path}: its thread failed: {error}")
         if control.restarts < CONTROL_RESTARTS and control.revive():
             self.log.supervisor("control_failed", socket=control.path, error=error, restarted=True)
             return
@@ -78,6 +79,10 @@ class Resets:
                 if req.command == "reload":
                     self._reload(req)
                     continue
+                if req.command == "status":
+                    state = self._status() if self._status is not None else {}
+                    req.answer({"ok": True, "message": "running", "status": state})
+                    continue
                 ok, message, refused = self.operator_reset(
                     via=req.via or "control_socket",
                     caller=req.caller.record(),
@@ -93,12 +98,11 @@ class Resets:
             if seen != self._seen:  # a reload changed control.socket or group
                 self._seen = seen
                 why = "control.socket and control.group take effect at the next start"
-                warn(f"{why}; still serving {self.control.path}")
                 self.log.supervisor("control_unchanged", socket=self.control.path, why=why)
         summary = self._refusals.due(now, int(cfg.interval_ms * 1e6))
         if summary is not None:
-            counts = ", ".join(f"{n} {why}" for why, n in summary["refused"].items())
-            warn(f"operator reset refused: {counts}")
+            # Each warning is a record, which the log echoes on stderr or sends to the
+            # journal (docs/reference/log.md): never printed a second time here.
             self.log.supervisor("reset_refused", **summary)
 
     def operator_reset(

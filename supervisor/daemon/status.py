@@ -101,15 +101,18 @@ class StatusBoard:
         recording: bool,
         watchdog_s: float | None,
         control_socket: str | None,
+        peek: bool = False,
     ) -> dict[str, Any]:
+        """``peek``: for a status request on the control socket, which must not take
+        the events the next document's feed carries (they are left out)."""
         cfg = core.session.config
         stats = core.input_stats()
         tick = core.tick
         received = sum(st["messages"] + st["rejected"] for st in stats.values())
-        tick_rate, receive_rate = self._rates(now_ns, tick, received)
+        tick_rate, receive_rate = (0.0, 0.0) if peek else self._rates(now_ns, tick, received)
         if self.started_mono is None:
             self.started_mono = now_ns
-        events, dropped, actions, last = self._take_records()
+        events, dropped, actions, last = self._take_records(take=not peek)
         requirements = _requirements(core, now_ns, actions, last)
         inputs = _inputs(core, stats, now_ns, self._precision)
         doc = {
@@ -157,15 +160,16 @@ class StatusBoard:
         return tick_rate, receive_rate
 
     def _take_records(
-        self,
+        self, *, take: bool = True
     ) -> tuple[
         list[dict[str, Any]], int, dict[str, list[dict[str, Any]]], dict[str, dict[str, Any]]
     ]:
         """The events since the previous document (taken: the next starts empty),
         how many were dropped, and each requirement's latest actions and violation."""
         with self._lock:
-            events, self._events = list(self._events), deque(maxlen=EVENTS_KEPT)
-            dropped, self._dropped = self._dropped, 0
+            events, dropped = list(self._events), self._dropped
+            if take:
+                self._events, self._dropped = deque(maxlen=EVENTS_KEPT), 0
             actions = {k: list(v) for k, v in self._actions.items()}
             last = dict(self._last_violation)
         return events, dropped, actions, last
@@ -228,3 +232,22 @@ def _inputs(
             }
         )
     return inputs
+
+
+# The keys of the status request's answer (docs/reference/commands.md, "status"):
+# flat, so the answer stays small and shallow for the client's bounded reader.
+STATUS_KEYS = (
+    "supervisor", "component", "config", "config_sha256", "pid", "started", "now",
+    "policy", "ticks", "received", "lost", "violations", "reloads", "recording",
+)  # fmt: skip
+REQUIREMENT_KEYS = ("id", "state", "violations", "last_violation", "last_tick", "stale_inputs")
+INPUT_KEYS = ("name", "topic", "age_s", "stale", "messages", "lost")
+
+
+def status_answer(doc: dict[str, Any], started_wall: float, now_wall: float) -> dict[str, Any]:
+    """The control socket's ``status`` answer from a (peeked) status document."""
+    out = {k: doc.get(k) for k in STATUS_KEYS}
+    out["uptime_s"] = round(max(0.0, now_wall - started_wall), 3)
+    out["requirements"] = [{k: r.get(k) for k in REQUIREMENT_KEYS} for r in doc["requirements"]]
+    out["inputs"] = [{k: i.get(k) for k in INPUT_KEYS} for i in doc["inputs"]]
+    return out

@@ -13,6 +13,7 @@ import json
 import os
 import re
 import signal
+import struct
 import sys
 import threading
 from collections.abc import Iterable
@@ -20,8 +21,16 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from mitigations.violationlog.format import EVENTS, details, sha256_hex
+from mitigations.violationlog.format import (
+    EVENTS,
+    HEADER,
+    BadRecord,
+    details,
+    parse_record,
+    sha256_hex,
+)
 from mitigations.violationlog.reader import (
+    LogLines,
     VerifyResult,
     check_seq_gap,
     iter_records,
@@ -226,8 +235,30 @@ def in_order(files: list[LogFile]) -> list[LogFile]:
     return out + [f for f in files if f not in out]  # a cycle of links: never dropped
 
 
+def refuse_foreign(path: str) -> None:
+    """A file whose first line is not a record of this format is not a violation log
+    (a README, another program's JSON lines): one located line and exit 1, instead of
+    a warning for each of its lines.  A log with a damaged line further on is read as
+    before, that line skipped and counted; ``--verify`` fails at such a first line too
+    (docs/reference/log.md, "Reading logs")."""
+    for line in LogLines(path):
+        if not line.endswith(b"\n"):
+            return  # the first record still being written (logs -f): judged when whole
+        try:
+            parse_record(line)
+        except BadRecord as e:
+            raise UserError(
+                printable(f"not a violation log: its first line is not a log record ({e})"),
+                file=path,
+                line=1,
+            ) from None
+        return
+
+
 def load(paths: list[str], err: Any = None) -> list[LogFile]:
     """The files' records, oldest file first; skipped lines and damage on ``err``."""
+    for p in paths:
+        refuse_foreign(p)
     return in_order([LogFile.read(p, err) for p in paths])
 
 
@@ -255,13 +286,90 @@ class Printer:
                 lines.append(r["_line"])
             else:
                 req = printable(str(r.get("requirement", "-")))
+                head, more = human_details(r)
                 lines.append(
                     printable(f"{r['ts']:<27}  {r['event']:<10}  ")
-                    + f"{req:<{self.width}}  {printable(details(r))}"
+                    + f"{req:<{self.width}}  {printable(head)}"
                 )
+                indent = " " * (27 + 2 + 10 + 2 + self.width + 2)
+                lines += [indent + printable(m) for m in more]
         if lines:
             self.out.write("\n".join(lines) + "\n")
             self.out.flush()  # a follower's reader (a pipe) sees each record when it comes
+
+
+def _float32_exact(v: float) -> bool:
+    try:
+        return struct.unpack("f", struct.pack("f", v))[0] == v
+    except OverflowError:
+        return False
+
+
+def number(v: float) -> str:
+    """A float at its type's precision: a value a float32 carried (a ROS ``float32``
+    field) in the fewest digits that give that float32 back (``0.8``, not
+    ``0.800000011920929``), any other at a double's (Python's shortest repr).
+    Never rounded past what tells it from its neighbour: a value just over a
+    threshold still reads as over it."""
+    if v != v or v in (float("inf"), float("-inf")) or not _float32_exact(v):
+        return repr(v)
+    for digits in range(1, 10):
+        text = f"{v:.{digits}g}"
+        if struct.unpack("f", struct.pack("f", float(text)))[0] == v:
+            return repr(float(text)) if "e" not in text else text
+    return repr(v)
+
+
+def _word(v: Any) -> str:
+    """One value of ``key=value`` (a list of scalars comma-joined)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return number(v)
+    if isinstance(v, list) and all(not isinstance(x, dict | list) for x in v):
+        return ",".join(_word(x) for x in v) if v else "[]"
+    if isinstance(v, dict) and all(not isinstance(x, dict | list) for x in v.values()):
+        return "{" + " ".join(f"{k}={_word(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, list):  # of objects: one {...} each, the first few
+        shown = " ".join(_word(x) for x in v[:3])
+        return f"[{shown}{f' ... {len(v) - 3} more' if len(v) > 3 else ''}]"
+    if v is None:
+        return "null"
+    if isinstance(v, dict):
+        return "{" + " ".join(f"{k}={_word(x)}" for k, x in v.items()) + "}"
+    return str(v)
+
+
+def human_details(rec: dict[str, Any]) -> tuple[str, list[str]]:
+    """The DETAILS column of a record: its first line and any lines below it.
+
+    A field that holds one object per name (the ``stop`` record's ``inputs``, a
+    summary per input) gets a line per name under the record instead of one
+    long line of JSON; floats are shown at their type's precision (:func:`number`).
+    ``--json`` shows the records as stored."""
+    ev = rec.get("event")
+    if ev == "violation":
+        parts = [f"tick={rec.get('tick')}"]
+        parts += [f"{k}={_word(v)}" for k, v in (rec.get("inputs") or {}).items()]
+        if rec.get("stale"):
+            parts.append("stale=" + ",".join(map(str, rec["stale"])))
+        return " ".join(parts), []
+    if ev in ("mitigation", "reset"):
+        return details(rec), []
+    skip = {*HEADER, "line_sha256", "what"}
+    head, more = [str(rec.get("what"))], []
+    for k, v in rec.items():
+        if k in skip or k[:1] == "_":
+            continue
+        if isinstance(v, dict) and v and all(isinstance(x, dict) for x in v.values()):
+            more.append(f"{k}:")
+            w = max(len(str(name)) for name in v)
+            for name, fields in v.items():
+                words = " ".join(f"{f}={_word(x)}" for f, x in fields.items())
+                more.append(f"  {str(name):<{w}}  {words}")
+        else:
+            head.append(f"{k}={_word(v)}")
+    return " ".join(head), more
 
 
 def _summary_rows(records: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -427,6 +535,7 @@ def _follow(files: list[LogFile], args: argparse.Namespace, skipped: str) -> int
 
 
 def cmd_logs(args: argparse.Namespace) -> int:
+    args.files = _files(args.files)
     if args.verify:
         return verify_files(args.files)
     if args.follow:
@@ -444,6 +553,16 @@ def cmd_logs(args: argparse.Namespace) -> int:
         records = records[len(records) - args.lines :] if args.lines else []
     Printer(args.json, _width(records))(records)
     return 0
+
+
+def _files(paths: list[str]) -> list[str]:
+    """A recording directory (demo --record) stands for its violation log's files."""
+    from supervisor.tools.recording import is_recording_dir, recording_dir
+
+    out: list[str] = []
+    for p in paths:
+        out += [str(f) for f in recording_dir(p, log=True).logs] if is_recording_dir(p) else [p]
+    return out
 
 
 def _width(records: list[dict[str, Any]]) -> int:
@@ -517,7 +636,8 @@ def add_parser(sub: Any) -> None:
         "files",
         nargs="+",
         metavar="FILE",
-        help="violation logs, rotated ones (.1, .2.gz) too, in any order",
+        help="violation logs, rotated ones (.1, .2.gz) too, in any order; a recording "
+        "directory (demo --record DIR) for its log",
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(

@@ -88,14 +88,27 @@ def cmd_reset(args: argparse.Namespace) -> int:
     return 0 if answer["ok"] else 1
 
 
-def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
-    """One request, one answer; every failure is a UserError naming the socket."""
+class NoAnswer(UserError):
+    """No supervisor answered: none listens, or it did not answer in time
+    (``status`` exits 3 for it, as ``systemctl status`` does for a stopped unit)."""
+
+
+def request(
+    path: str,
+    req: dict[str, Any],
+    timeout: float,
+    *,
+    max_answer: int = MAX_ANSWER,
+    max_depth: int = 4,
+) -> dict[str, Any]:
+    """One request, one answer; every failure is a UserError naming the socket
+    (:class:`NoAnswer` when no supervisor answers)."""
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
         s.settimeout(timeout)
         try:
             _connect(s, path, time.monotonic() + timeout)
         except (FileNotFoundError, ConnectionRefusedError):
-            raise UserError(
+            raise NoAnswer(
                 "no supervisor is running here",
                 file=path,
                 hint="start it (systemctl start safety-supervisor), or pass the socket "
@@ -111,24 +124,24 @@ def request(path: str, req: dict[str, Any], timeout: float) -> dict[str, Any]:
         try:
             s.sendall(json.dumps(req).encode() + b"\n")
             data = b""
-            while b"\n" not in data and len(data) < MAX_ANSWER:
+            while b"\n" not in data and len(data) < max_answer:
                 chunk = s.recv(MAX_ANSWER)
                 if not chunk:
                     break
                 data += chunk
         except TimeoutError:
-            raise UserError(f"no answer within {timeout:g} s", file=path) from None
+            raise NoAnswer(f"no answer within {timeout:g} s", file=path) from None
         except OSError as e:
             raise UserError(f"connection failed: {e.strerror or e}", file=path) from None
     line, nl, _ = data.partition(b"\n")
-    if not nl and len(data) >= MAX_ANSWER:
-        raise UserError(f"the answer is longer than {MAX_ANSWER} bytes", file=path)
+    if not nl and len(data) >= max_answer:
+        raise UserError(f"the answer is longer than {max_answer} bytes", file=path)
     if not line.strip():
-        raise UserError("the supervisor closed the connection without an answer", file=path)
-    return _checked(line, path)
+        raise NoAnswer("the supervisor closed the connection without an answer", file=path)
+    return _checked(line, path, max_answer, max_depth)
 
 
-def _checked(line: bytes, path: str) -> dict[str, Any]:
+def _checked(line: bytes, path: str, max_answer: int, max_depth: int) -> dict[str, Any]:
     """The one schema check of an answer (docs/reference/ros-interfaces.md,
     "Control socket"): an object with ``ok`` (bool) and ``message`` (string),
     ``refused`` a string if present.  Whatever else comes back (a wrong
@@ -138,7 +151,7 @@ def _checked(line: bytes, path: str) -> dict[str, Any]:
         return UserError(f"the answer is not understood: {why}", file=path)
 
     try:
-        answer = load_json(line, max_bytes=MAX_ANSWER, max_depth=4)
+        answer = load_json(line, max_bytes=max_answer, max_depth=max_depth)
     except Untrusted as e:
         raise wrong(str(e)) from None
     if not isinstance(answer, dict):

@@ -210,3 +210,11 @@ def test_run_leaves_no_ros_log_directory_behind(tmp_path):
     finally:
         daemon.close()
     assert list(tmpdir.glob("safety-supervisor-ros-log-*")) == []
+
+
+def test_version_is_the_installed_packages():
+    from importlib.metadata import version
+
+    r = cli("--version")
+    assert r.returncode == 0, r
+    assert r.stdout == f"safety-supervisor {version('safety-supervisor')}\n", r

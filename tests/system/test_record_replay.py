@@ -182,7 +182,7 @@ def test_a_recorded_demo_run_replays_to_the_same_decisions(tmp_path: Path) -> No
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
     assert demo.returncode == 0, demo.stdout + demo.stderr
-    assert "replay it with" in demo.stdout
+    assert f"read it with: safety-supervisor logs {rec}" in demo.stdout
     config = rec / "srobot-demo.yaml"
     out = tmp_path / "replay.jsonl"
     run = subprocess.run(

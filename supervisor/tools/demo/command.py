@@ -117,8 +117,9 @@ def add_parser(sub: Any) -> None:
         "--record",
         default=None,
         metavar="DIR",
-        help="the supervisor records into DIR (run --record), with the demo's config "
-        "beside the bags for replay",
+        help="keep the run in DIR: the supervisor's bags (run --record), the demo's config "
+        "and, unless --log says otherwise, the violation log; for logs DIR, replay DIR "
+        "and report DIR",
     )
 
 
@@ -150,7 +151,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         _err(f"{shipped} not found (an incomplete installation: reinstall safety-supervisor)")
         return 1
     workdir = Path(tempfile.mkdtemp(prefix="safety-supervisor-demo-"))
-    log = Path(args.log).resolve() if args.log else workdir / "violations.jsonl"
+    # --record DIR keeps the log beside the bags and the config: DIR is the whole
+    # run, for logs DIR, report DIR and replay DIR (supervisor/tools/recording.py).
+    home = Path(args.record).resolve() if args.record else workdir
+    log = Path(args.log).resolve() if args.log else home / "violations.jsonl"
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(1_000_000)
     out = sys.stdout
     live = out.isatty() and not args.no_live
@@ -209,10 +213,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.record:
         rec = Path(args.record)
         out.write(
-            f"recorded into {rec}; replay it with: safety-supervisor replay "
-            f"{rec / config.name} {rec}\n"
+            f"recorded into {rec} (config, violation log and bags); read it with: "
+            f"safety-supervisor logs {rec}, replay {rec}, report {rec} -o report.html\n"
         )
     out.flush()
-    if args.log is not None:  # the log is elsewhere: nothing left worth keeping
+    if args.log is not None or args.record:  # the log is elsewhere: nothing left to keep
         shutil.rmtree(workdir, ignore_errors=True)
     return 130 if interrupted else 0

@@ -19,6 +19,23 @@ from monitors.errors import UserError
 EXIT_OK, EXIT_FAIL = 0, 1
 
 
+class _Intermixed(argparse.ArgumentParser):
+    """replay's parser: BAGs may come after options (``replay CONFIG --compare OTHER
+    BAG``) though none is required (``replay DIR``), which argparse parses only
+    intermixed: a ``*`` positional otherwise takes nothing before the first option."""
+
+    _inside = False
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        if self._inside:  # parse_known_intermixed_args calls back here
+            return super().parse_known_args(args, namespace)
+        self._inside = True
+        try:
+            return self.parse_known_intermixed_args(args, namespace)
+        finally:
+            self._inside = False
+
+
 def add_parser(sub: Any) -> None:
     """Add the ``replay`` subcommand to the CLI's subparsers."""
     p = sub.add_parser(
@@ -29,8 +46,17 @@ def add_parser(sub: Any) -> None:
         "stale rules and mitigation policies, on the recorded receive times. Mitigations "
         "are not executed: they are recorded with dry_run: true.",
     )
-    p.add_argument("config")
-    p.add_argument("bags", nargs="+", metavar="BAG", help="bag directories, .mcap/.db3, .jsonl")
+    p.__class__ = _Intermixed  # subparsers make every parser of one class
+    p.add_argument(
+        "config",
+        help="the config; or a recording directory (demo --record DIR): its config and bags",
+    )
+    p.add_argument(
+        "bags",
+        nargs="*",
+        metavar="BAG",
+        help="bag directories, .mcap/.db3, .jsonl (none: CONFIG is a recording directory)",
+    )
     p.add_argument("-o", "--output", default=None, metavar="OUT.jsonl", help="write the records")
     p.add_argument(
         "--compare",
@@ -62,8 +88,20 @@ def add_parser(sub: Any) -> None:
 def cmd_replay(args: argparse.Namespace) -> int:
     # The pipeline, rosbags and numpy load only when replay runs: the CLI imports
     # this module for its parser at every start.
+    from supervisor.tools.recording import is_recording_dir, recording_dir
     from supervisor.tools.replay.session import compare, replay_files
 
+    if is_recording_dir(args.config):
+        rec = recording_dir(args.config, config=True, bag=not args.bags)
+        assert rec.config is not None
+        args.config, args.bags = str(rec.config), args.bags or [str(rec.path)]
+    elif not args.bags:
+        print(
+            "safety-supervisor replay: error: give the recordings (BAG ...) after the config, "
+            "or a recording directory instead of both",
+            file=sys.stderr,
+        )
+        return 2  # a usage error, as argparse's
     namespace = checked_namespace(args.namespace, "replay")
     # progress is for a person at a terminal: never in a log file or a CI's output
     progress = Progress() if sys.stderr.isatty() and not (args.quiet or args.json) else None

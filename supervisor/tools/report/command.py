@@ -22,7 +22,13 @@ def add_parser(sub: Any) -> None:
         "mitigation, reset and supervisor event on it, per requirement counts, mitigation "
         "outcomes and latencies, and for each violation why it fired.",
     )
-    p.add_argument("logs", nargs="+", metavar="LOG", help="violation logs (.gz too), any order")
+    p.add_argument(
+        "logs",
+        nargs="+",
+        metavar="LOG",
+        help="violation logs (.gz too), any order; a recording directory (demo --record "
+        "DIR) for its log, and its bags and config unless --bag and --config say otherwise",
+    )
     p.add_argument(
         "--bag",
         action="append",
@@ -60,7 +66,8 @@ def cmd_report(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise UserError("is a directory; give the HTML file to write", file=str(out))
     namespace = checked_namespace(args.namespace, "report")
-    rep = build(args.logs, args.bag, args.config, quiet=args.quiet, namespace=namespace)
+    logs, bags, config = _recordings(args.logs, args.bag, args.config)
+    rep = build(logs, bags, config, quiet=args.quiet, namespace=namespace)
     try:
         write(rep, out)
     except OSError as e:
@@ -70,3 +77,26 @@ def cmd_report(args: argparse.Namespace) -> int:
     chain = "hash chain intact" if integ.ok else f"HASH CHAIN BROKEN: {integ.first_problem}"
     print(printable(f"wrote {out}: {len(rep.data.records)} records, {n} violations; {chain}"))
     return EXIT_OK if integ.ok else EXIT_FAIL
+
+
+def _recordings(
+    paths: list[str], bags: list[str], config: str | None
+) -> tuple[list[str], list[str], str | None]:
+    """A recording directory among the LOGs (demo --record DIR) stands for its log;
+    its bags and config are used unless ``--bag`` and ``--config`` are given."""
+    from supervisor.tools.recording import is_recording_dir, recording_dir
+
+    logs: list[str] = []
+    found_bags: list[str] = []
+    found_config: list[str] = []
+    for p in paths:
+        if not is_recording_dir(p):
+            logs.append(p)
+            continue
+        rec = recording_dir(p, log=True)
+        logs += [str(f) for f in rec.logs]
+        found_bags += [str(rec.path)] if rec.bags else []
+        found_config += [str(rec.config)] if rec.config is not None else []
+    if config is None and len(found_config) == 1:
+        config = found_config[0]
+    return logs, bags or found_bags, config

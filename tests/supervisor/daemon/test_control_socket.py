@@ -542,3 +542,10 @@ def test_past_the_client_limit_an_operator_is_never_the_one_evicted(
     finally:
         for s in held:
             s.close()
+
+
+def test_status_is_a_command_without_a_requirement(served: ControlServer) -> None:
+    # Read-only, about the whole supervisor: validated like reset and reload.
+    bad = ask(served.path, b'{"command": "status", "requirement": "r1"}\n')
+    assert bad["refused"] == "bad_request" and "belongs to reset" in bad["message"], bad
+    assert ask(served.path, b'{"command": "status"}\n')["ok"] is True

@@ -136,3 +136,92 @@ def test_errors(generated, tmp_path: Path, capsys) -> None:
     with pytest.raises(SystemExit) as e:
         main(["logs", str(path), "--event", "bogus"])
     assert e.value.code == 2
+
+
+# ---------------------------------------------------------------- not a log; long records
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "# A README\n\nSome prose.\n" * 70,  # 210 lines of text
+        '{"level": "info", "msg": "another program\'s JSON lines"}\n' * 206,
+    ],
+    ids=["text", "foreign-jsonl"],
+)
+def test_a_file_that_is_not_a_log_is_one_line_and_exit_1(tmp_path: Path, text: str) -> None:
+    from inproc import cli_main
+
+    path = tmp_path / "notes.jsonl"
+    path.write_text(text)
+    for mode in ([], ["--summary"], ["--why"], ["--json"]):
+        r = cli_main("logs", *mode, path)
+        assert r.returncode == 1, (mode, r)
+        assert r.stdout == "", (mode, r)
+        assert r.stderr.count("\n") == 1, (mode, r.stderr)
+        assert r.stderr.startswith(f"{path}:1: not a violation log: "), (mode, r.stderr)
+
+
+def test_a_log_with_a_damaged_line_further_on_is_read_with_a_warning(
+    generated, tmp_path: Path
+) -> None:
+    from inproc import cli_main
+
+    path, recs = generated
+    lines = path.read_text().splitlines(keepends=True)
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines[:3]) + "garbage\n" + "".join(lines[3:]))
+    r = cli_main("logs", damaged)
+    assert r.returncode == 0, r
+    assert len(r.stdout.splitlines()) == 1 + len(recs), r.stdout
+    assert f"{damaged}:4: skipped: not JSON" in r.stderr and "1 line skipped" in r.stderr
+
+
+def test_the_stop_record_reads_one_input_per_line_and_floats_at_their_precision(
+    tmp_path: Path,
+) -> None:
+    from inproc import cli_main
+
+    path = tmp_path / "v.log"
+    names = [f"input_{i:02d}_with_a_long_name" for i in range(8)]
+    per_input = {
+        "messages": 81,
+        "rejected": 0,
+        "nan": 0,
+        "lost": 0,
+        "own": 0,
+        "by_publisher": [{"first": 1, "last": 81, "received": 81, "lost": 0}],
+    }
+    with ViolationLog(path, "sRobot", "ab" * 32, echo=False) as log:
+        log.supervisor("start")
+        # a float32 field's 0.8 as the monitor's double holds it; a double as it is
+        log.violation(
+            "A", text="t", formula="f", tick=7, inputs={"speed": 0.800000011920929, "d": 0.1}
+        )
+        log.supervisor(
+            "stop", ticks=79, violations=1, reloads=0, inputs=dict.fromkeys(names, per_input)
+        )
+    r = cli_main("logs", path)
+    assert r.returncode == 0, r
+    out = r.stdout.splitlines()
+    assert max(len(line) for line in out) < 200, out
+    violation = next(line for line in out if " violation " in line)
+    assert violation.split()[-3:] == ["tick=7", "speed=0.8", "d=0.1"], violation
+    stop = next(i for i, line in enumerate(out) if " stop " in line)
+    assert out[stop].split()[-4:] == ["stop", "ticks=79", "violations=1", "reloads=0"]
+    assert out[stop + 1].split() == ["inputs:"]
+    for name, line in zip(names, out[stop + 2 :], strict=True):
+        assert line.split()[:3] == [name, "messages=81", "rejected=0"], line
+    assert main(["logs", "--json", str(path)]) == 0  # as stored: untouched
+
+
+def test_a_value_just_over_a_threshold_still_reads_over_it() -> None:
+    import struct
+
+    from supervisor.tools.logs import number
+
+    over = struct.unpack("f", struct.pack("f", 2.0000002))[0]  # float32 next above 2
+    assert over != 2.0 and number(over) == "2.0000002"
+    assert number(1.0000000001) == "1.0000000001"  # a double keeps a double's digits
+    assert number(0.800000011920929) == "0.8" and number(81.0) == "81.0"
+    assert number(float("nan")) == "nan" and number(1e300) == "1e+300"
