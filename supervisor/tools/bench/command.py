@@ -147,7 +147,8 @@ def _positive(kind: type) -> Callable[[str], Any]:
 
 
 def _add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="default: config/srobot.yaml")
+    # None, resolved later: the installed example's path is this machine's, not the docs'
+    p.add_argument("--config", default=None, help="default: config/srobot.yaml")
     p.add_argument(
         "--rates",
         type=_rates,
@@ -329,6 +330,8 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
                 else (lambda v: v)
             )
             setattr(args, key, parse(value))
+    if args.config is None:
+        args.config = str(DEFAULT_CONFIG)
     return args
 
 
