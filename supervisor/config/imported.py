@@ -63,6 +63,20 @@ class Imports:
             self._files[key] = read_bytes(path, what)
         return self._files[key]
 
+    def read_named(self, path: Path | str, what: str, where: Any, key: str, name: str) -> None:
+        """Reads the file the config names as ``name`` under ``key`` of ``where`` (a
+        LineDict): one it cannot read is an error at that key's line of the config,
+        where the name was written."""
+        try:
+            self.read(path, what)
+        except UserError as e:
+            raise UserError(
+                f"{key} '{name}': {e.message}",
+                file=getattr(where, "file", "") or str(path),
+                line=where.key_line(key),
+                hint=e.hint,
+            ) from None
+
     def files(self) -> dict[str, bytes]:
         """Every file read so far, by the path it was read at."""
         return dict(self._files)

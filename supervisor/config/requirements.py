@@ -122,8 +122,10 @@ def _import_requirements(
     left_out: list[str] = []
     for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
         file_notes: list[str] = []
+        fret_file = relative_to(path, entry_path)
+        imports.read_named(fret_file, "FRET file", doc, "requirements_from", entry_path)
         imported, _internal, _other = load_fret_export(
-            relative_to(path, entry_path),
+            fret_file,
             str(component) if isinstance(component, str) else None,
             file_notes,
             taken=frozenset(by_id),

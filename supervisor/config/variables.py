@@ -111,6 +111,7 @@ def _imported(doc: LineDict, path: Path, imports: Imports) -> dict[str, Variable
     line = doc.key_line("requirements_from")
     for entry_path in file_names(doc.get("requirements_from"), doc, "requirements_from"):
         fret_file = relative_to(path, entry_path)
+        imports.read_named(fret_file, "FRET file", doc, "requirements_from", entry_path)
         component = doc.get("component")
         _reqs, internal, other = load_fret_export(
             fret_file, str(component) if isinstance(component, str) else None, imports=imports
@@ -138,7 +139,10 @@ def _imported(doc: LineDict, path: Path, imports: Imports) -> dict[str, Variable
                     raise
             out[v["name"]] = var
     for entry_path in file_names(doc.get("variables_from"), doc, "variables_from"):
-        for v in load_ogma_variables(relative_to(path, entry_path), imports):
+        ogma_file = relative_to(path, entry_path)
+        what = "OGMA variable database"
+        imports.read_named(ogma_file, what, doc, "variables_from", entry_path)
+        for v in load_ogma_variables(ogma_file, imports):
             check_name(v["name"], doc, "variables_from")
             fret = out.get(v["name"])
             out[v["name"]] = Variable(

@@ -153,7 +153,11 @@ def test_fret_file_over_the_cap_is_refused_before_reading(tmp_path, capsys, monk
         f.truncate(200 << 20)
     assert cli_main(["check", str(tmp_path / "c.yaml")]) == 1
     line = one_located_line(capsys.readouterr().err)
-    assert line.startswith(f"{big}: cannot read FRET file: larger than "), line
+    # at the config's line that names the file, with the name as written there
+    where = re.escape(f"{tmp_path / 'c.yaml'}:")
+    assert re.match(
+        rf"{where}\d+: requirements_from 'f.json': cannot read FRET file: larger than ", line
+    ), line
 
 
 def test_fret_file_that_is_not_a_regular_file(tmp_path, capsys, monkeypatch):
@@ -162,7 +166,10 @@ def test_fret_file_that_is_not_a_regular_file(tmp_path, capsys, monkeypatch):
     os.mkfifo(tmp_path / "f.json")  # a FIFO nobody writes: must not hang
     assert cli_main(["check", str(tmp_path / "c.yaml")]) == 1
     line = one_located_line(capsys.readouterr().err)
-    assert line == f"{tmp_path / 'f.json'}: cannot read FRET file: not a regular file", line
+    where = re.escape(f"{tmp_path / 'c.yaml'}:")
+    assert re.fullmatch(
+        rf"{where}\d+: requirements_from 'f.json': cannot read FRET file: not a regular file", line
+    ), line
 
 
 def test_fret_text_over_the_cap_is_refused(tmp_path, capsys, monkeypatch):
@@ -433,3 +440,23 @@ def test_control_characters_in_a_fret_text_are_refused_where_they_enter(
         f"{tmp_path / 'f.json'}: requirement 'r1': 'fretish' holds a control character "
         "(\\x1b) at character 54"
     ), line
+
+
+@pytest.mark.parametrize(
+    "key,what", [("requirements_from", "FRET file"), ("variables_from", "OGMA variable database")]
+)
+def test_a_missing_imported_file_is_an_error_at_the_line_naming_it(
+    tmp_path, capsys, monkeypatch, key, what
+):
+    # found by test_fuzz_config: a cut line left `variables_from: s`, and the error
+    # named the missing file without any line of the config
+    monkeypatch.chdir(tmp_path)
+    text = "component: c\nstep: {policy: periodic, period_ms: 100}\n"
+    text += f"{key}: nothere.json\n"
+    text += "requirements:\n  - {id: r1, text: c shall always satisfy p}\n"
+    text += "variables:\n  p: {type: bool, topic: /p, msg: std_msgs/msg/Bool}\n"
+    (tmp_path / "c.yaml").write_text(text)
+    assert cli_main(["check", str(tmp_path / "c.yaml")]) == 1
+    line = one_located_line(capsys.readouterr().err)
+    expected = f"{tmp_path / 'c.yaml'}:3: {key} 'nothere.json': cannot read {what}: "
+    assert line == expected + "No such file or directory", line
