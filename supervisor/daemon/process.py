@@ -277,6 +277,7 @@ def run_daemon(
         signals.attach(node)
         n_req = len(session.requirements)
         heap.settle()  # no full collection of start-up's objects on the halt's path
+        heap.take_over()  # and no young one: the loop collects between turns (receive.py)
         log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
         notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")
         node.run()

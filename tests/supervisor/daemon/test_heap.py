@@ -1,5 +1,6 @@
-"""heap.settle: start-up's and a replaced session's garbage collected when the daemon
-chooses, the survivors out of the collector's walks (supervisor/daemon/heap.py)."""
+"""heap: start-up's and a replaced session's garbage collected when the daemon
+chooses, the survivors out of the collector's walks, and the young collections
+made between loop turns instead of on an allocation (supervisor/daemon/heap.py)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from supervisor.daemon import heap
 def _unfrozen() -> Iterator[None]:
     yield
     gc.unfreeze()  # the rest of the test session is collected as usual
+    gc.enable()
 
 
 class _Node:
@@ -53,3 +55,37 @@ def test_what_one_settle_froze_is_collected_by_the_next_once_it_is_garbage() -> 
     assert freed.alive  # frozen: no collection walks it
     heap.settle()
     assert not freed.alive
+
+
+def _young(n: int) -> list[list[int]]:
+    """``n`` new objects the collector tracks, kept alive."""
+    return [[i] for i in range(n)]
+
+
+def test_after_take_over_only_collect_collects_and_only_past_the_threshold() -> None:
+    heap.take_over()
+    assert not gc.isenabled()
+    gc.collect()  # every generation's count from zero
+    garbage = _Node()
+    freed = weakref.finalize(garbage, lambda: None)
+    del garbage
+    assert heap.collect() is None  # a few objects: the collector would not run yet
+    assert freed.alive
+    kept = _young(gc.get_threshold()[0])  # no automatic collection, however many
+    assert freed.alive
+    assert heap.collect() == 0
+    assert not freed.alive
+    assert kept
+
+
+def test_collect_takes_the_older_generation_when_the_collector_would() -> None:
+    heap.take_over()
+    gc.collect()
+    t0, t1, _ = gc.get_threshold()
+    kept = []
+    for _ in range(t1):
+        kept.append(_young(t0))
+        assert heap.collect() == 0
+    kept.append(_young(t0))
+    assert heap.collect() == 1  # as many young collections as the threshold: generation 1
+    assert gc.get_count()[:2] == (0, 0)
