@@ -4,10 +4,11 @@ Start-up leaves about 100k long-lived objects (the config, the requirements'
 parse trees, the compiled monitor's wrappers, rclpy's).  Left to the collector, each
 full collection walks all of them: tens of ms in which the loop takes no message
 and publishes no halt, whenever the collector decides (docs/BENCHMARKS.md, "Inside
-the running daemon").  :func:`settle` collects once at a moment of the daemon's
-choosing (before ``READY=1``, and after a reload's swap, whose old session becomes
-garbage there) and moves the survivors out of the collector's generations
-(``gc.freeze``), so later collections walk only what the loop made since.
+the running daemon").  :func:`freeze` moves them out of the collector's
+generations before ``READY=1`` (``gc.freeze``, no collection: start-up leaves a few
+hundred unreachable objects, not worth a full collection's time before READY), so
+later collections walk only what the loop made since.  After a reload's swap the
+old session is garbage: :func:`settle` unfreezes, collects it and freezes again.
 
 The collector also starts by itself when an allocation crosses its threshold,
 which on the daemon is mostly on a violation's path (the record's objects): a
@@ -24,9 +25,14 @@ import gc
 _THRESHOLDS = gc.get_threshold()
 
 
+def freeze() -> None:
+    """Exempt every object alive now from later collections."""
+    gc.freeze()
+
+
 def settle() -> None:
     """Collect everything now, then exempt the survivors from later collections."""
-    # Unfrozen first: what an earlier settle() froze (a replaced session among it) is
+    # Unfrozen first: what an earlier freeze froze (a replaced session among it) is
     # collected now if it has become garbage, instead of being kept for good.
     gc.unfreeze()
     gc.collect()

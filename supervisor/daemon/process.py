@@ -276,7 +276,7 @@ def run_daemon(
         stack.callback(node.close)
         signals.attach(node)
         n_req = len(session.requirements)
-        heap.settle()  # no full collection of start-up's objects on the halt's path
+        heap.freeze()  # no full collection of start-up's objects on the halt's path
         heap.take_over()  # and no young one: the loop collects between turns (receive.py)
         log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
         notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")

@@ -45,11 +45,20 @@ def test_settle_collects_the_cycles_made_before_it_and_exempts_the_survivors() -
     assert _walked(fresh)  # what the loop makes later is collected as usual
 
 
-def test_what_one_settle_froze_is_collected_by_the_next_once_it_is_garbage() -> None:
-    # a reload: the old session survived start-up's settle() and is dropped at the swap
+def test_freeze_exempts_what_is_alive_from_later_collections() -> None:
+    startup = {"parse_trees": [1, 2, 3]}
+    assert _walked(startup)
+    heap.freeze()
+    assert not _walked(startup)
+    fresh = {"made": ["after"]}
+    assert _walked(fresh)
+
+
+def test_what_was_frozen_is_collected_by_settle_once_it_is_garbage() -> None:
+    # a reload: the old session was frozen at start-up and is dropped at the swap
     old_session = _Node()
     freed = weakref.finalize(old_session, lambda: None)
-    heap.settle()
+    heap.freeze()
     del old_session
     gc.collect()
     assert freed.alive  # frozen: no collection walks it
