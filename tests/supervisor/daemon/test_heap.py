@@ -7,9 +7,11 @@ from __future__ import annotations
 import gc
 import weakref
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
+from rosutil import wait_until
 
 from supervisor.daemon import heap
 
@@ -98,3 +100,82 @@ def test_collect_takes_the_older_generation_when_the_collector_would() -> None:
     kept.append(_young(t0))
     assert heap.collect() == 1  # as many young collections as the threshold: generation 1
     assert gc.get_count()[:2] == (0, 0)
+
+
+# Loaded by the daemon's interpreter (sitecustomize on its PYTHONPATH): each collection
+# is written with the frozen objects' count and the Python frames that started it.
+_PROBE = """\
+import gc, os, sys
+
+_out = open(os.environ["GC_PROBE"], "a", buffering=1)
+
+
+def _probe(phase, info):
+    if phase != "start":
+        return
+    frames, f = [], sys._getframe(1)
+    while f is not None:
+        frames.append(f"{f.f_code.co_name}@{os.path.basename(f.f_code.co_filename)}")
+        f = f.f_back
+    _out.write(f"{gc.get_freeze_count()} {' '.join(frames)}\\n")
+
+
+gc.callbacks.append(_probe)
+"""
+
+CONFIG = """\
+component: base
+step: {policy: periodic, period_ms: 1}
+variables:
+  halt: {type: bool, topic: /halt, msg: std_msgs/msg/Bool}
+requirements:
+  - id: always_halted
+    text: base shall always satisfy halt
+    on_violation: [stop]
+    policy: {reset: after_mitigation}
+mitigations:
+  stop: {publish: {topic: /stop, msg: std_msgs/msg/Bool, value: {data: true}}}
+ros: {status_ms: 20}
+"""
+
+
+@pytest.mark.ros
+def test_the_running_daemon_collects_only_between_its_loop_turns(
+    tmp_path: Path, robot_node: Any
+) -> None:
+    from rosutil import Daemon, wait_matched
+    from std_msgs.msg import Bool
+
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(_PROBE)
+    probe = tmp_path / "gc.txt"
+    config = tmp_path / "c.yaml"
+    config.write_text(CONFIG)
+    d = Daemon(tmp_path, config, env={"PYTHONPATH": str(site), "GC_PROBE": str(probe)})
+    try:
+        d.wait_notify("READY=1", timeout=30)
+        at_ready = len(probe.read_text().splitlines())
+        halt = robot_node.create_publisher(Bool, "/halt", 10)
+        wait_matched([halt])
+        halt.publish(Bool(data=False))  # violated at every tick: a record and a halt each
+
+        def after_ready() -> list[list[str]]:
+            return [ln.split()[1:] for ln in probe.read_text().splitlines()[at_ready:]]
+
+        wait_until(
+            "a collection while violations are recorded and halts published",
+            lambda: after_ready() and sum(r["event"] == "violation" for r in d.records()) >= 50,
+            60,
+            d.explain,
+        )
+        d.terminate()
+    finally:
+        d.close()
+    made_by = after_ready()
+    # Every collection once the daemon is ready is the loop's own, between turns (or a
+    # reload's); none starts from an allocation on a message's path.
+    assert all(
+        frames[0] in ("collect@heap.py", "settle@heap.py") and "serve@receive.py" in frames
+        for frames in made_by
+    ), made_by
