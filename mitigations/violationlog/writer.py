@@ -250,7 +250,8 @@ class ViolationLog:
         self._journald = JournalSender(where) if where else None
         self._journald_reported = False
         self._fd: int | None = None
-        self._prev = EMPTY_SHA256
+        self._prev_hex: str | None = EMPTY_SHA256
+        self._prev_line = b""  # hashed into _prev when the next record needs it
         self._size = 0
         self._needs_newline = False
         self._resync = False
@@ -336,6 +337,17 @@ class ViolationLog:
     def config_sha256(self, value: str) -> None:
         with self._lock:  # records after a reload carry the new hash, none half-way
             self._config_sha256 = value
+
+    @property
+    def _prev(self) -> str:
+        """The chain's hash of the file's last line (the next record's prev_sha256)."""
+        if self._prev_hex is None:
+            self._prev_hex = sha256_hex(self._prev_line)
+        return self._prev_hex
+
+    @_prev.setter
+    def _prev(self, value: str) -> None:
+        self._prev_hex = value
 
     # ---------------------------------------------------------------- records
 
@@ -817,8 +829,11 @@ class ViolationLog:
             self._resync = True
             return e.strerror or str(e)
         self._size += written
-        self._prev, self._needs_newline, self._tail = sha256_hex(line), False, line[:-1]
-        entry.written = line[:-1]
+        # The line's hash is made when the next record needs it: a violation's is
+        # then made after its halt is out, not before (docs/reference/log.md#durability).
+        self._prev_hex, self._prev_line = None, line
+        self._needs_newline = False
+        self._tail = entry.written = line[:-1]
         return None
 
     def _echo_line(self, record: dict[str, Any], line: bytes | None = None) -> None:

@@ -45,6 +45,7 @@ from mitigations.engine import Engine, Request
 from mitigations.violationlog.format import json_safe
 from mitigations.violationlog.writer import ViolationLog
 from supervisor.config import Config
+from supervisor.daemon import heap
 from supervisor.daemon.control import ControlServer
 from supervisor.daemon.core import Core, warn
 from supervisor.daemon.graph import InputGraph, never
@@ -405,6 +406,7 @@ class SupervisorNode:
         threading.Thread(target=old_engine.close, name="old-engine", daemon=True).start()
         if old.cleanup is not None:
             old.cleanup()
+        heap.settle()  # the old session collected here, not on the halt's path
         n = len(new.requirements)
         self.log.supervisor(
             "reload",

@@ -36,6 +36,7 @@ from monitors.errors import UserError
 from supervisor.analysis_child import Aside
 from supervisor.config import Config, read_config
 from supervisor.config.record import RecordConfig
+from supervisor.daemon import heap
 from supervisor.daemon.control import open_control
 from supervisor.daemon.node import SupervisorNode
 from supervisor.daemon.notify import Notifier, watchdog_interval
@@ -274,6 +275,8 @@ def run_daemon(
         stack.callback(node.close)
         signals.attach(node)
         n_req = len(session.requirements)
+        heap.freeze()  # no full collection of start-up's objects on the halt's path
+        heap.take_over()  # and no young one: the loop collects between turns (receive.py)
         log.supervisor("ready", requirements=n_req, inputs=len(cfg.inputs), policy=cfg.step.policy)
         notifier.ready(status=f"monitoring {n_req} requirements on {len(cfg.inputs)} inputs")
         node.run()

@@ -30,6 +30,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.serialization import deserialize_message
 
 from mitigations.violationlog.writer import ViolationLog
+from supervisor.daemon import heap
 from supervisor.daemon.clock import WallClock
 from supervisor.daemon.core import Core, warn
 from supervisor.daemon.graph import InputGraph, Sub
@@ -128,6 +129,7 @@ class Receiver:
                     serve_reset(srv)
                 timed_work(time.monotonic_ns())
                 self.log.flush()  # what this turn logged: to the journal and the copies
+                heap.collect()  # after the turn's halts, not inside one (heap.py)
 
     def _receive(self, ready: list[Sub]) -> None:
         """Take one message from each ready subscription in turn, until all are

@@ -19,6 +19,8 @@ from supervisor.tools.bench.helper import (
 
 
 def run_echo(args: argparse.Namespace, topics: list[Topic]) -> None:
+    from rclpy.serialization import serialize_message
+
     from mitigations.rosmsg import get_field, message_class
 
     # The floor the halt is judged against: reached over the daemon's transport.
@@ -27,7 +29,9 @@ def run_echo(args: argparse.Namespace, topics: list[Topic]) -> None:
         halt = node.create_publisher(
             halt_class, args.halt_topic, reliable("transient_local", depth=1)
         )
-        halt_msg = halt_class(data=True)
+        # Published as bytes made once, as the daemon's publish action does: the
+        # floor and the daemon send the halt the same way.
+        halt_msg = serialize_message(halt_class(data=True))
         subs = [(node.create_subscription(t.klass, t.topic, never, reliable()), t.klass) for t in topics]  # fmt: skip
         from std_srvs.srv import Trigger
 
