@@ -372,3 +372,60 @@ def test_an_entry_another_process_holds_is_not_pruned_until_it_lets_go(site: Sit
     assert r.returncode == 0, r.stdout + r.stderr
     assert first not in site.entries()
     assert len(site.entries()) == cache.KEEP
+
+
+RACER = """
+import hashlib, sys, time
+from pathlib import Path
+from supervisor import cache
+# Everything not held is pruned at once: the race at its tightest.
+cache.KEEP, cache.GRACE_S = 0, 0.0
+root, key, role, stop = Path(sys.argv[1]), sys.argv[2], sys.argv[3], Path(sys.argv[4])
+data = b"monitor " * 20_000
+want = hashlib.sha256(data).hexdigest()
+count, end = 0, time.monotonic() + 120
+while time.monotonic() < end:
+    if role == "writer" and stop.exists() or role != "writer" and count >= 30:
+        break
+    c = cache.Cache(root)
+    if role == "reader":
+        p = c.get(key, "item")
+        if p is not None:  # whole and readable, never pruned under the reader
+            assert hashlib.sha256(p.read_bytes()).hexdigest() == want
+            count += 1
+    elif role == "pruner":
+        count += len(c.prune())
+    else:
+        c.put(key, "item", data)
+    c.close()
+print(role, count, flush=True)
+"""
+
+
+def test_a_reader_never_loses_an_entry_to_a_concurrent_pruner(tmp_path: Path) -> None:
+    """Real processes sharing one cache, as xdist workers share the suite's
+    ``XDG_CACHE_HOME`` and ExecStartPre's ``check`` shares ``run``'s: a writer makes
+    the entry again and again, a pruner removes it whenever nobody holds it, and
+    readers read it.  A reader sees the whole entry or a miss, never a file
+    removed under it (FileNotFoundError) or half an entry."""
+    root = tmp_path / "cache"
+    root.mkdir(mode=0o700)
+    stop = tmp_path / "stop"
+    key = hashlib.sha256(b"raced").hexdigest()
+
+    def racer(role: str) -> subprocess.Popen[str]:
+        argv = [sys.executable, "-c", RACER, str(root), key, role, str(stop)]
+        return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    writer = racer("writer")
+    others = [racer("pruner"), racer("reader"), racer("reader")]
+    try:
+        outs = [p.communicate(timeout=180) for p in others]
+    finally:
+        stop.touch()
+        w_out, w_err = writer.communicate(timeout=60)
+    assert writer.returncode == 0, w_err
+    for p, (out, err) in zip(others, outs, strict=True):
+        assert p.returncode == 0 and "Traceback" not in err, err
+        role, count = out.split()
+        assert int(count) >= 30, out  # the race was run: entries read and pruned
