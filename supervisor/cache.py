@@ -219,7 +219,7 @@ class Cache:
                 fd = _open_dir(entry)
             except FileNotFoundError:
                 raise
-            except OSError:  # ELOOP: a symbolic link
+            except OSError:  # ELOOP (a symbolic link), ENOTDIR, EACCES (another user's)
                 return False
             try:
                 # Waits only while a pruner holds it: its check and rename.
@@ -240,7 +240,9 @@ class Cache:
                     os.close(fd)
                 raise
             self._held[key] = fd
-        os.utime(fd)  # last used: now
+        # Last used: now.  Best effort: on a read-only cache nothing prunes either.
+        with contextlib.suppress(OSError):
+            os.utime(fd)
         return True
 
     def prune(self) -> list[str]:
