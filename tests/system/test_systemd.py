@@ -123,7 +123,12 @@ def _cached_rootfs(release: str = "bookworm") -> Path:
         )
         if r.returncode != 0:
             _unavailable(f"debootstrap failed ({r.returncode}): {_tail(r.stderr + r.stdout)}")
-        os.rename(tmp, rootfs)
+        try:
+            os.rename(tmp, rootfs)
+        except OSError:
+            if not rootfs.is_dir():
+                raise
+            # Another session built it meanwhile (the same command): theirs is used.
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
