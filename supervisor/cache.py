@@ -14,23 +14,45 @@ good.  An item is used only when the directory, the entry and the files are
 ours (owned by this user, not writable by group or others, no symbolic links)
 and the digest matches; anything else is a miss, and damaged items of ours are
 removed so the next build replaces them.
+
+Entries are pruned so a config edited daily does not fill the disk (reference
+commands.md, "The start-up cache"): when a process adds an entry it removes the
+others beyond the ``KEEP`` most recently used, except those used in the last
+``GRACE_S`` seconds and those another process holds.  "Used" is the entry
+directory's mtime, touched on every read and write (atime is not kept on
+``noatime``/``relatime`` mounts).  A process holds each entry it reads or writes
+with a shared ``flock`` on the entry's directory until it closes the cache (the
+daemon: until its session ends); the pruner takes the exclusive lock without
+waiting, looks at the mtime again under it, and renames the entry out of the way
+before deleting it, so a reader sees the whole entry or none (a miss: rebuilt).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
 import hashlib
 import os
 import re
+import shutil
 import stat
 import sys
+import time
+import weakref
 from pathlib import Path
 
-from supervisor.files import write_atomic
+from supervisor.files import remove_whole, write_atomic
 
 SUBDIR = "cache"
 _KEY = re.compile(r"[0-9a-f]{64}")
 _NAME = re.compile(r"[A-Za-z0-9_.-]{1,200}")
+# Pruning (see the module's description): the entries kept however old, and the
+# age under which an entry is never removed (a process may be about to read it).
+KEEP = 8
+GRACE_S = 600.0
+# An entry being deleted: renamed to this prefix first (a name no key matches).
+_PRUNED = ".pruned-"
 
 
 def _warn(text: str) -> None:
@@ -46,6 +68,18 @@ def _ours(st: os.stat_result, kind: int) -> bool:
     )
 
 
+def _open_dir(path: Path) -> int:
+    """A descriptor of the directory ``path`` itself (never a symbolic link's target)."""
+    return os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+
+
+def _close_all(held: dict[str, int]) -> None:
+    for fd in held.values():
+        with contextlib.suppress(OSError):
+            os.close(fd)  # releases its shared lock
+    held.clear()
+
+
 def _digest(path: Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -59,6 +93,14 @@ class Cache:
 
     def __init__(self, root: Path) -> None:
         self.root = root
+        # The entries this cache read or wrote, each a directory descriptor with a
+        # shared lock: no other process prunes them while this one may use them.
+        self._held: dict[str, int] = {}
+        self._close = weakref.finalize(self, _close_all, self._held)
+
+    def close(self) -> None:
+        """Release the entries this cache holds (also when it is garbage)."""
+        self._close()
 
     @classmethod
     def open(cls) -> Cache | None:
@@ -110,7 +152,7 @@ class Cache:
         path = self._entry(key, name)
         sidecar = path.with_name(name + ".sha256")
         try:
-            if not _ours(path.parent.lstat(), stat.S_IFDIR):
+            if not self._hold(key):
                 _warn(f"{path.parent} is not this user's own; not used")
                 return None
             st, st_sum = path.lstat(), sidecar.lstat()
@@ -147,10 +189,12 @@ class Cache:
         """Store ``data`` as the item; its path, or None when it could not be stored
         (said once on stderr: the caller goes on without the cache)."""
         path = self._entry(key, name)
+        created = False
         try:
             with contextlib.suppress(FileExistsError):
                 path.parent.mkdir(mode=0o700)
-            if not _ours(path.parent.lstat(), stat.S_IFDIR):
+                created = True
+            if not self._hold(key):
                 _warn(f"{path.parent} is not this user's own; not stored")
                 return None
             write_atomic(path, data)
@@ -160,4 +204,94 @@ class Cache:
         except OSError as e:
             _warn(f"{path}: {e.strerror}; not stored")
             return None
+        if created:  # the cache grew: only then can it need pruning
+            self.prune()
         return path
+
+    def _hold(self, key: str) -> bool:
+        """Hold the entry ``key`` (a shared lock until :meth:`close`) and stamp it
+        used; False when it is not a directory only this user can write, and
+        FileNotFoundError when there is none (or it was pruned meanwhile)."""
+        fd = self._held.get(key)
+        if fd is None:
+            entry = self.root / key
+            try:
+                fd = _open_dir(entry)
+            except FileNotFoundError:
+                raise
+            except OSError:  # ELOOP (a symbolic link), ENOTDIR, EACCES (another user's)
+                return False
+            try:
+                # Waits only while a pruner holds it: its check and rename.
+                fcntl.flock(fd, fcntl.LOCK_SH)
+                st = os.fstat(fd)
+                try:
+                    now = entry.lstat()
+                except FileNotFoundError:
+                    now = None
+                if now is None or (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
+                    # pruned while we waited
+                    raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), str(entry))
+                if not _ours(st, stat.S_IFDIR):
+                    os.close(fd)
+                    return False
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+                raise
+            self._held[key] = fd
+        # Last used: now.  Best effort: on a read-only cache nothing prunes either.
+        with contextlib.suppress(OSError):
+            os.utime(fd)
+        return True
+
+    def prune(self) -> list[str]:
+        """Remove the entries beyond the ``KEEP`` most recently used that were last
+        used over ``GRACE_S`` ago and that no process holds (this one's never);
+        the keys removed."""
+        now = time.time()
+        entries: list[tuple[float, str]] = []
+        try:
+            with os.scandir(self.root) as it:
+                for d in it:
+                    with contextlib.suppress(OSError):
+                        st = d.stat(follow_symlinks=False)
+                        if not _ours(st, stat.S_IFDIR):
+                            continue
+                        if _KEY.fullmatch(d.name):
+                            entries.append((st.st_mtime, d.name))
+                        elif d.name.startswith(_PRUNED):  # a pruner that died half-way
+                            shutil.rmtree(d.path, ignore_errors=True)
+        except OSError as e:
+            _warn(f"{self.root}: {e.strerror}; not pruned")
+            return []
+        entries.sort(reverse=True)
+        removed = []
+        for used, key in entries[KEEP:]:
+            if key not in self._held and now - used >= GRACE_S and self._remove(key):
+                removed.append(key)
+        return removed
+
+    def _remove(self, key: str) -> bool:
+        """Remove the entry ``key`` when no process holds it and it is still unused
+        for ``GRACE_S``; True when removed."""
+        entry = self.root / key
+        try:
+            fd = _open_dir(entry)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            st, now = os.fstat(fd), entry.lstat()
+            if (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
+                return False  # another pruner's, already gone
+            if not _ours(st, stat.S_IFDIR) or time.time() - st.st_mtime < GRACE_S:
+                return False  # used since it was listed
+            # Under the lock: a reader waiting for it finds no entry (a miss)
+            # instead of half of one.
+            remove_whole(entry, self.root / f"{_PRUNED}{key}.{os.getpid()}")
+        except OSError:  # BlockingIOError: held by another process
+            return False
+        finally:
+            os.close(fd)
+        return True

@@ -1,5 +1,6 @@
 """Files written whole or not at all: the start-up cache's entries and the files
-``install-service`` writes (its unit, logrotate snippet, token).
+``install-service`` writes (its unit, logrotate snippet, token); and directories
+removed whole (the start-up cache's pruned entries).
 
 A reader (another process, or this one after a crash or power loss) sees the old
 file or the new one, never half of either: the bytes go to a temporary file in the
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -36,3 +38,11 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o600) -> None:
         os.fsync(dfd)
     finally:
         os.close(dfd)
+
+
+def remove_whole(path: Path, aside: Path) -> None:
+    """Remove the directory ``path`` so that a reader finds it whole or not at all:
+    renamed to ``aside`` (a name in the same directory no reader looks for), then
+    deleted (the start-up cache's pruning)."""
+    os.rename(path, aside)
+    shutil.rmtree(aside, ignore_errors=True)

@@ -92,7 +92,16 @@ def prepare_session(
         raise
     if checked.skipped and skipped is not None:
         skipped(checked.skipped)
-    return build_session(project, monitor, cleanup=lambda: shutil.rmtree(build, ignore_errors=True))
+    cache = aside.cache
+
+    def cleanup() -> None:
+        shutil.rmtree(build, ignore_errors=True)
+        if cache is not None:
+            # Held until now: no pruner removes the entry of the config in force
+            # (supervisor/cache.py).
+            cache.close()
+
+    return build_session(project, monitor, cleanup=cleanup)
 
 
 def open_recorder(cfg: Config, path: str | None, log: ViolationLog) -> Recorder | None:

@@ -11,9 +11,12 @@ import shutil
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
+
+from supervisor import cache
 
 ROOT = Path(__file__).resolve().parents[2]
 SROBOT = ROOT / "config" / "srobot.yaml"
@@ -288,3 +291,162 @@ def test_the_analyses_resource_limit_is_in_the_key(
     object.__setattr__(project.config, "analysis", replace(analysis, rlimit=analysis.rlimit + 1))
     _, after = startup_key(project, None, open_cache())
     assert before is not None and before == again and after is not None and before != after
+
+
+# ------------------------------------------------------------------ pruning
+
+
+def _aged_copies(site: Site, n: int, age_s: float, step_s: float = 60) -> list[Path]:
+    """``n`` more entries (copies of the site's one under other keys), last used
+    ``age_s`` seconds ago and more, ``step_s`` apart, youngest first."""
+    (entry,) = site.entries()
+    now = time.time()
+    copies = []
+    for i in range(n):
+        copy = entry.with_name(hashlib.sha256(f"aged {i}".encode()).hexdigest())
+        shutil.copytree(entry, copy)
+        t = now - age_s - step_s * i
+        os.utime(copy, (t, t))
+        copies.append(copy)
+    return copies
+
+
+def _edit(site: Site, what: str) -> None:
+    """A new key for the next check: the config file's bytes are in it."""
+    with site.config.open("a") as f:
+        f.write(f"# {what}\n")
+
+
+def test_a_new_entry_prunes_the_least_recently_used_beyond_keep(site: Site) -> None:
+    """A daily edit adds an entry a day: the cache keeps the KEEP most recently used
+    (the new one and the first check's among them) and removes the rest."""
+    (first,) = site.entries()
+    os.utime(first)  # used by the first check, just now
+    aged = _aged_copies(site, 10, age_s=2 * cache.GRACE_S)
+    _edit(site, "the next day's config")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.stderr.strip() == "", r.stderr
+    (new,) = set(site.entries()) - {first, *aged}
+    assert set(site.entries()) == {new, first, *aged[: cache.KEEP - 2]}
+    # the new entry is whole: a second check takes everything from it
+    assert site.compiles() > 0
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert site.compiles() == 0
+    assert not [p.name for p in (site.state / "cache").iterdir() if p.name.startswith(".")]
+
+
+def test_entries_used_within_the_grace_age_are_not_pruned(site: Site) -> None:
+    """Another process (a concurrent test, replay beside run) may be about to load
+    an entry it looked at a moment ago: however many there are, none goes."""
+    (first,) = site.entries()
+    os.utime(first)
+    recent = _aged_copies(site, cache.KEEP + 2, age_s=60, step_s=1)
+    _edit(site, "an edit while the others are in use")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert len(site.entries()) == cache.KEEP + 4
+    assert {first, *recent} < set(site.entries())
+
+
+def test_an_entry_another_process_holds_is_not_pruned_until_it_lets_go(site: Site) -> None:
+    """The entry of a daemon's config stays while the daemon runs, however long ago
+    it was read: the holder is a real process that read it through the cache
+    (as ``run`` does) and keeps it until it ends."""
+    (first,) = site.entries()
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from pathlib import Path; from supervisor.cache import Cache\n"
+            "c = Cache(Path(sys.argv[1]))\n"
+            "assert c.get(sys.argv[2], 'findings.json') is not None\n"
+            "print('held', flush=True); sys.stdin.read()",
+            str(site.state / "cache"),
+            first.name,
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "held\n"
+        # It was read weeks ago, and more than KEEP configs came after it.
+        aged = _aged_copies(site, cache.KEEP + 2, age_s=2 * cache.GRACE_S)
+        weeks = time.time() - 30 * 86400
+        os.utime(first, (weeks, weeks))
+        _edit(site, "a new config while the daemon runs the old one")
+        r = site.check()
+        assert r.returncode == 0, r.stdout + r.stderr
+        (new,) = set(site.entries()) - {first, *aged}
+        assert set(site.entries()) == {new, first, *aged[: cache.KEEP - 1]}
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.close()
+        holder.wait(timeout=60)
+    assert holder.returncode == 0
+    # Let go (the daemon stopped): the next new entry prunes it.
+    os.utime(first, (weeks, weeks))
+    _edit(site, "and one more")
+    r = site.check()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert first not in site.entries()
+    assert len(site.entries()) == cache.KEEP
+
+
+RACER = """
+import hashlib, sys, time
+from pathlib import Path
+from supervisor import cache
+# Everything not held is pruned at once: the race at its tightest.
+cache.KEEP, cache.GRACE_S = 0, 0.0
+root, key, role, stop = Path(sys.argv[1]), sys.argv[2], sys.argv[3], Path(sys.argv[4])
+data = b"monitor " * 20_000
+want = hashlib.sha256(data).hexdigest()
+count, end = 0, time.monotonic() + 120
+while time.monotonic() < end:
+    if role == "writer" and stop.exists() or role != "writer" and count >= 30:
+        break
+    c = cache.Cache(root)
+    if role == "reader":
+        p = c.get(key, "item")
+        if p is not None:  # whole and readable, never pruned under the reader
+            assert hashlib.sha256(p.read_bytes()).hexdigest() == want
+            count += 1
+    elif role == "pruner":
+        count += len(c.prune())
+    else:
+        c.put(key, "item", data)
+    c.close()
+print(role, count, flush=True)
+"""
+
+
+def test_a_reader_never_loses_an_entry_to_a_concurrent_pruner(tmp_path: Path) -> None:
+    """Real processes sharing one cache, as xdist workers share the suite's
+    ``XDG_CACHE_HOME`` and ExecStartPre's ``check`` shares ``run``'s: a writer makes
+    the entry again and again, a pruner removes it whenever nobody holds it, and
+    readers read it.  A reader sees the whole entry or a miss, never a file
+    removed under it (FileNotFoundError) or half an entry."""
+    root = tmp_path / "cache"
+    root.mkdir(mode=0o700)
+    stop = tmp_path / "stop"
+    key = hashlib.sha256(b"raced").hexdigest()
+
+    def racer(role: str) -> subprocess.Popen[str]:
+        argv = [sys.executable, "-c", RACER, str(root), key, role, str(stop)]
+        return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    writer = racer("writer")
+    others = [racer("pruner"), racer("reader"), racer("reader")]
+    try:
+        outs = [p.communicate(timeout=180) for p in others]
+    finally:
+        stop.touch()
+        w_out, w_err = writer.communicate(timeout=60)
+    assert writer.returncode == 0, w_err
+    for p, (out, err) in zip(others, outs, strict=True):
+        assert p.returncode == 0 and "Traceback" not in err, err
+        role, count = out.split()
+        assert int(count) >= 30, out  # the race was run: entries read and pruned

@@ -8,6 +8,10 @@ integrator does, and every command runs inside through ``nsenter``.  The unit
 checks on the host (tests/supervisor/tools/test_packaging.py) cannot see what only PID 1 does:
 notify, the watchdog, the sandbox's seccomp filter, reload, stop.
 
+The reload tests also run on Debian trixie (systemd 257, which has
+``Type=notify-reload``; bookworm's 252 has not), built and cached the same way
+with a wheelhouse for its Python 3.13; the rest of the tier runs on bookworm.
+
 Needs root, ``systemd-nspawn`` (systemd-container), ``debootstrap`` and the
 Debian mirror; skipped otherwise, except where ``SAFETY_SUPERVISOR_REQUIRE_SYSTEMD=1``
 (.ci/run) makes a skip a failure.
@@ -40,6 +44,10 @@ ROOT = Path(__file__).resolve().parents[2]
 CACHE = Path(os.environ.get("SAFETY_SUPERVISOR_TEST_CACHE", "/var/cache/safety-supervisor-tests"))
 ROOTFS = CACHE / "rootfs-bookworm"
 WHEELHOUSE = CACHE / "wheelhouse"
+# trixie: its Python's version and the manylinux tags its glibc (2.41) loads, for
+# the wheelhouse downloaded on this host (the container has no network).
+TRIXIE_PYTHON = "3.13"
+TRIXIE_PLATFORMS = ["manylinux2014_x86_64", *(f"manylinux_2_{n}_x86_64" for n in range(17, 42))]
 MIRROR = "http://deb.debian.org/debian"
 PACKAGES = (
     "systemd,systemd-sysv,dbus,python3,python3-venv,python3-dev,gcc,libc6-dev,"
@@ -89,12 +97,13 @@ def _poll(what: str, deadline_s: float, probe: Callable[[], bool]) -> float:
 # ------------------------------------------------------------------ the rootfs
 
 
-def _cached_rootfs() -> Path:
-    """The pristine bookworm rootfs, built once.  It is built in a temporary
+def _cached_rootfs(release: str = "bookworm") -> Path:
+    """The pristine rootfs of ``release``, built once.  It is built in a temporary
     directory beside the cache and renamed into place, so a killed build never
     passes for a cache."""
-    if ROOTFS.is_dir():
-        return ROOTFS
+    rootfs = CACHE / f"rootfs-{release}"
+    if rootfs.is_dir():
+        return rootfs
     CACHE.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="rootfs-build-", dir=CACHE))
     # It becomes the container's /: mkdtemp's 0700 would lock every user but
@@ -106,7 +115,7 @@ def _cached_rootfs() -> Path:
                 "debootstrap",
                 "--variant=minbase",
                 f"--include={PACKAGES}",
-                "bookworm",
+                release,
                 str(tmp),
                 MIRROR,
             ],
@@ -114,11 +123,16 @@ def _cached_rootfs() -> Path:
         )
         if r.returncode != 0:
             _unavailable(f"debootstrap failed ({r.returncode}): {_tail(r.stderr + r.stdout)}")
-        os.rename(tmp, ROOTFS)
+        try:
+            os.rename(tmp, rootfs)
+        except OSError:
+            if not rootfs.is_dir():
+                raise
+            # Another session built it meanwhile (the same command): theirs is used.
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
-    return ROOTFS
+    return rootfs
 
 
 def _build_wheel(base: Path) -> Path:
@@ -160,6 +174,41 @@ def _wheelhouse(wheel: Path) -> Path:
     return WHEELHOUSE
 
 
+def _wheelhouse_trixie(wheel: Path) -> Path:
+    """The dependencies for trixie's Python 3.13: binary wheels downloaded for it,
+    and the pure ones pip built for bookworm's wheelhouse (sdnotify is an sdist)."""
+    house = _wheelhouse(wheel)
+    trixie = CACHE / "wheelhouse-trixie"
+    trixie.mkdir(parents=True, exist_ok=True)
+    platforms = [arg for tag in TRIXIE_PLATFORMS for arg in ("--platform", tag)]
+    r = _run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "download",
+            "--quiet",
+            "--only-binary=:all:",
+            f"--python-version={TRIXIE_PYTHON}",
+            "--implementation=cp",
+            *platforms,
+            "--find-links",
+            str(trixie),
+            "--find-links",
+            str(house),
+            "--dest",
+            str(trixie),
+            str(wheel),
+        ],
+        timeout=900,
+    )
+    if r.returncode != 0:
+        _unavailable(f"pip download for trixie's Python failed: {_tail(r.stderr)}")
+    for stale in trixie.glob("safety_supervisor-*.whl"):
+        stale.unlink()
+    return trixie
+
+
 # ------------------------------------------------------------------ the machine
 
 
@@ -172,6 +221,7 @@ class Machine:
     name: str
     nspawn: subprocess.Popen[bytes]
     pid1: int
+    release: str = "bookworm"
 
     def run(
         self, *argv: str, timeout: float = 60, env: dict[str, str] | None = None
@@ -301,15 +351,32 @@ def _remove_orphaned_sessions() -> None:
 
 @pytest.fixture(scope="session")
 def machine(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
+    yield from _machine("bookworm", tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def machine_trixie(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
+    yield from _machine("trixie", tmp_path_factory)
+
+
+@pytest.fixture(params=["bookworm", "trixie"])
+def either_machine(request: pytest.FixtureRequest) -> Machine:
+    """Bookworm's systemd 252 and trixie's 257: a test of this runs on both."""
+    name = "machine" if request.param == "bookworm" else "machine_trixie"
+    m: Machine = request.getfixturevalue(name)
+    return m
+
+
+def _machine(release: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
     if os.geteuid() != 0:
         _unavailable("booting a container needs root")
     for tool in ("systemd-nspawn", "debootstrap", "nsenter"):
         if shutil.which(tool) is None:
             _unavailable(f"{tool} is not installed (Debian: systemd-container, debootstrap)")
-    base = tmp_path_factory.mktemp("systemd")
+    base = tmp_path_factory.mktemp(f"systemd-{release}")
     wheel = _build_wheel(base)
-    house = _wheelhouse(wheel)
-    pristine = _cached_rootfs()
+    house = _wheelhouse_trixie(wheel) if release == "trixie" else _wheelhouse(wheel)
+    pristine = _cached_rootfs(release)
     # A throwaway copy per session: tests never dirty the cache.  Beside the
     # cache (same file system, out of a possibly small /tmp), named with this
     # process's pid so that a later session removes the copy of a killed one.
@@ -321,10 +388,12 @@ def machine(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Machine]:
         (root / "wheel").mkdir()
         shutil.copy2(wheel, root / "wheel" / wheel.name)
         name = "ss-" + uuid.uuid4().hex[:8]
+        t0 = time.monotonic()
         m = _boot(root, name, base / "nspawn.log")
-        m.root, m.name = root, name
+        m.root, m.name, m.release = root, name, release
         try:
             _install(m, f"/wheel/{wheel.name}")
+            print(f"\n{release}: booted and installed in {time.monotonic() - t0:.1f} s")
             yield m
         finally:
             _shutdown(m)
@@ -451,12 +520,13 @@ def _last_reload(m: Machine) -> dict[str, object]:
     return reloads[-1]
 
 
-def test_reload_good_and_bad_config(machine: Machine) -> None:
+def test_reload_good_and_bad_config(either_machine: Machine) -> None:
     """``systemctl reload`` returns once the daemon has the new config in force
     (ExecReload waits for its answer), and fails while the old one stays in
     force for a config that fails check.  Each is checked once, right after
-    ``systemctl`` returns: the outcome is there, not on its way."""
-    m = machine
+    ``systemctl`` returns: the outcome is there, not on its way.  The same unit
+    on systemd 252 and 257."""
+    m = either_machine
     before = _ensure_started(m)
     pid = before["MainPID"]
     cursor = _cursor(m)
@@ -510,9 +580,60 @@ def test_reload_good_and_bad_config(machine: Machine) -> None:
     assert m.show("MainPID")["MainPID"] == pid
     assert "Traceback" not in m.journal(cursor)
     print(
-        f"\nsystemctl reload: {took_good:.2f} s (good config, in force on return), "
-        f"{took_bad:.2f} s (broken config, refused)"
+        f"\nsystemctl reload ({m.release}): {took_good:.2f} s (good config, in force on "
+        f"return), {took_bad:.2f} s (broken config, refused)"
     )
+
+
+def test_notify_reload_in_a_drop_in_reports_a_refusal_as_success(machine_trixie: Machine) -> None:
+    """Where systemd has ``Type=notify-reload`` (253 and later), a drop-in may set it
+    and clear ExecReload=: systemd sends SIGHUP and the daemon speaks the protocol
+    (RELOADING=1 with MONOTONIC_USEC, then READY=1), so ``systemctl reload``
+    returns once the new config is in force.  A refused config ends with READY=1
+    too, and systemd 257 counts that reload a success (it has no way to hear a
+    failure): why the shipped unit keeps ExecReload= (docs/reference/commands.md,
+    ``reload``).  The refusal is still in the status, the log and the journal."""
+    m = machine_trixie
+    dropin = m.root / "etc/systemd/system" / f"{UNIT}.d" / "zz-test-notify-reload.conf"
+    host_config = m.root / CONFIG.lstrip("/")
+    original = host_config.read_text()
+    m.run("systemctl", "stop", UNIT, timeout=60)
+    dropin.parent.mkdir(parents=True, exist_ok=True)
+    dropin.write_text("[Service]\nType=notify-reload\nExecReload=\n")
+    try:
+        m.ok("systemctl", "daemon-reload")
+        m.run("systemctl", "reset-failed", UNIT, timeout=30)
+        _start(m)
+        st = m.show("Type", "MainPID")
+        assert st["Type"] == "notify-reload", st
+        pid = st["MainPID"]
+        edited = original + f"# reloaded by notify-reload {uuid.uuid4().hex}\n"
+        host_config.write_text(edited)
+        new = hashlib.sha256(edited.encode()).hexdigest()
+        t0 = time.monotonic()
+        r = m.run("systemctl", "reload", UNIT, timeout=120)
+        took_good = time.monotonic() - t0
+        assert r.returncode == 0, f"{r.stderr}\n{m.journal()[-3000:]}"
+        rec = _last_reload(m)  # right after the return: in force, not on its way
+        assert (rec["ok"], rec["config_sha256"], rec["via"]) == (True, new, "signal"), rec
+        assert m.show("StatusText")["StatusText"].startswith("reloaded:")
+
+        host_config.write_text(edited + "requirements: [\n")
+        r = m.run("systemctl", "reload", UNIT, timeout=120)
+        assert r.returncode == 0, r.stderr  # systemd's verdict, not the daemon's
+        assert m.show("ReloadResult")["ReloadResult"] == "success"
+        rec = _last_reload(m)
+        assert rec["ok"] is False and f"{CONFIG}:" in str(rec["why"]), rec
+        assert rec["config_sha256"] == new, rec  # the previous config is in force
+        st = m.show("MainPID", "ActiveState", "StatusText")
+        assert (st["MainPID"], st["ActiveState"]) == (pid, "active"), st
+        assert st["StatusText"].startswith("reload rejected:"), st
+    finally:
+        host_config.write_text(original)
+        dropin.unlink(missing_ok=True)
+        m.ok("systemctl", "daemon-reload")
+        m.run("systemctl", "restart", UNIT, timeout=120)
+    print(f"\nsystemctl reload under Type=notify-reload (trixie): {took_good:.2f} s (good config)")
 
 
 def test_a_violation_reaches_the_journal_with_its_fields(machine: Machine) -> None:
