@@ -368,9 +368,13 @@ def run(settings: dict[str, Any], fd: int = 0) -> int:
         return 0
     except Exception as e:  # a write error ends the recording, reported once
         lost = received - (w.written + w.skipped + w.controls if w is not None else 0)
+        end: dict[str, object] = {"stopped": stop_reason(e), "lost": lost}
         if w is not None:
             w.abort()
-        report({"stopped": stop_reason(e), "lost": lost})
+            # The counts since the last flush's report: the MCAP writer also writes a
+            # full chunk on its own, so the bag may hold more than that report said.
+            end["stats"] = w.stats()
+        report(end)
         return 1
 
 
