@@ -340,7 +340,9 @@ class SupervisorNode:
                 ((v.name, s.var.topic, s.streams) for s, v in self.inputs.inputs()),
             )
             if self.notifier.enabled:
-                self.notifier.status(self.status_line())
+                head = self.reloader.headline(now)
+                line = self.status_line()
+                self.notifier.status(f"{head} | {line}" if head else line)
         self.reloader.step()
 
     def _ticking(self, now: int) -> bool:

@@ -20,6 +20,9 @@ from supervisor.daemon.core import Core
 from supervisor.daemon.notify import Notifier
 from supervisor.daemon.session import Session
 
+# How long STATUS= keeps saying a reload was done (a refusal stays until one is).
+RELOADED_SHOWN_NS = 60_000_000_000
+
 
 class Reloader:
     """Serves reload and reopen requests from the loop's :meth:`step`.
@@ -54,6 +57,10 @@ class Reloader:
         self._waiting: list[ControlRequest] = []
         self._answering: list[ControlRequest] = []
         self._started = 0  # monotonic ns of the running reload's RELOADING=1
+        # The last reload's outcome, and until when STATUS= leads with it (None:
+        # until the next reload): `systemctl status` still shows a refused config
+        # long after the periodic status line would have replaced it.
+        self._outcome: tuple[str, int | None] | None = None
         self._reopen_requests = 0  # SIGUSR1s received; counted, so none is lost
         self._reopens_done = 0
 
@@ -113,6 +120,10 @@ class Reloader:
                 self._swap(result, how)
                 sha = result.config.sha256
                 n = len(result.requirements)
+                self._outcome = (
+                    f"reloaded: monitoring {n} requirements",
+                    time.monotonic_ns() + RELOADED_SHOWN_NS,
+                )
                 reply: dict[str, Any] = {
                     "ok": True,
                     "message": f"reloaded: monitoring {n} requirements, config sha256 {sha}",
@@ -121,6 +132,7 @@ class Reloader:
             else:
                 why = " ".join(str(result).splitlines())  # one line, wherever it came from
                 self.log.supervisor("reload", ok=False, why=why, **how)
+                self._outcome = (f"reload rejected: {why}", None)
                 self.notifier.ready(status=f"reload rejected: {why} | {self._status_line()}")
                 reply = {
                     "ok": False,
@@ -131,6 +143,16 @@ class Reloader:
             # After the record and READY=1: whoever waits sees the outcome everywhere.
             for req in requests:
                 req.answer(reply)
+
+    def headline(self, now_ns: int) -> str | None:
+        """What STATUS= leads with now: the last reload's outcome, while it is news."""
+        if self._outcome is None:
+            return None
+        text, until = self._outcome
+        if until is not None and now_ns >= until:
+            self._outcome = None
+            return None
+        return text
 
     def _how(self, requests: list[ControlRequest]) -> dict[str, Any]:
         """The reload record's ``via`` (``signal`` or ``control_socket``), the

@@ -263,3 +263,38 @@ def test_a_reload_asked_during_a_reload_reads_the_newest_config(
     assert r.returncode == 0 and newest in r.stdout, (r.stdout, r.stderr, d.explain())
     assert _reloads(d)[-1]["config_sha256"] == newest
     d.terminate()
+
+
+def _next_statuses(d: Any, n: int, timeout: float = 30) -> list[str]:
+    """The STATUS= texts of the next ``n`` periodic status datagrams (no READY=1)."""
+    out: list[str] = []
+    deadline = time.monotonic() + timeout
+    while len(out) < n:
+        assert time.monotonic() < deadline, d.explain()
+        dg = d.recv(0.5)
+        if dg is None or "READY=1" in dg.splitlines():
+            continue
+        out += [x.removeprefix("STATUS=") for x in dg.splitlines() if x.startswith("STATUS=")]
+    return out
+
+
+@pytest.mark.ros
+def test_the_status_line_keeps_saying_a_reload_was_refused(
+    daemon: tuple[Any, Path, Path],
+) -> None:
+    # `systemctl status` a while after a refused reload must still show the refusal:
+    # the periodic STATUS= (every second) leads with it until a reload succeeds.
+    d, _sock, config = daemon
+    original = config.read_text()
+    config.write_text(original.replace("OpState=3)\n", "OpState=)\n", 1))
+    d.proc.send_signal(signal.SIGHUP)
+    d.wait_notify("READY=1", timeout=60)
+    for text in _next_statuses(d, 2):
+        assert text.startswith(f"reload rejected: {config}:"), text
+        assert "ticks=" in text, text  # and the usual line after it
+    config.write_text(original + "# fixed\n")
+    d.proc.send_signal(signal.SIGHUP)
+    d.wait_notify("READY=1", timeout=60)
+    for text in _next_statuses(d, 2):
+        assert text.startswith("reloaded: monitoring 13 requirements | ticks="), text
+    d.terminate()
