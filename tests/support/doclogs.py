@@ -109,12 +109,15 @@ def make(out: Path, env: dict[str, str]) -> None:
 
     full = out / "disk-full"
     full.mkdir()
-    subprocess.run(
+    # Its stderr is the writer's journal lines (each record not written): not shown.
+    done = subprocess.run(
         [sys.executable, "-c", _DISK_FULL, str(full / "violations.jsonl")],
         env=env,
-        check=True,
+        capture_output=True,
+        text=True,
         timeout=120,
     )
+    assert done.returncode == 0, done.stderr[-3000:]
 
     rewritten = out / "rewritten"
     rewritten.mkdir()
