@@ -196,8 +196,11 @@ def _examples(path: Path) -> list[Example]:
 
 def _marks(path: Path) -> list[pytest.MarkDecorator]:
     # The demo runs the daemon and the simulated robot over DDS (on the test's own
-    # ROS_DOMAIN_ID, which the examples inherit).
-    return [pytest.mark.ros] if "\n$ safety-supervisor demo " in path.read_text() else []
+    # ROS_DOMAIN_ID, which the examples inherit); so do the files an example asks for.
+    text = path.read_text()
+    return (
+        [pytest.mark.ros] if "\n$ safety-supervisor demo " in text or "<!-- files: " in text else []
+    )
 
 
 @pytest.mark.parametrize(
