@@ -10,6 +10,9 @@ Sybil finds the examples; the convention (docs/README.md, "Generated and execute
 - an example that cannot run here (it needs root, a robot, a running daemon) is
   preceded by ``<!-- skip: next "why" -->`` (Sybil's skip directive): reported as
   skipped with that reason, never silently;
+- an example that reads files a robot would have (a daemon's rotated logs) is
+  preceded by ``<!-- files: NAME -->``: the files of ``FILES[NAME]``, made once per
+  test run with the product itself, are copied into its directory;
 - a ```` ```yaml ```` block that begins with ``component:`` is a whole config: it
   must pass ``safety-supervisor check`` (an excerpt begins with another key);
 - any other block is not an example (a synopsis, an excerpt), and may not hold a
@@ -22,9 +25,11 @@ own ROS domain, and nothing of systemd's environment.
 
 from __future__ import annotations
 
+import atexit
 import doctest
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -32,9 +37,10 @@ from pathlib import Path
 from unittest import SkipTest
 
 import pytest
-from sybil import Document, Example
+from sybil import Document, Example, Region
 from sybil.example import SybilFailure
 from sybil.parsers.markdown import CodeBlockParser, SkipParser
+from sybil.parsers.markdown.lexers import DirectiveInHTMLCommentLexer
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md")])
@@ -42,7 +48,24 @@ CHECKER = doctest.OutputChecker()
 EXIT = re.compile(r"^\[exit (\d+)\]$")
 # Examples that cannot run in a test, each with its reason in the markdown; a new one
 # has to be argued for here too.
-SKIPPED_AT_MOST = 12
+SKIPPED_AT_MOST = 5
+# Files an example may ask for (``<!-- files: NAME -->``): NAME -> what makes them.
+FILES = {"rotated-logs": "doclogs"}
+_made: dict[str, Path] = {}
+
+
+def _files(name: str) -> Path:
+    """The files ``name`` stands for, made on first use (the demo runs once)."""
+    if name not in _made:
+        import importlib
+
+        if name not in FILES:
+            raise AssertionError(f"<!-- files: {name} -->: not one of {sorted(FILES)}")
+        out = Path(tempfile.mkdtemp(prefix=f"docs-files-{name}-"))
+        atexit.register(shutil.rmtree, out, True)
+        importlib.import_module(FILES[name]).make(out, _environment(out))
+        _made[name] = out
+    return _made[name]
 
 
 def _environment(home: Path) -> dict[str, str]:
@@ -90,6 +113,9 @@ def _run(example: Example, console: bool) -> str | None:
             (cwd / name).symlink_to(ROOT / name)
         (cwd / "run").mkdir(mode=0o700)
         env = _environment(cwd)
+        name = example.namespace.pop("files", None)
+        if name is not None:
+            shutil.copytree(_files(name), cwd, dirs_exist_ok=True, symlinks=True)
         for command, shown in _commands(example.parsed, console):
             done = subprocess.run(
                 ["bash", "-c", command],
@@ -145,11 +171,22 @@ def _evaluator(console: bool):  # noqa: ANN202 (Sybil's evaluator protocol)
     return evaluate
 
 
+def _files_parser(document: Document):  # noqa: ANN202 (Sybil's parser protocol)
+    """``<!-- files: NAME -->``: the next example runs beside the files NAME stands for."""
+
+    def ask(example: Example) -> None:
+        example.namespace["files"] = example.parsed
+
+    for lexed in DirectiveInHTMLCommentLexer("files")(document):
+        yield Region(lexed.start, lexed.end, lexed.lexemes["arguments"].strip(), ask)
+
+
 PARSERS = [
     CodeBlockParser("console", _evaluator(console=True)),
     CodeBlockParser("sh", _evaluator(console=False)),
     CodeBlockParser("yaml", _check_config),
     SkipParser(),
+    _files_parser,
 ]
 
 
@@ -159,8 +196,11 @@ def _examples(path: Path) -> list[Example]:
 
 def _marks(path: Path) -> list[pytest.MarkDecorator]:
     # The demo runs the daemon and the simulated robot over DDS (on the test's own
-    # ROS_DOMAIN_ID, which the examples inherit).
-    return [pytest.mark.ros] if "\n$ safety-supervisor demo " in path.read_text() else []
+    # ROS_DOMAIN_ID, which the examples inherit); so do the files an example asks for.
+    text = path.read_text()
+    return (
+        [pytest.mark.ros] if "\n$ safety-supervisor demo " in text or "<!-- files: " in text else []
+    )
 
 
 @pytest.mark.parametrize(
