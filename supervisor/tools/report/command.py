@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -67,7 +68,9 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UserError("is a directory; give the HTML file to write", file=str(out))
     namespace = checked_namespace(args.namespace, "report")
     logs, bags, config = _recordings(args.logs, args.bag, args.config)
-    rep = build(logs, bags, config, quiet=args.quiet, namespace=namespace)
+    # progress is for a person at a terminal: a pipe or the journal gets no \r lines
+    quiet = args.quiet or not sys.stderr.isatty()
+    rep = build(logs, bags, config, quiet=quiet, namespace=namespace)
     try:
         write(rep, out)
     except OSError as e:

@@ -274,6 +274,24 @@ def test_no_progress_when_stderr_is_not_a_terminal(tmp_path):
     assert "\r" not in run.stderr and "replay: " not in run.stderr
 
 
+def test_report_shows_no_progress_when_stderr_is_not_a_terminal(tmp_path):
+    """``report --bag`` as replay: a CI log or the journal gets no ``\r`` lines."""
+    cls = TS.types["std_msgs/msg/Float64"]
+    bag = tmp_path / "plain"
+    with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        speed = w.add_connection("/speed", "std_msgs/msg/Float64", typestore=TS)
+        for i, v in enumerate(SPEEDS):
+            data = bytes(TS.serialize_cdr(cls(data=v), "std_msgs/msg/Float64"))
+            w.write(speed, 10**9 + i * 100 * MS, data)
+    cfg = speed_config(tmp_path)
+    log = tmp_path / "log.jsonl"
+    assert cli("replay", str(cfg), str(bag), "-o", str(log)).returncode == 0
+    page = tmp_path / "r.html"
+    run = cli("report", str(log), "--bag", str(bag), "--config", str(cfg), "-o", str(page))
+    assert run.returncode == 0, run.stderr
+    assert "\r" not in run.stderr and "report: " not in run.stderr, run.stderr
+
+
 def test_report_bag_reads_relative_names(cli_main, tmp_path):
     """``report --bag`` resolves names as replay does: rosbag2's ``CCC`` is ``/CCC``."""
     bag = BAGS / "sqlite3/wbag"
