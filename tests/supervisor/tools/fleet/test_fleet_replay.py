@@ -1,0 +1,181 @@
+"""``fleet replay`` end to end: the real CLI in a real process pool over an archive of
+real rosbag2 bags (MCAP and sqlite3, written with rosbags) of three robots, one of them
+damaged; the dataset read back with DuckDB and checked against ``replay`` of each bag;
+resume; ``--compare`` on a known difference."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from supervisor.tools.replay.session import compare, replay_files
+from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+duckdb = pytest.importorskip("duckdb")
+pytest.importorskip("pyarrow")
+
+VIOLATIONS = "read_parquet('{}/violations/**/*.parquet', hive_partitioning = true)"
+BAGS = "read_parquet('{}/bags/*.parquet')"
+
+
+def archive(tmp: Path) -> dict[str, list[Path]]:
+    """Three robots, five good bags of both formats, a damaged bag (its file
+    garbage after the magic) and one that cannot be opened (its metadata garbage)."""
+    root = tmp / "fleet"
+    bags = {
+        "robot-a": [
+            write_bag(root / "robot-a" / "b1", messages(1, 1500)),
+            write_bag(root / "robot-a" / "b2", messages(2, 1500), plugin="SQLITE3"),
+        ],
+        "robot-b": [write_bag(root / "robot-b" / "b3", messages(3, 1500))],
+        "robot-c": [
+            write_bag(root / "robot-c" / "day1" / "b4", messages(4, 1500), plugin="SQLITE3"),
+            write_bag(root / "robot-c" / "day2" / "b5", messages(5, 1500)),
+        ],
+    }
+    bad = write_bag(root / "robot-c" / "day2" / "bad", messages(6, 1500))
+    mcap = next(bad.glob("*.mcap"))
+    mcap.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))  # the magic, then garbage
+    broken = root / "robot-b" / "broken"
+    broken.mkdir()
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    return bags
+
+
+def fleet(*args: str | Path, ok: tuple[int, ...] = (0, 1)) -> subprocess.CompletedProcess[str]:
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode in ok, run.stderr
+    assert "Traceback" not in run.stderr
+    return run
+
+
+def query(sql: str) -> list[tuple]:
+    return duckdb.sql(sql).fetchall()
+
+
+def test_an_archive_of_three_robots_is_one_dataset_as_replay_counts_it(tmp_path):
+    bags = archive(tmp_path)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    assert run.returncode == 1  # two bags not read whole: the others are in
+    summary = run.stdout.strip().splitlines()
+    assert (
+        summary == [summary[0]] and "7 bags (5 read, 0 skipped, 1 damaged, 1 failed)" in summary[0]
+    )
+    rows = query(f"SELECT robot, status, count(*) FROM {BAGS.format(ds)} GROUP BY ALL ORDER BY ALL")
+    assert rows == [
+        ("robot-a", "read", 2),
+        ("robot-b", "failed", 1),
+        ("robot-b", "read", 1),
+        ("robot-c", "damaged", 1),
+        ("robot-c", "read", 2),
+    ]
+    reasons = dict(query(f"SELECT status, reason FROM {BAGS.format(ds)} WHERE status <> 'read'"))
+    assert "bad.mcap" in reasons["damaged"] and "broken/metadata.yaml" in reasons["failed"]
+    # each robot's violations per requirement, as replay counts them bag by bag
+    want: dict[tuple[str, str], int] = {}
+    for robot, paths in bags.items():
+        for p in paths:
+            for q in replay_files(cfg, [p], None, None)["requirements"]:
+                if q["violations"]:
+                    want[(robot, q["id"])] = want.get((robot, q["id"]), 0) + q["violations"]
+    got = query(f"SELECT robot, requirement, count(*) FROM {VIOLATIONS.format(ds)} GROUP BY ALL")
+    assert {(r, q): n for r, q, n in got} == want and len(want) >= 3
+    # the inputs that decided each verdict are JSON text, and the date its partition
+    (n_bad_json,) = query(
+        f"SELECT count(*) FROM {VIOLATIONS.format(ds)} "
+        "WHERE json_extract(inputs, '$.speed') IS NULL OR strftime(recorded_ts, '%Y-%m-%d') <> CAST(date AS VARCHAR)"
+    )[0]
+    assert n_bad_json == 0
+
+
+def test_resume_reads_nothing_finished_and_adds_no_rows(tmp_path):
+    bags = archive(tmp_path)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    before = query(f"SELECT count(*) FROM {VIOLATIONS.format(ds)}")[0][0]
+    # A finished bag's bytes replaced (same size and times): read again, it would fail.
+    done = next(bags["robot-a"][0].glob("*.mcap"))
+    st = done.stat()
+    done.write_bytes(os.urandom(st.st_size))
+    os.utime(done, ns=(st.st_atime_ns, st.st_mtime_ns))
+    # An interrupted run: one bag's row never written (its violation files were).
+    b3 = str(bags["robot-b"][0])
+    (key,) = [
+        f for f in (ds / "bags").glob("*.parquet")
+        if query(f"SELECT bag FROM read_parquet('{f}')")[0][0] == b3
+    ]  # fmt: skip
+    key.unlink()
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    # only the unfinished bag and the failed one (failed bags are tried again)
+    assert "2 bags (1 read, 0 skipped, 0 damaged, 1 failed), 5 done before" in run.stdout
+    assert query(f"SELECT count(*) FROM {VIOLATIONS.format(ds)}")[0][0] == before
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (7, 7)
+
+
+def test_compare_counts_what_only_one_config_reports(tmp_path):
+    bags = archive(tmp_path)
+    a, b = config(tmp_path, "a.yaml", limit=2.0), config(tmp_path, "b.yaml", limit=2.3)
+    run = fleet(a, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", b, "--jobs", "2")
+    table = {}
+    for line in run.stdout.splitlines()[3:]:
+        req, robot, na, nb, only_a, only_b, both, _first = line.split()
+        table[(req, robot)] = (int(na), int(nb), int(only_a), int(only_b), int(both))
+    want: dict[tuple[str, str], list[int]] = {}
+    for robot, paths in bags.items():
+        for p in paths:
+            for q in compare(a, b, [p], None)["requirements"]:
+                if q["a"] or q["b"]:
+                    w = want.setdefault((q["id"], robot), [0, 0, 0, 0, 0])
+                    both = q["a"] - len(q["only_a"])
+                    for i, n in enumerate(
+                        (q["a"], q["b"], len(q["only_a"]), len(q["only_b"]), both)
+                    ):
+                        w[i] += n
+    assert table == {k: tuple(v) for k, v in want.items()}
+    # the known difference: a higher speed limit loses violations of 'limit' only
+    assert all(table[("limit", r)][2] > 0 and table[("limit", r)][3] == 0 for r in bags)
+    assert all(v[2] == v[3] == 0 for (q, _), v in table.items() if q != "limit")
+
+
+def test_robot_from_a_rule_and_a_name_that_is_no_partition(tmp_path):
+    write_bag(tmp_path / "data" / "unit-7" / "bags" / "b1", messages(1, 300))
+    write_bag(tmp_path / "data" / "x=1" / "bags" / "b2", messages(2, 300))
+    ds = tmp_path / "ds"
+    run = fleet(config(tmp_path), tmp_path / "data", "-o", ds, "--robot-from", "data/{robot}/bags")
+    assert run.returncode == 1
+    rows = query(f"SELECT robot, status, reason FROM {BAGS.format(ds)} ORDER BY bag")
+    assert rows[0][:2] == ("unit-7", "read")
+    assert rows[1][:2] == ("", "failed") and "not a plain name" in rows[1][2]
+    assert [p.name for p in (ds / "violations").iterdir()] == ["robot=unit-7"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["{cfg}", "{tmp}/nothing-here", "-o", "{tmp}/ds"], "no such directory, bag or match"),
+        (["{cfg}", "{tmp}", "-o", "{tmp}/ds", "--robot-from", "x"], "must hold {robot} once"),
+        (["{tmp}/none.yaml", "{tmp}", "-o", "{tmp}/ds"], "none.yaml"),
+    ],
+)
+def test_bad_input_is_one_line(tmp_path, args, message):
+    cfg = config(tmp_path)
+    run = fleet(*[a.format(cfg=cfg, tmp=tmp_path) for a in args], ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0], run.stderr
+
+
+def test_jobs_is_a_small_positive_number(tmp_path):
+    run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--jobs", "0", ok=(2,))
+    assert "not a number of processes" in run.stderr
