@@ -5,6 +5,7 @@ resume; ``--compare`` on a known difference."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -97,6 +98,16 @@ def test_an_archive_of_three_robots_is_one_dataset_as_replay_counts_it(tmp_path)
         "WHERE json_extract(inputs, '$.speed') IS NULL OR strftime(recorded_ts, '%Y-%m-%d') <> CAST(date AS VARCHAR)"
     )[0]
     assert n_bad_json == 0
+    # strict JSON for any reader: a NaN input (speeds are NaN now and then) is a string
+    inputs = [
+        json.loads(x, parse_constant=_no_constant)
+        for (x,) in query(f"SELECT inputs FROM {VIOLATIONS.format(ds)}")
+    ]
+    assert "nan" in {str(i["speed"]) for i in inputs}
+
+
+def _no_constant(name: str) -> None:
+    raise ValueError(f"{name} is not JSON")
 
 
 def test_resume_reads_nothing_finished_and_adds_no_rows(tmp_path):
