@@ -152,7 +152,9 @@ def _table(task: BagTask, digest: str, rows: list[tuple[str, int, int, str]]) ->
 def _ns(stamp: str) -> int:
     """``recorded_ts`` as replay writes it (``...T12:00:00.123456789Z``) in ns."""
     whole, _, frac = stamp.rstrip("Z").partition(".")
-    seconds = datetime.strptime(whole, "%Y-%m-%dT%H:%M:%S").replace(tzinfo=UTC).timestamp()
+    # fromisoformat: several times faster than strptime, and a dense bag has a
+    # violation every few messages
+    seconds = datetime.fromisoformat(whole).replace(tzinfo=UTC).timestamp()
     return int(seconds) * 1_000_000_000 + int((frac or "0").ljust(9, "0")[:9])
 
 
