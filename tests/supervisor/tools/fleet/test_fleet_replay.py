@@ -190,3 +190,59 @@ def test_bad_input_is_one_line(tmp_path, args, message):
 def test_jobs_is_a_small_positive_number(tmp_path):
     run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--jobs", "0", ok=(2,))
     assert "not a number of processes" in run.stderr
+
+
+def _workers(parent: int) -> list[int]:
+    """The pool's worker processes: children of ``parent`` started by spawn."""
+    out = []
+    for d in Path("/proc").iterdir():
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if ppid == parent and b"spawn_main" in (d / "cmdline").read_bytes():
+                out.append(int(d.name))
+        except (OSError, ValueError, IndexError):
+            continue  # not a process, or one that has just exited
+    return out
+
+
+def _reading_a_bag(parent: int) -> int | None:
+    """A worker that has a bag's file open: it is in the middle of a task."""
+    for pid in _workers(parent):
+        try:
+            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
+        except OSError:
+            continue
+        if any(f.endswith((".mcap", ".db3")) for f in fds):
+            return pid
+    return None
+
+
+def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    for i in range(4):
+        write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid), 120)
+        os.kill(victim, 9)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "4 bags (4 read, 0 skipped, 0 damaged, 0 failed)" in out
+    per_bag = (
+        "SELECT bag, requirement, count(*), count(DISTINCT tick) FROM {} GROUP BY ALL ORDER BY ALL"
+    )
+    want = query(per_bag.format(VIOLATIONS.format(clean)))
+    assert want and query(per_bag.format(VIOLATIONS.format(killed))) == want
+    assert all(n == distinct for _, _, n, distinct in want)
