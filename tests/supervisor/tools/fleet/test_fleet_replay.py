@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -246,3 +247,22 @@ def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
     want = query(per_bag.format(VIOLATIONS.format(clean)))
     assert want and query(per_bag.format(VIOLATIONS.format(killed))) == want
     assert all(n == distinct for _, _, n, distinct in want)
+
+
+def test_a_bag_of_other_topics_and_a_copy_of_a_finished_bag_are_skipped(tmp_path):
+    root = tmp_path / "fleet"
+    first = write_bag(root / "robot-a" / "b1", messages(1, 500))
+    write_bag(root / "robot-a" / "cameras", [(10**9 + i, "/extra", "img") for i in range(50)])
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    run = fleet(cfg, root / "robot-a", "-o", ds, "--robot-from", "fleet/{robot}/**", ok=(0,))
+    assert "2 bags (1 read, 1 skipped, 0 damaged, 0 failed)" in run.stdout
+    # the same bag under another robot's path: hashed, found done, not replayed
+    copy = root / "robot-b" / "b1"
+    shutil.copytree(first, copy)
+    run = fleet(cfg, root, "-o", ds, ok=(0,))
+    assert "1 bags (0 read, 1 skipped, 0 damaged, 0 failed), 2 done before" in run.stdout
+    rows = dict(query(f"SELECT bag, reason FROM {BAGS.format(ds)} WHERE status = 'skipped'"))
+    assert "hold no message on the config's topics" in rows[str(root / "robot-a" / "cameras")]
+    assert rows[str(copy)] == "already replayed with this config"
+    (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
+    assert robots == ["robot-a"]
