@@ -266,3 +266,37 @@ def test_a_bag_of_other_topics_and_a_copy_of_a_finished_bag_are_skipped(tmp_path
     assert rows[str(copy)] == "already replayed with this config"
     (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
     assert robots == ["robot-a"]
+
+
+def test_a_terminal_gets_a_progress_line_and_a_pipe_does_not(tmp_path):
+    import pty
+
+    for i in range(3):
+        write_bag(tmp_path / "fleet" / "robot-a" / f"b{i}", messages(i, 300))
+    cfg = config(tmp_path)
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(tmp_path / "fleet"),
+         "-o", str(tmp_path / "ds"), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=follower, text=True,
+    )  # fmt: skip
+    os.close(follower)
+    shown = b""
+    while chunk := _read(leader):
+        shown += chunk
+    out, _ = proc.communicate(timeout=120)
+    os.close(leader)
+    assert proc.returncode == 0
+    last = shown.decode().rstrip("\r\n").split("\r")[-1]  # the pty writes \n as \r\n
+    assert "fleet: 3/3 bags, 0 failed, " in last and "messages/s, ETA 0:00:00" in last
+    assert len(out.splitlines()) == 1 and "\r" not in out
+    # without a terminal (a pipe, as here for stdout and in CI): no progress at all
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", ok=(0,))
+    assert run.stderr == ""
+
+
+def _read(fd: int) -> bytes:
+    try:
+        return os.read(fd, 4096)
+    except OSError:  # EIO: the child closed the terminal
+        return b""
