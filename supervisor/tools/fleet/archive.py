@@ -2,7 +2,7 @@
 that recorded it and a fingerprint of its files that is read from their metadata alone.
 
 A bag is what ``replay`` reads as one: a rosbag2 directory (``metadata.yaml``, or
-``.mcap``/``.db3`` files without it), or a ``.mcap``/``.db3`` file on its own.  A
+``.mcap``/``.db3`` files without it, plain or ``.zstd``), or such a file given itself.  A
 recording directory of ``run --record`` holds one bag directory per rotation, and each
 is a bag here.  The robot is the first directory under the archive root, or what
 ``--robot-from`` matches.
@@ -20,7 +20,8 @@ from pathlib import Path
 from monitors.errors import UserError
 from monitors.untrusted import printable
 
-BAG_SUFFIXES = (".mcap", ".db3")
+# a storage file, plain or compressed per file as rosbag2's zstd compressor writes it
+BAG_FILES = (".mcap", ".db3", ".mcap.zstd", ".db3.zstd")
 # The robot's name becomes a partition directory (robot=NAME): a path component of
 # plain characters, never one that climbs or nests (docs/reference/commands.md).
 ROBOT = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
@@ -79,7 +80,7 @@ def _expanded(arg: str) -> list[tuple[str, str]]:
 def _is_bag_dir(p: Path) -> bool:
     try:
         return (p / "metadata.yaml").is_file() or any(
-            c.suffix in BAG_SUFFIXES and c.is_file() for c in p.iterdir()
+            c.name.endswith(BAG_FILES) and c.is_file() for c in p.iterdir()
         )
     except OSError:
         return False
@@ -88,7 +89,7 @@ def _is_bag_dir(p: Path) -> bool:
 def _bags(path: str) -> list[Path]:
     p = Path(path)
     if p.is_file():
-        return [p] if p.suffix in BAG_SUFFIXES else []
+        return [p] if p.name.endswith(BAG_FILES) else []
     out: list[Path] = []
     todo = [(p, 0)]
     while todo:
@@ -105,10 +106,8 @@ def _bags(path: str) -> list[Path]:
         for c in children:
             if c.is_symlink():
                 continue  # an archive is its own tree: a link could lead anywhere
-            if c.is_dir():
+            if c.is_dir():  # a storage file makes its directory a bag (_is_bag_dir)
                 todo.append((c, depth + 1))
-            elif c.suffix in BAG_SUFFIXES and c.is_file():
-                out.append(c)
     return out
 
 

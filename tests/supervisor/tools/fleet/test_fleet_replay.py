@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import zstandard
 
 from supervisor.tools.replay.session import compare, replay_files
 from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
@@ -25,7 +26,7 @@ BAGS = "read_parquet('{}/bags/*.parquet')"
 
 
 def archive(tmp: Path) -> dict[str, list[Path]]:
-    """Three robots, five good bags of both formats, a damaged bag (its file
+    """Three robots, five good bags of both formats (one compressed), a damaged bag (its file
     garbage after the magic) and one that cannot be opened (its metadata garbage)."""
     root = tmp / "fleet"
     bags = {
@@ -39,6 +40,7 @@ def archive(tmp: Path) -> dict[str, list[Path]]:
             write_bag(root / "robot-c" / "day2" / "b5", messages(5, 1500)),
         ],
     }
+    compress(bags["robot-b"][0])
     bad = write_bag(root / "robot-c" / "day2" / "bad", messages(6, 1500))
     mcap = next(bad.glob("*.mcap"))
     mcap.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))  # the magic, then garbage
@@ -46,6 +48,18 @@ def archive(tmp: Path) -> dict[str, list[Path]]:
     broken.mkdir()
     (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
     return bags
+
+
+def compress(bag: Path) -> None:
+    """The bag compressed per file, as rosbag2's zstd file compressor leaves it."""
+    (plain,) = bag.glob("*.mcap")
+    packed = plain.with_name(plain.name + ".zstd")
+    packed.write_bytes(zstandard.ZstdCompressor().compress(plain.read_bytes()))
+    plain.unlink()
+    meta = bag / "metadata.yaml"
+    text = meta.read_text().replace(plain.name, packed.name)
+    text = text.replace("compression_format: ''", "compression_format: zstd")
+    meta.write_text(text.replace("compression_mode: ''", "compression_mode: FILE"))
 
 
 def fleet(*args: str | Path, ok: tuple[int, ...] = (0, 1)) -> subprocess.CompletedProcess[str]:
