@@ -58,7 +58,10 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
                 if len(found) >= MAX_BAGS:
                     raise UserError(f"more than {MAX_BAGS:,} bags", file=printable(arg))
                 robot, why = _robot(Path(key), Path(os.path.abspath(root)), rule)
-                size, fp = fingerprint(Path(key))
+                try:
+                    size, fp = fingerprint(Path(key))
+                except OSError as e:  # gone or unreadable since it was listed: its row says so
+                    size, fp, robot, why = 0, "", None, f"cannot read: {e.strerror or e}"
                 found[key] = BagRef(key, robot, why, size, fp)
     return [found[k] for k in sorted(found)]
 

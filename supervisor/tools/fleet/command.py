@@ -126,7 +126,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     # by content hash too: the same bag under another path is hashed, not replayed
     # (one set for both configs: a task's key is its content and its config's hash)
     done_contents = {f"{s}:{h}" for s, h in done.contents if s in shas}
-    results = LocalEngine(args.jobs).results(tasks, done_contents) if tasks else iter(())
+    results = LocalEngine(args.jobs).results(tasks, done_contents)
     try:
         for result in _chain(failed_first, results):
             robot, fp, size = where[result.task.bag]
@@ -136,6 +136,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             if show:
                 progress.draw()
     finally:
+        results.close()  # an error stops the pool too (engine.py)
         if show:
             progress.end()
     print(progress.summary(counts, already, Path(args.output)), flush=True)

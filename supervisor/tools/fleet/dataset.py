@@ -56,8 +56,10 @@ class Done:
 
 class Dataset:
     def __init__(self, root: Path) -> None:
-        if root.exists() and not root.is_dir():
-            raise UserError("not a directory", file=str(root))
+        try:  # made before any bag is read: a dataset that cannot be written is said first
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UserError(f"cannot make the dataset: {e.strerror or e}", file=str(root)) from None
         self.root = root
         self.bags_dir = root / "bags"
         self.violations_dir = root / "violations"
@@ -119,7 +121,10 @@ class Dataset:
 
 
 def _write(path: Path, table: pa.Table) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
-    write_atomic(path, sink.getvalue().to_pybytes(), mode=0o644)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, sink.getvalue().to_pybytes(), mode=0o644)
+    except OSError as e:  # a full disk or a directory taken away during the run
+        raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None

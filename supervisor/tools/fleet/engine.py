@@ -37,15 +37,18 @@ class LocalEngine:
         self.jobs = jobs or os.cpu_count() or 1
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
-        todo = [(t, 1) for t in tasks]
+        todo = [(t, 1) for t in tasks]  # (task, attempt)
         while todo:
             retry: list[tuple[BagTask, int]] = []
-            with ProcessPoolExecutor(
+            pool = ProcessPoolExecutor(
                 max_workers=min(self.jobs, len(todo)),
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init,
                 initargs=(frozenset(done),),
-            ) as pool:
+            )
+            # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
+            # started are dropped, not run to the end of the archive
+            try:
                 running: dict[Future[BagResult], tuple[BagTask, int]] = {
                     pool.submit(_run, t): (t, n) for t, n in todo
                 }
@@ -66,4 +69,6 @@ class LocalEngine:
                             yield BagResult(
                                 task, "failed", f"internal error: {type(e).__name__}: {e}"
                             )
+            finally:
+                pool.shutdown(wait=True, cancel_futures=True)
             todo = retry

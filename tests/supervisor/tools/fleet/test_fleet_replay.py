@@ -202,6 +202,14 @@ def test_bad_input_is_one_line(tmp_path, args, message):
     assert len(lines) == 1 and message in lines[0], run.stderr
 
 
+def test_a_dataset_that_cannot_be_written_is_one_line(tmp_path):
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 200))
+    (tmp_path / "file").write_text("")
+    run = fleet(config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "file" / "ds", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "file/ds" in lines[0] and "internal error" not in lines[0], lines
+
+
 def test_jobs_is_a_small_positive_number(tmp_path):
     run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--jobs", "0", ok=(2,))
     assert "not a number of processes" in run.stderr
