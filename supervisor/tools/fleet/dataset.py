@@ -25,6 +25,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from monitors.errors import UserError
+from monitors.untrusted import printable
 from supervisor.files import write_atomic
 from supervisor.tools.fleet.task import BagResult
 
@@ -117,7 +118,14 @@ class Dataset:
             return pa.table({})
         import pyarrow.dataset as ds
 
-        return ds.dataset(self.violations_dir, format="parquet", partitioning="hive").to_table()
+        try:
+            found = ds.dataset(self.violations_dir, format="parquet", partitioning="hive")
+            return found.to_table()
+        except (pa.ArrowException, OSError) as e:
+            raise UserError(
+                f"not a fleet dataset's violations ({printable(str(e))})",
+                file=str(self.violations_dir),
+            ) from None
 
 
 def _write(path: Path, table: pa.Table) -> None:

@@ -210,6 +210,20 @@ def test_a_dataset_that_cannot_be_written_is_one_line(tmp_path):
     assert len(lines) == 1 and "file/ds" in lines[0] and "internal error" not in lines[0], lines
 
 
+@pytest.mark.parametrize("table", ["bags", "violations/robot=r1/date=2026-01-01"])
+@pytest.mark.parametrize("data", [b"PAR1garbagePAR1", b"x" * 100, b""])
+def test_a_damaged_dataset_is_one_line(tmp_path, table, data):
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 200))
+    touch = tmp_path / "ds" / table / "x.parquet"
+    touch.parent.mkdir(parents=True)
+    touch.write_bytes(data)
+    cfg = config(tmp_path)
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", cfg, ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ("x.parquet" in lines[0] or "ds/bags" in lines[0]), lines
+    assert "internal error" not in lines[0]
+
+
 def test_jobs_is_a_small_positive_number(tmp_path):
     run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--jobs", "0", ok=(2,))
     assert "not a number of processes" in run.stderr
