@@ -61,7 +61,8 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
                 try:
                     size, fp = fingerprint(Path(key))
                 except OSError as e:  # gone or unreadable since it was listed: its row says so
-                    size, fp, robot, why = 0, "", None, f"cannot read: {e.strerror or e}"
+                    fp = hashlib.sha256(key.encode()).hexdigest()  # its row's own key
+                    size, robot, why = 0, None, f"cannot read: {e.strerror or e}"
                 found[key] = BagRef(key, robot, why, size, fp)
     return [found[k] for k in sorted(found)]
 

@@ -120,7 +120,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             else:
                 tasks.append(task)
         where[bag.path] = (bag.robot or "", bag.fingerprint, bag.size)
-    progress = Progress(len(tasks), sum(where[t.bag][2] for t in tasks))
+    progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks))
     show = sys.stderr.isatty() and not args.quiet
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
     # by content hash too: the same bag under another path is hashed, not replayed
