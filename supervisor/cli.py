@@ -22,6 +22,8 @@ from supervisor.tools.bench.command import add_parser as add_bench_parser
 from supervisor.tools.bench.command import cmd_bench
 from supervisor.tools.demo.command import add_parser as add_demo_parser
 from supervisor.tools.demo.command import cmd_demo
+from supervisor.tools.fleet.command import add_parser as add_fleet_parser
+from supervisor.tools.fleet.command import cmd_fleet
 from supervisor.tools.init import add_parser as add_init_parser
 from supervisor.tools.init import cmd_init
 from supervisor.tools.inject.command import add_parser as add_inject_parser
@@ -286,6 +288,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], int]] = {
     "demo": cmd_demo,
     "inject": cmd_inject,
     "replay": cmd_replay,
+    "fleet": cmd_fleet,
     "report": cmd_report,
     "bench": cmd_bench,
 }
@@ -386,6 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_demo_parser(sub)
     add_inject_parser(sub)
     add_replay_parser(sub)
+    add_fleet_parser(sub)
     add_report_parser(sub)
     add_bench_parser(sub)
     return p

@@ -162,10 +162,13 @@ def command_block(name: str, parser: argparse.ArgumentParser) -> str:
 def command_blocks() -> dict[str, str]:
     from supervisor.cli import build_parser
 
-    return {
-        f"command:{name}": command_block(name, sub)
-        for name, sub in _subparsers(build_parser()).items()
-    }
+    blocks = {}
+    for name, sub in _subparsers(build_parser()).items():
+        blocks[f"command:{name}"] = command_block(name, sub)
+        # a command of commands (fleet replay): each its own block, named command:a.b
+        for inner, parser in _subparsers(sub).items():
+            blocks[f"command:{name}.{inner}"] = command_block(f"{name} {inner}", parser)
+    return blocks
 
 
 # ------------------------------------------------------------------ template.yaml

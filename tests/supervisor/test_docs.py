@@ -127,6 +127,9 @@ def test_the_options_described_by_hand_are_the_parsers():
     for line in (ROOT / docs.COMMANDS_MD).read_text().splitlines():
         if m := re.match(r"^## (\S+)$", line):
             section = m.group(1)
+        elif m := re.match(r"^## (\S+) (\S+)$", line):  # a command's command: fleet replay
+            section = f"{m.group(1)} {m.group(2)}"
+            parsers[section] = docs._subparsers(parsers[m.group(1)])[m.group(2)]
         elif line.startswith("| ") and not line.startswith(("| `", "| ---")):
             header = line
         elif section in parsers and header.startswith("| option |") and line.startswith("| `-"):

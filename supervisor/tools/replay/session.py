@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monitors.backends.load import load_monitor
-from monitors.errors import UserError
 from monitors.ir.formula import use_parser_cache
 from monitors.ir.spec import MonitorSpec
 from supervisor.cache import Cache
@@ -20,7 +19,7 @@ from supervisor.config import load_config
 from supervisor.daemon.session import Session, build_session
 from supervisor.pipeline import build_project, monitor_library
 from supervisor.tools.replay.engine import Outcome, replay
-from supervisor.tools.replay.sources import Progress, open_recordings
+from supervisor.tools.replay.sources import NothingToJudge, Progress, open_recordings
 
 if TYPE_CHECKING:
     from mitigations.violationlog.writer import ViolationLog
@@ -107,16 +106,19 @@ def run_one(
     *,
     fast: bool = True,
     namespace: str | None = None,
+    sink: Any = None,
 ) -> Run:
     """Replay ``paths`` with ``config``, recorded names taken off ``namespace`` (the
-    config's ``ros.namespace`` when None)."""
+    config's ``ros.namespace`` when None).  ``sink``, instead of ``output``: an object
+    with the ViolationLog's record methods (``violation``, ``mitigation``, ``reset``,
+    ``supervisor``) that takes the records in memory (``fleet replay``'s task)."""
     with loaded(config) as session:
         cfg = session.config
         recording = open_recordings(expand(paths), cfg, namespace)
         said_later = set(recording.missing.values())
         notes = [n for n in recording.summary().splitlines() if n not in said_later]
-        out: ViolationLog | None = None
-        if output is not None:
+        out: ViolationLog | None = sink
+        if output is not None and sink is None:
             # structlog and the log writer only when records are written
             from mitigations.violationlog.writer import ViolationLog
 
@@ -140,10 +142,10 @@ def run_one(
             if out is not None and outcome.error is not None:
                 out.supervisor("replay_damaged", detail=str(outcome.error))
         finally:
-            if out is not None:
+            if out is not None and out is not sink:
                 out.close()
         if outcome.error is None and outcome.messages == 0 and recording.by_topic:
-            outcome.error = UserError(
+            outcome.error = NothingToJudge(
                 "the recordings hold no message on the config's topics "
                 f"({', '.join(recording.topics)}), so nothing was judged",
                 file=", ".join(str(p) for p in paths),

@@ -364,6 +364,11 @@ class _Columns:
         )
 
 
+class NothingToJudge(UserError):
+    """The recordings hold nothing the config reads: no topic of it, or no message on
+    them (``fleet replay`` counts such a bag as skipped, not failed)."""
+
+
 class Recording:
     """Recordings opened for a config; see the module docstring."""
 
@@ -408,7 +413,7 @@ class Recording:
                     self.ignored.setdefault(src.label, set()).add(topic)
         if by_topic and not recorded:  # the daemon's own records alone are read
             bag = sorted({t for s in sources for t in s.topics})
-            raise UserError(
+            raise NothingToJudge(
                 "no topic of the config is in the recordings, so nothing would be judged: "
                 f"recorded: {', '.join(bag) or 'none'}; the config reads: {', '.join(sorted(by_topic))}",
                 file=", ".join(s.label for s in sources) or "replay",
@@ -886,6 +891,7 @@ __all__ = [
     "RECORDS_TOPIC",
     "Batch",
     "Event",
+    "NothingToJudge",
     "Recording",
     "open_recordings",
 ]

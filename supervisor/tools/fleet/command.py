@@ -1,0 +1,222 @@
+"""``safety-supervisor fleet replay``: its arguments, and running it: the archive
+listed, the finished bags left out, the rest run by an engine, each result written as
+it comes, a progress line on a terminal and one summary line
+(docs/reference/commands.md, "fleet replay")."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from monitors.errors import UserError
+
+EXIT_OK, EXIT_FAIL = 0, 1
+MAX_JOBS = 512
+
+
+def add_parser(sub: Any) -> None:
+    """Add ``fleet`` and its ``replay`` to the CLI's subparsers."""
+    p = sub.add_parser(
+        "fleet",
+        help="replay a config over a fleet's archive of bags into a Parquet dataset",
+        description="Requirements regression over recorded fleet data.",
+    )
+    fsub = p.add_subparsers(dest="fleet_command", required=True, metavar="COMMAND")
+    r = fsub.add_parser(
+        "replay",
+        help="replay every bag of an archive, one task per bag, into a Parquet dataset",
+        description="Replay every bag under ARCHIVE (directories or globs of rosbag2 "
+        "bags, MCAP or sqlite3, and run --record recordings) with CONFIG, as replay does, "
+        "in a pool of worker processes, and write each violation as a row of a Parquet "
+        "dataset partitioned by robot and date, with a table of the bags read, skipped, "
+        "damaged or failed. A bag already finished with the same config is not read "
+        "again. Exit status 1 when any bag failed or was damaged.",
+    )
+    r.add_argument("config", help="the config")
+    r.add_argument("archives", nargs="+", metavar="ARCHIVE", help="directories, bags or globs")
+    r.add_argument("-o", "--output", required=True, metavar="DATASET", help="the dataset directory")
+    r.add_argument(
+        "--jobs", type=_jobs, default=None, metavar="N", help="worker processes (default: CPUs)"
+    )
+    r.add_argument(
+        "--robot-from",
+        default=None,
+        metavar="RULE",
+        help="the robot's name from the bag's path: a pattern with {robot}, * and ** "
+        "(default: the directory under the archive root)",
+    )
+    r.add_argument(
+        "--compare",
+        default=None,
+        metavar="OTHER_CONFIG",
+        help="also replay OTHER_CONFIG and print, per requirement and robot, the violations "
+        "only one of them reports",
+    )
+    r.add_argument(
+        "--namespace",
+        default=None,
+        metavar="NS",
+        help="the robots' namespace in the bags (default: the config's ros.namespace)",
+    )
+    r.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= MAX_JOBS:
+        raise argparse.ArgumentTypeError(
+            f"not a number of processes from 1 to {MAX_JOBS}: {text!r}"
+        )
+    return n
+
+
+def cmd_fleet(args: argparse.Namespace) -> int:
+    try:
+        import pyarrow  # noqa: F401 - only to say what is missing, once
+    except ImportError:
+        raise UserError(
+            "fleet needs pyarrow, which the base install leaves out",
+            file="fleet",
+            hint="pip install 'safety-supervisor[fleet]'",
+        ) from None
+    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.engine import LocalEngine
+    from supervisor.tools.fleet.task import BagResult, BagTask
+    from supervisor.tools.replay.command import checked_namespace
+    from supervisor.tools.replay.session import loaded
+
+    namespace = checked_namespace(args.namespace, "fleet replay")
+    configs = [Path(args.config).absolute()]
+    if args.compare:
+        configs.append(Path(args.compare).absolute())
+    shas = []
+    for c in configs:
+        # compiled here once: a bad config is one error before any bag, and the
+        # workers find its monitor in the start-up cache
+        with loaded(c) as session:
+            shas.append(session.config.sha256)
+    bags = list_archive(args.archives, args.robot_from)
+    dataset = Dataset(Path(args.output))
+    done = dataset.done()
+    tasks: list[BagTask] = []
+    where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
+    failed_first: list[BagResult] = []
+    already = 0
+    for bag in bags:
+        for c, sha in zip(configs, shas, strict=True):
+            if (sha, bag.fingerprint) in done.fingerprints:
+                already += 1
+                continue
+            task = BagTask(bag.path, bag.robot or "", str(c), sha, namespace)
+            if bag.robot is None:
+                failed_first.append(BagResult(task, "failed", bag.robot_error or ""))
+            else:
+                tasks.append(task)
+        where[bag.path] = (bag.robot or "", bag.fingerprint, bag.size)
+    progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks))
+    show = sys.stderr.isatty() and not args.quiet
+    counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
+    # by content hash too: the same bag under another path is hashed, not replayed
+    # (one set for both configs: a task's key is its content and its config's hash)
+    done_contents = {f"{s}:{h}" for s, h in done.contents if s in shas}
+    results = LocalEngine(args.jobs).results(tasks, done_contents)
+    try:
+        for result in _chain(failed_first, results):
+            robot, fp, size = where[result.task.bag]
+            dataset.write(result, robot, fp)
+            counts[result.status] += 1
+            progress.add(result, size)
+            if show:
+                progress.draw()
+    finally:
+        results.close()  # an error stops the pool too (engine.py)
+        if show:
+            progress.end()
+    print(progress.summary(counts, already, Path(args.output)), flush=True)
+    if args.compare:
+        _compare(dataset, shas, {fp for _, fp, _ in where.values()})
+    # a damaged bag was judged only up to its damage: as replay, that is not a success
+    return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
+
+
+def _chain(first: list[Any], rest: Any) -> Any:
+    yield from first
+    yield from rest
+
+
+def _compare(dataset: Any, shas: list[str], fingerprints: set[str]) -> None:
+    import pyarrow.compute as pc
+
+    from supervisor.tools.fleet.compare import compare, lines
+
+    bags = dataset.bags()
+    mine = bags.filter(pc.is_in(bags["fingerprint"], _strings(fingerprints)))
+    contents = {h for h in mine.column("bag_sha256").to_pylist() if h}
+    print(f"A = config {shas[0][:12]}, B = config {shas[1][:12]}")
+    for line in lines(compare(dataset.violations(), shas[0], shas[1], contents)):
+        print(line)
+    sys.stdout.flush()
+
+
+def _strings(values: set[str]) -> Any:
+    import pyarrow as pa
+
+    return pa.array(sorted(values), pa.string())
+
+
+class Progress:
+    """Bags done and failed, messages per second and the time left (from the bytes
+    of the bags still to read), as one ``\\r`` line on stderr."""
+
+    def __init__(self, bags: int, size: int) -> None:
+        self.bags, self.size = bags, size
+        self.done = self.failed = self.messages = self.read_bytes = 0
+        self.t0 = time.monotonic()
+        self.drawn = False
+
+    def add(self, result: Any, size: int) -> None:
+        self.done += 1
+        self.failed += result.status == "failed"
+        self.messages += result.messages
+        self.read_bytes += size
+
+    def rate(self) -> float:
+        elapsed = time.monotonic() - self.t0
+        return self.messages / elapsed if elapsed > 0 else 0.0
+
+    def draw(self) -> None:
+        elapsed = time.monotonic() - self.t0
+        left = "-"
+        if self.read_bytes and self.size > self.read_bytes:
+            s = int(elapsed * (self.size - self.read_bytes) / self.read_bytes)
+            left = f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+        elif self.done == self.bags:
+            left = "0:00:00"
+        print(
+            f"\rfleet: {self.done:,}/{self.bags:,} bags, {self.failed:,} failed, "
+            f"{self.rate():,.0f} messages/s, ETA {left}  ",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
+        self.drawn = True
+
+    def end(self) -> None:
+        if self.drawn:
+            print(file=sys.stderr, flush=True)
+
+    def summary(self, counts: dict[str, int], already: int, output: Path) -> str:
+        elapsed = time.monotonic() - self.t0
+        parts = ", ".join(f"{n:,} {status}" for status, n in counts.items())
+        return (
+            f"fleet replay: {self.done:,} bags ({parts}), {already:,} done before; "
+            f"{self.messages:,} messages in {elapsed:.1f} s ({self.rate():,.0f} messages/s); "
+            f"dataset {output}"
+        )

@@ -1,0 +1,138 @@
+"""The result dataset, written by the parent alone, one bag's files at a time:
+
+```
+DATASET/violations/robot=R/date=D/K.parquet   one row per violation (task.VIOLATIONS)
+DATASET/bags/K.parquet                        the bag's row (BAGS)
+```
+
+``K`` is a hash of the config's SHA-256 and the bag's fingerprint (archive.py), so a
+bag replayed again with the same config overwrites its own files, never adds rows.
+The bag's row is written last: a bag with no row is not finished, and its violation
+files, if any, are rewritten when it is done again.  Each file is written whole or
+not at all (supervisor/files.py).  Hive partitioning, as DuckDB, pandas and polars
+read it (``read_parquet('DATASET/violations/**/*.parquet', hive_partitioning=true)``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from monitors.errors import UserError
+from monitors.untrusted import printable
+from supervisor.files import write_atomic
+from supervisor.tools.fleet.task import BagResult
+
+BAGS = pa.schema(
+    [
+        ("bag", pa.string()),
+        ("robot", pa.string()),
+        ("bag_sha256", pa.string()),
+        ("fingerprint", pa.string()),
+        ("config_sha256", pa.string()),
+        ("messages", pa.int64()),
+        ("violations", pa.int64()),
+        ("status", pa.string()),
+        ("reason", pa.string()),
+        ("seconds", pa.float64()),
+        ("finished_ts", pa.timestamp("ns", tz="UTC")),
+    ]
+)
+
+
+@dataclass(frozen=True)
+class Done:
+    """What the dataset has finished, per config: bag fingerprints (known without
+    reading a bag) and content hashes (a bag's identity)."""
+
+    fingerprints: frozenset[tuple[str, str]]  # (config_sha256, fingerprint)
+    contents: frozenset[tuple[str, str]]  # (config_sha256, bag_sha256)
+
+
+class Dataset:
+    def __init__(self, root: Path) -> None:
+        try:  # made before any bag is read: a dataset that cannot be written is said first
+            root.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise UserError(f"cannot make the dataset: {e.strerror or e}", file=str(root)) from None
+        self.root = root
+        self.bags_dir = root / "bags"
+        self.violations_dir = root / "violations"
+
+    def done(self) -> Done:
+        """Every bag finished (any status but failed) in an earlier run."""
+        fps: set[tuple[str, str]] = set()
+        contents: set[tuple[str, str]] = set()
+        table = self.bags()
+        finished = table.filter(pc.not_equal(table["status"], "failed"))
+        for row in finished.select(["config_sha256", "fingerprint", "bag_sha256"]).to_pylist():
+            fps.add((row["config_sha256"], row["fingerprint"]))
+            if row["bag_sha256"]:
+                contents.add((row["config_sha256"], row["bag_sha256"]))
+        return Done(frozenset(fps), frozenset(contents))
+
+    def bags(self) -> pa.Table:
+        """The bags table: one row per bag and config."""
+        files = sorted(self.bags_dir.glob("*.parquet")) if self.bags_dir.is_dir() else []
+        if not files:
+            return BAGS.empty_table()
+        try:
+            return pa.concat_tables([pq.read_table(f, schema=BAGS) for f in files])
+        except (pa.ArrowException, OSError) as e:
+            raise UserError(
+                f"not a fleet dataset's bags table ({e})", file=str(self.bags_dir)
+            ) from None
+
+    def write(self, result: BagResult, robot: str, fingerprint: str) -> None:
+        """One bag's violations, then its row."""
+        task = result.task
+        key = hashlib.sha256(f"{task.config_sha256}\0{fingerprint}".encode()).hexdigest()[:32]
+        v = result.violations
+        for date in sorted(set(v.column("date").to_pylist())):
+            part = v.filter(pc.equal(v["date"], date)).drop_columns(["date"])
+            _write(self.violations_dir / f"robot={robot}" / f"date={date}" / f"{key}.parquet", part)
+        row = {
+            "bag": task.bag,
+            "robot": robot,
+            "bag_sha256": result.bag_sha256,
+            "fingerprint": fingerprint,
+            "config_sha256": task.config_sha256,
+            "messages": result.messages,
+            "violations": v.num_rows,
+            "status": result.status,
+            "reason": result.reason,
+            "seconds": result.seconds,
+            "finished_ts": time.time_ns(),
+        }
+        _write(self.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
+
+    def violations(self) -> pa.Table:
+        """The whole violations dataset, its partitions as columns."""
+        if not self.violations_dir.is_dir():
+            return pa.table({})
+        import pyarrow.dataset as ds
+
+        try:
+            found = ds.dataset(self.violations_dir, format="parquet", partitioning="hive")
+            return found.to_table()
+        except (pa.ArrowException, OSError) as e:
+            raise UserError(
+                f"not a fleet dataset's violations ({printable(str(e))})",
+                file=str(self.violations_dir),
+            ) from None
+
+
+def _write(path: Path, table: pa.Table) -> None:
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, sink.getvalue().to_pybytes(), mode=0o644)
+    except OSError as e:  # a full disk or a directory taken away during the run
+        raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None

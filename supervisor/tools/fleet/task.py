@@ -1,0 +1,183 @@
+"""One bag, one task: the bag replayed by ``replay``'s own core and readers
+(supervisor/tools/replay/session.py, ``run_one``), its violations returned as an Arrow
+table for the parent to write.
+
+``run_task`` is the whole interface an engine needs: a picklable ``BagTask`` in, a
+picklable ``BagResult`` out, no shared state, no file written.  It never raises for
+anything a bag or the config holds: that is the result's status and reason.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Collection
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+
+from monitors.errors import UserError
+from monitors.untrusted import printable
+from supervisor.tools.fleet.archive import content_hash
+
+# One row per violation; robot and date are the dataset's partitions (dataset.py).
+VIOLATIONS = pa.schema(
+    [
+        ("bag", pa.string()),
+        ("bag_sha256", pa.string()),
+        ("requirement", pa.string()),
+        ("tick", pa.int64()),
+        ("recorded_ts", pa.timestamp("ns", tz="UTC")),
+        ("config_sha256", pa.string()),
+        ("inputs", pa.string()),  # JSON text: the inputs that decided the verdict
+        ("date", pa.string()),  # the partition, dropped from the written files
+    ]
+)
+STATUSES = ("read", "skipped", "damaged", "failed")
+MAX_REASON = 2000  # a reason is one line of an error; a bag's text stays bounded
+
+
+@dataclass(frozen=True)
+class BagTask:
+    """What a worker needs for one bag: no open file, no compiled monitor (a worker
+    builds or finds it in the start-up cache from the config's path)."""
+
+    bag: str
+    robot: str
+    config: str
+    config_sha256: str
+    namespace: str | None = None
+
+
+@dataclass
+class BagResult:
+    """A task's outcome. ``status``: read (whole), skipped (nothing the config reads,
+    or content already replayed with this config), damaged (read up to the damage:
+    its violations before it are kept), failed (not replayed: ``reason``)."""
+
+    task: BagTask
+    status: str
+    reason: str = ""
+    bag_sha256: str = ""
+    messages: int = 0
+    seconds: float = 0.0
+    violations: pa.Table = field(default_factory=VIOLATIONS.empty_table)
+
+
+class _Records:
+    """The ``sink`` of run_one: keeps the violation records, drops the others (the
+    dry-run mitigations, resets and notes are replay's, not the dataset's)."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[str, int, int, str]] = []
+
+    def violation(self, requirement: str, *, recorded_ts: str, **fields: Any) -> bool:
+        self.rows.append(
+            (requirement, int(fields["tick"]), _ns(recorded_ts), _json(fields.get("inputs", {})))
+        )
+        return True
+
+    def mitigation(self, requirement: str, **fields: Any) -> bool:
+        return True
+
+    def reset(self, requirement: str, **fields: Any) -> bool:
+        return True
+
+    def supervisor(self, what: str, **fields: Any) -> bool:
+        return True
+
+
+def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
+    """Replay one bag. ``done``: ``CONFIG_SHA256:BAG_SHA256`` of the bags already
+    replayed (the same bag under another path is then skipped after hashing, not
+    replayed again)."""
+    # replay's modules load here, in the worker: the parent only lists and writes
+    from supervisor.tools.replay.session import run_one
+    from supervisor.tools.replay.sources import NothingToJudge
+
+    t0 = time.perf_counter()
+    try:
+        digest = content_hash(Path(task.bag))
+    except OSError as e:
+        return BagResult(task, "failed", _reason(f"{task.bag}: {e.strerror or e}"))
+    if f"{task.config_sha256}:{digest}" in done:
+        return BagResult(task, "skipped", "already replayed with this config", digest)
+    records = _Records()
+    try:
+        run = run_one(
+            Path(task.config), [Path(task.bag)], None, None, namespace=task.namespace, sink=records
+        )
+    except NothingToJudge as e:
+        return BagResult(task, "skipped", _reason(str(e)), digest, seconds=time.perf_counter() - t0)
+    except UserError as e:
+        return BagResult(task, "failed", _reason(str(e)), digest, seconds=time.perf_counter() - t0)
+    outcome = run.outcome
+    status, reason = "read", ""
+    if isinstance(outcome.error, NothingToJudge):
+        status, reason = "skipped", str(outcome.error)
+    elif outcome.error is not None:
+        status, reason = "damaged", str(outcome.error)
+    return BagResult(
+        task,
+        status,
+        _reason(reason),
+        digest,
+        outcome.messages,
+        time.perf_counter() - t0,
+        _table(task, digest, records.rows),
+    )
+
+
+def _table(task: BagTask, digest: str, rows: list[tuple[str, int, int, str]]) -> pa.Table:
+    n = len(rows)
+    return pa.table(
+        {
+            "bag": [task.bag] * n,
+            "bag_sha256": [digest] * n,
+            "requirement": [r[0] for r in rows],
+            "tick": [r[1] for r in rows],
+            "recorded_ts": [r[2] for r in rows],
+            "config_sha256": [task.config_sha256] * n,
+            "inputs": [r[3] for r in rows],
+            "date": [_date(r[2]) for r in rows],
+        },
+        schema=VIOLATIONS,
+    )
+
+
+def _ns(stamp: str) -> int:
+    """``recorded_ts`` as replay writes it (``...T12:00:00.123456789Z``) in ns."""
+    whole, _, frac = stamp.rstrip("Z").partition(".")
+    # fromisoformat: several times faster than strptime, and a dense bag has a
+    # violation every few messages
+    seconds = datetime.fromisoformat(whole).replace(tzinfo=UTC).timestamp()
+    return int(seconds) * 1_000_000_000 + int((frac or "0").ljust(9, "0")[:9])
+
+
+def _date(ns: int) -> str:
+    return datetime.fromtimestamp(ns // 1_000_000_000, tz=UTC).strftime("%Y-%m-%d")
+
+
+def _json(inputs: Any) -> str:
+    """JSON text any reader parses: a NaN or infinity (an input can be one) as its
+    name in a string, as JSON has no such number."""
+
+    def fix(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return str(v)
+        if isinstance(v, dict):
+            return {str(k): fix(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [fix(x) for x in v]
+        return v
+
+    return json.dumps(fix(inputs), sort_keys=True, allow_nan=False, default=str)
+
+
+def _reason(text: str) -> str:
+    line = printable(" ".join(text.split()))
+    return line if len(line) <= MAX_REASON else line[: MAX_REASON - 1] + "…"

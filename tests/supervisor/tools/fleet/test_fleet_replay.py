@@ -1,0 +1,338 @@
+"""``fleet replay`` end to end: the real CLI in a real process pool over an archive of
+real rosbag2 bags (MCAP and sqlite3, written with rosbags) of three robots, one of them
+damaged; the dataset read back with DuckDB and checked against ``replay`` of each bag;
+resume; ``--compare`` on a known difference."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import zstandard
+
+from supervisor.tools.replay.session import compare, replay_files
+from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+duckdb = pytest.importorskip("duckdb")
+pytest.importorskip("pyarrow")
+
+VIOLATIONS = "read_parquet('{}/violations/**/*.parquet', hive_partitioning = true)"
+BAGS = "read_parquet('{}/bags/*.parquet')"
+
+
+def archive(tmp: Path) -> dict[str, list[Path]]:
+    """Three robots, five good bags of both formats (one compressed), a damaged bag (its file
+    garbage after the magic) and one that cannot be opened (its metadata garbage)."""
+    root = tmp / "fleet"
+    bags = {
+        "robot-a": [
+            write_bag(root / "robot-a" / "b1", messages(1, 1500)),
+            write_bag(root / "robot-a" / "b2", messages(2, 1500), plugin="SQLITE3"),
+        ],
+        "robot-b": [write_bag(root / "robot-b" / "b3", messages(3, 1500))],
+        "robot-c": [
+            write_bag(root / "robot-c" / "day1" / "b4", messages(4, 1500), plugin="SQLITE3"),
+            write_bag(root / "robot-c" / "day2" / "b5", messages(5, 1500)),
+        ],
+    }
+    compress(bags["robot-b"][0])
+    bad = write_bag(root / "robot-c" / "day2" / "bad", messages(6, 1500))
+    mcap = next(bad.glob("*.mcap"))
+    mcap.write_bytes(b"\x89MCAP0\r\n" + os.urandom(4000))  # the magic, then garbage
+    broken = root / "robot-b" / "broken"
+    broken.mkdir()
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [\n")
+    return bags
+
+
+def compress(bag: Path) -> None:
+    """The bag compressed per file, as rosbag2's zstd file compressor leaves it."""
+    (plain,) = bag.glob("*.mcap")
+    packed = plain.with_name(plain.name + ".zstd")
+    packed.write_bytes(zstandard.ZstdCompressor().compress(plain.read_bytes()))
+    plain.unlink()
+    meta = bag / "metadata.yaml"
+    text = meta.read_text().replace(plain.name, packed.name)
+    text = text.replace("compression_format: ''", "compression_format: zstd")
+    meta.write_text(text.replace("compression_mode: ''", "compression_mode: FILE"))
+
+
+def fleet(*args: str | Path, ok: tuple[int, ...] = (0, 1)) -> subprocess.CompletedProcess[str]:
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode in ok, run.stderr
+    assert "Traceback" not in run.stderr
+    return run
+
+
+def query(sql: str) -> list[tuple]:
+    return duckdb.sql(sql).fetchall()
+
+
+def test_an_archive_of_three_robots_is_one_dataset_as_replay_counts_it(tmp_path):
+    bags = archive(tmp_path)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    assert run.returncode == 1  # two bags not read whole: the others are in
+    summary = run.stdout.strip().splitlines()
+    assert (
+        summary == [summary[0]] and "7 bags (5 read, 0 skipped, 1 damaged, 1 failed)" in summary[0]
+    )
+    rows = query(f"SELECT robot, status, count(*) FROM {BAGS.format(ds)} GROUP BY ALL ORDER BY ALL")
+    assert rows == [
+        ("robot-a", "read", 2),
+        ("robot-b", "failed", 1),
+        ("robot-b", "read", 1),
+        ("robot-c", "damaged", 1),
+        ("robot-c", "read", 2),
+    ]
+    reasons = dict(query(f"SELECT status, reason FROM {BAGS.format(ds)} WHERE status <> 'read'"))
+    assert "bad.mcap" in reasons["damaged"] and "broken/metadata.yaml" in reasons["failed"]
+    # each robot's violations per requirement, as replay counts them bag by bag
+    want: dict[tuple[str, str], int] = {}
+    for robot, paths in bags.items():
+        for p in paths:
+            for q in replay_files(cfg, [p], None, None)["requirements"]:
+                if q["violations"]:
+                    want[(robot, q["id"])] = want.get((robot, q["id"]), 0) + q["violations"]
+    got = query(f"SELECT robot, requirement, count(*) FROM {VIOLATIONS.format(ds)} GROUP BY ALL")
+    assert {(r, q): n for r, q, n in got} == want and len(want) >= 3
+    # the inputs that decided each verdict are JSON text, and the date its partition
+    (n_bad_json,) = query(
+        f"SELECT count(*) FROM {VIOLATIONS.format(ds)} "
+        "WHERE json_extract(inputs, '$.speed') IS NULL OR strftime(recorded_ts, '%Y-%m-%d') <> CAST(date AS VARCHAR)"
+    )[0]
+    assert n_bad_json == 0
+    # strict JSON for any reader: a NaN input (speeds are NaN now and then) is a string
+    inputs = [
+        json.loads(x, parse_constant=_no_constant)
+        for (x,) in query(f"SELECT inputs FROM {VIOLATIONS.format(ds)}")
+    ]
+    assert "nan" in {str(i["speed"]) for i in inputs}
+
+
+def _no_constant(name: str) -> None:
+    raise ValueError(f"{name} is not JSON")
+
+
+def test_resume_reads_nothing_finished_and_adds_no_rows(tmp_path):
+    bags = archive(tmp_path)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    before = query(f"SELECT count(*) FROM {VIOLATIONS.format(ds)}")[0][0]
+    # A finished bag's bytes replaced (same size and times): read again, it would fail.
+    done = next(bags["robot-a"][0].glob("*.mcap"))
+    st = done.stat()
+    done.write_bytes(os.urandom(st.st_size))
+    os.utime(done, ns=(st.st_atime_ns, st.st_mtime_ns))
+    # An interrupted run: one bag's row never written (its violation files were).
+    b3 = str(bags["robot-b"][0])
+    (key,) = [
+        f for f in (ds / "bags").glob("*.parquet")
+        if query(f"SELECT bag FROM read_parquet('{f}')")[0][0] == b3
+    ]  # fmt: skip
+    key.unlink()
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2")
+    # only the unfinished bag and the failed one (failed bags are tried again)
+    assert "2 bags (1 read, 0 skipped, 0 damaged, 1 failed), 5 done before" in run.stdout
+    assert query(f"SELECT count(*) FROM {VIOLATIONS.format(ds)}")[0][0] == before
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (7, 7)
+
+
+def test_compare_counts_what_only_one_config_reports(tmp_path):
+    bags = archive(tmp_path)
+    a, b = config(tmp_path, "a.yaml", limit=2.0), config(tmp_path, "b.yaml", limit=2.3)
+    run = fleet(a, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", b, "--jobs", "2")
+    table = {}
+    for line in run.stdout.splitlines()[3:]:
+        req, robot, na, nb, only_a, only_b, both, _first = line.split()
+        table[(req, robot)] = (int(na), int(nb), int(only_a), int(only_b), int(both))
+    want: dict[tuple[str, str], list[int]] = {}
+    for robot, paths in bags.items():
+        for p in paths:
+            for q in compare(a, b, [p], None)["requirements"]:
+                if q["a"] or q["b"]:
+                    w = want.setdefault((q["id"], robot), [0, 0, 0, 0, 0])
+                    both = q["a"] - len(q["only_a"])
+                    for i, n in enumerate(
+                        (q["a"], q["b"], len(q["only_a"]), len(q["only_b"]), both)
+                    ):
+                        w[i] += n
+    assert table == {k: tuple(v) for k, v in want.items()}
+    # the known difference: a higher speed limit loses violations of 'limit' only
+    assert all(table[("limit", r)][2] > 0 and table[("limit", r)][3] == 0 for r in bags)
+    assert all(v[2] == v[3] == 0 for (q, _), v in table.items() if q != "limit")
+
+
+def test_robot_from_a_rule_and_a_name_that_is_no_partition(tmp_path):
+    write_bag(tmp_path / "data" / "unit-7" / "bags" / "b1", messages(1, 300))
+    write_bag(tmp_path / "data" / "x=1" / "bags" / "b2", messages(2, 300))
+    ds = tmp_path / "ds"
+    run = fleet(config(tmp_path), tmp_path / "data", "-o", ds, "--robot-from", "data/{robot}/bags")
+    assert run.returncode == 1
+    rows = query(f"SELECT robot, status, reason FROM {BAGS.format(ds)} ORDER BY bag")
+    assert rows[0][:2] == ("unit-7", "read")
+    assert rows[1][:2] == ("", "failed") and "not a plain name" in rows[1][2]
+    assert [p.name for p in (ds / "violations").iterdir()] == ["robot=unit-7"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["{cfg}", "{tmp}/nothing-here", "-o", "{tmp}/ds"], "no such directory, bag or match"),
+        (["{cfg}", "{tmp}", "-o", "{tmp}/ds", "--robot-from", "x"], "must hold {robot} once"),
+        (["{tmp}/none.yaml", "{tmp}", "-o", "{tmp}/ds"], "none.yaml"),
+    ],
+)
+def test_bad_input_is_one_line(tmp_path, args, message):
+    cfg = config(tmp_path)
+    run = fleet(*[a.format(cfg=cfg, tmp=tmp_path) for a in args], ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0], run.stderr
+
+
+def test_a_dataset_that_cannot_be_written_is_one_line(tmp_path):
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 200))
+    (tmp_path / "file").write_text("")
+    run = fleet(config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "file" / "ds", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "file/ds" in lines[0] and "internal error" not in lines[0], lines
+
+
+@pytest.mark.parametrize("table", ["bags", "violations/robot=r1/date=2026-01-01"])
+@pytest.mark.parametrize("data", [b"PAR1garbagePAR1", b"x" * 100, b""])
+def test_a_damaged_dataset_is_one_line(tmp_path, table, data):
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 200))
+    touch = tmp_path / "ds" / table / "x.parquet"
+    touch.parent.mkdir(parents=True)
+    touch.write_bytes(data)
+    cfg = config(tmp_path)
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", cfg, ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and ("x.parquet" in lines[0] or "ds/bags" in lines[0]), lines
+    assert "internal error" not in lines[0]
+
+
+def test_jobs_is_a_small_positive_number(tmp_path):
+    run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--jobs", "0", ok=(2,))
+    assert "not a number of processes" in run.stderr
+
+
+def _workers(parent: int) -> list[int]:
+    """The pool's worker processes: children of ``parent`` started by spawn."""
+    out = []
+    for d in Path("/proc").iterdir():
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            if ppid == parent and b"spawn_main" in (d / "cmdline").read_bytes():
+                out.append(int(d.name))
+        except (OSError, ValueError, IndexError):
+            continue  # not a process, or one that has just exited
+    return out
+
+
+def _reading_a_bag(parent: int) -> int | None:
+    """A worker that has a bag's file open: it is in the middle of a task."""
+    for pid in _workers(parent):
+        try:
+            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
+        except OSError:
+            continue
+        if any(f.endswith((".mcap", ".db3")) for f in fds):
+            return pid
+    return None
+
+
+def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    for i in range(4):
+        write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid), 120)
+        os.kill(victim, 9)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "4 bags (4 read, 0 skipped, 0 damaged, 0 failed)" in out
+    per_bag = (
+        "SELECT bag, requirement, count(*), count(DISTINCT tick) FROM {} GROUP BY ALL ORDER BY ALL"
+    )
+    want = query(per_bag.format(VIOLATIONS.format(clean)))
+    assert want and query(per_bag.format(VIOLATIONS.format(killed))) == want
+    assert all(n == distinct for _, _, n, distinct in want)
+
+
+def test_a_bag_of_other_topics_and_a_copy_of_a_finished_bag_are_skipped(tmp_path):
+    root = tmp_path / "fleet"
+    first = write_bag(root / "robot-a" / "b1", messages(1, 500))
+    write_bag(root / "robot-a" / "cameras", [(10**9 + i, "/extra", "img") for i in range(50)])
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    run = fleet(cfg, root / "robot-a", "-o", ds, "--robot-from", "fleet/{robot}/**", ok=(0,))
+    assert "2 bags (1 read, 1 skipped, 0 damaged, 0 failed)" in run.stdout
+    # the same bag under another robot's path: hashed, found done, not replayed
+    copy = root / "robot-b" / "b1"
+    shutil.copytree(first, copy)
+    run = fleet(cfg, root, "-o", ds, ok=(0,))
+    assert "1 bags (0 read, 1 skipped, 0 damaged, 0 failed), 2 done before" in run.stdout
+    rows = dict(query(f"SELECT bag, reason FROM {BAGS.format(ds)} WHERE status = 'skipped'"))
+    assert "hold no message on the config's topics" in rows[str(root / "robot-a" / "cameras")]
+    assert rows[str(copy)] == "already replayed with this config"
+    (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
+    assert robots == ["robot-a"]
+
+
+def test_a_terminal_gets_a_progress_line_and_a_pipe_does_not(tmp_path):
+    import pty
+
+    for i in range(3):
+        write_bag(tmp_path / "fleet" / "robot-a" / f"b{i}", messages(i, 300))
+    cfg = config(tmp_path)
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(tmp_path / "fleet"),
+         "-o", str(tmp_path / "ds"), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=follower, text=True,
+    )  # fmt: skip
+    os.close(follower)
+    shown = b""
+    while chunk := _read(leader):
+        shown += chunk
+    out, _ = proc.communicate(timeout=120)
+    os.close(leader)
+    assert proc.returncode == 0
+    last = shown.decode().rstrip("\r\n").split("\r")[-1]  # the pty writes \n as \r\n
+    assert "fleet: 3/3 bags, 0 failed, " in last and "messages/s, ETA 0:00:00" in last
+    assert len(out.splitlines()) == 1 and "\r" not in out
+    # without a terminal (a pipe, as here for stdout and in CI): no progress at all
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", ok=(0,))
+    assert run.stderr == ""
+
+
+def _read(fd: int) -> bytes:
+    try:
+        return os.read(fd, 4096)
+    except OSError:  # EIO: the child closed the terminal
+        return b""
