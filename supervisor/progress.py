@@ -1,7 +1,8 @@
-"""``check``'s progress on stderr: one line per stage (parse, formalize, unroll,
-each analysis, compile) with its elapsed time, written only when stderr is a
-terminal, so that CI and logs stay as they were (docs/reference/commands.md,
-"check")."""
+"""Progress for a person at a terminal, and only there, so that CI and logs stay
+as they were: ``check``'s one line per stage (parse, formalize, unroll, each
+analysis, compile) with its elapsed time (`Progress`), and the line that
+``replay``, ``report`` and ``fleet`` redraw in place as they read (`Line`)
+(docs/reference/commands.md)."""
 
 from __future__ import annotations
 
@@ -12,17 +13,50 @@ from contextlib import contextmanager
 from typing import TextIO
 
 
+def on_terminal(stream: TextIO) -> bool:
+    """Whether ``stream`` is a terminal; a closed or odd stream is not."""
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+class Line:
+    """One line on ``stream`` (stderr), redrawn in place with ``\\r`` when it is a
+    terminal and ``on`` is not False; silent otherwise. `end` closes it, so that
+    whatever is printed next starts on a line of its own."""
+
+    def __init__(self, label: str, stream: TextIO | None = None, *, on: bool | None = None) -> None:
+        self.label = label
+        self.stream = sys.stderr if stream is None else stream
+        self.on = on_terminal(self.stream) if on is None else on
+        self.drawn = False
+
+    def show(self, text: str) -> None:
+        if self.on:
+            # the trailing blanks wipe what a longer earlier text left
+            self.stream.write(f"\r{self.label}: {text}  ")
+            self.stream.flush()
+            self.drawn = True
+
+    def messages(self, done: int, total: int | None) -> None:
+        """The readers' callback: messages read so far, of ``total`` when known."""
+        pct = f" of {total:,} ({100 * done / total:.0f} %)" if total else ""
+        self.show(f"{done:,} messages{pct}")
+
+    def end(self) -> None:
+        if self.drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.drawn = False
+
+
 class Progress:
     """Stage lines on ``stream`` when it is a terminal; silent otherwise."""
 
     def __init__(self, stream: TextIO | None = None, *, on: bool | None = None) -> None:
         self.stream = sys.stderr if stream is None else stream
-        if on is None:
-            try:
-                on = self.stream.isatty()
-            except (AttributeError, ValueError):  # a closed or odd stream: stay silent
-                on = False
-        self.on = on
+        self.on = on_terminal(self.stream) if on is None else on
         self._t0 = 0.0
 
     def start(self, name: str) -> None:

@@ -150,3 +150,20 @@ def test_one_ros_type_lookup() -> None:
     assert sources.package_hint is rosmsg.package_hint
     assert rosmsg.normalise_type("std_msgs::msg::Int64") == "std_msgs/msg/Int64"
     assert rosmsg.message_class("std_msgs/Int64") is rosmsg.message_class("std_msgs/msg/Int64")
+
+
+def test_one_progress_line() -> None:
+    # supervisor/progress.py decides whether a person is watching (a terminal, not
+    # --quiet) and redraws the line; a second copy would print \r lines into a pipe
+    # or the journal when it forgets one check.
+    found = [
+        f"{path.relative_to(ROOT)}:{node.lineno}"
+        for path, tree in _sources("supervisor")
+        if path != ROOT / "supervisor" / "progress.py"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Constant)
+        and isinstance(node.value, str)
+        and node.value.startswith("\r")
+        and not node.value.startswith("\r\n")  # HTTP's line ends, not a redraw
+    ]
+    assert not found, found

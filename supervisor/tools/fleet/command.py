@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
+from supervisor.progress import Line
 
 EXIT_OK, EXIT_FAIL = 0, 1
 MAX_JOBS = 512
@@ -120,8 +121,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             else:
                 tasks.append(task)
         where[bag.path] = (bag.robot or "", bag.fingerprint, bag.size)
-    progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks))
-    show = sys.stderr.isatty() and not args.quiet
+    line = Line("fleet", on=False if args.quiet else None)
+    progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks), line)
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
     # by content hash too: the same bag under another path is hashed, not replayed
     # (one set for both configs: a task's key is its content and its config's hash)
@@ -133,12 +134,10 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             dataset.write(result, robot, fp)
             counts[result.status] += 1
             progress.add(result, size)
-            if show:
-                progress.draw()
+            progress.draw()
     finally:
         results.close()  # an error stops the pool too (engine.py)
-        if show:
-            progress.end()
+        progress.end()
     print(progress.summary(counts, already, Path(args.output)), flush=True)
     if args.compare:
         _compare(dataset, shas, {fp for _, fp, _ in where.values()})
@@ -175,11 +174,10 @@ class Progress:
     """Bags done and failed, messages per second and the time left (from the bytes
     of the bags still to read), as one ``\\r`` line on stderr."""
 
-    def __init__(self, bags: int, size: int) -> None:
-        self.bags, self.size = bags, size
+    def __init__(self, bags: int, size: int, line: Line) -> None:
+        self.bags, self.size, self.line = bags, size, line
         self.done = self.failed = self.messages = self.read_bytes = 0
         self.t0 = time.monotonic()
-        self.drawn = False
 
     def add(self, result: Any, size: int) -> None:
         self.done += 1
@@ -199,18 +197,13 @@ class Progress:
             left = f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
         elif self.done == self.bags:
             left = "0:00:00"
-        print(
-            f"\rfleet: {self.done:,}/{self.bags:,} bags, {self.failed:,} failed, "
-            f"{self.rate():,.0f} messages/s, ETA {left}  ",
-            end="",
-            file=sys.stderr,
-            flush=True,
+        self.line.show(
+            f"{self.done:,}/{self.bags:,} bags, {self.failed:,} failed, "
+            f"{self.rate():,.0f} messages/s, ETA {left}"
         )
-        self.drawn = True
 
     def end(self) -> None:
-        if self.drawn:
-            print(file=sys.stderr, flush=True)
+        self.line.end()
 
     def summary(self, counts: dict[str, int], already: int, output: Path) -> str:
         elapsed = time.monotonic() - self.t0

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
+from supervisor.progress import Line
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
@@ -104,7 +105,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return 2  # a usage error, as argparse's
     namespace = checked_namespace(args.namespace, "replay")
     # progress is for a person at a terminal: never in a log file or a CI's output
-    progress = Progress() if sys.stderr.isatty() and not (args.quiet or args.json) else None
+    line = Line("replay", on=False if args.quiet or args.json else None)
+    progress = line.messages if line.on else None
     try:
         if args.compare:
             if args.output:
@@ -130,8 +132,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
             )
             lines = _summary_lines
     finally:
-        if progress is not None:
-            progress.end()  # whatever comes next starts on its own line
+        line.end()  # whatever comes next starts on its own line
     _show(result, args.json, lines)
     return EXIT_FAIL if result.get("error") else EXIT_OK
 
@@ -158,27 +159,6 @@ def _paths(names: list[str]) -> list[Path]:
         if not p.exists():
             raise UserError("no such bag or trace", file=str(p))
     return paths
-
-
-class Progress:
-    """A ``\r`` line on stderr (a terminal) redrawn as messages are read."""
-
-    def __init__(self) -> None:
-        self.drawn = False
-
-    def __call__(self, done: int, total: int | None) -> None:
-        text = f"{done:,} messages" + (
-            f" of {total:,} ({100 * done / total:.0f} %)" if total else ""
-        )
-        print(f"\rreplay: {text}", end="", file=sys.stderr, flush=True)
-        self.drawn = True
-
-    def end(self) -> None:
-        """Close the progress line, so that an error or warning after it has a line
-        of its own."""
-        if self.drawn:
-            print(file=sys.stderr, flush=True)
-            self.drawn = False
 
 
 def _show(

@@ -13,7 +13,6 @@ Two sources (docs/reference/commands.md, "report"):
 from __future__ import annotations
 
 import math
-import sys
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -22,6 +21,7 @@ from typing import Any
 
 from monitors.errors import UserError
 from supervisor.config.model import Config
+from supervisor.progress import Line
 from supervisor.tools.report.data import LogData
 from supervisor.tools.why import Window, value, window
 
@@ -163,14 +163,6 @@ def bag_paths(names: list[str]) -> list[Path]:
     return expand(paths)
 
 
-def _progress(label: str) -> Callable[[int, int | None], None]:
-    def show(done: int, total: int | None) -> None:
-        pct = f" of {total:,} ({100 * done / total:.0f} %)" if total else ""
-        print(f"\rreport: {label}: {done:,} messages{pct}", end="", file=sys.stderr, flush=True)
-
-    return show
-
-
 def series_from_bag(
     paths: list[Path], cfg: Config, quiet: bool, namespace: str | None = None
 ) -> tuple[dict[str, Series], list[str]]:
@@ -182,8 +174,9 @@ def series_from_bag(
     rec = open_recordings(paths, cfg, namespace)
     notes = list(rec.warnings)
     pts: dict[str, list[tuple[int, Value]]] = {}
+    line = Line("report: reading", on=False if quiet else None)
     try:
-        for t, topic, vals in rec.events(progress=None if quiet else _progress("reading")):
+        for t, topic, vals in rec.events(progress=line.messages if line.on else None):
             if topic == "record":
                 continue
             for name, v in vals:  # type: ignore[union-attr]
@@ -191,8 +184,7 @@ def series_from_bag(
     except UserError as e:
         notes.append(f"the recording is damaged; read up to the damage: {e}")
     finally:
-        if not quiet:
-            print(file=sys.stderr)
+        line.end()
     out = {}
     for v in cfg.inputs:
         if v.name in pts:
@@ -253,14 +245,16 @@ def windows_from_bag(
     with loaded(config) as session:
         session.runtime.recent = deque(maxlen=WINDOW_CAP)
         cap = _Capture(session.runtime, set(wanted.values()))
-        outcome = replay(
-            session,
-            open_recordings(paths, session.config, namespace),
-            cap,
-            progress=None if quiet else _progress("replaying"),
-        )
-        if not quiet:
-            print(file=sys.stderr)
+        line = Line("report: replaying", on=False if quiet else None)
+        try:
+            outcome = replay(
+                session,
+                open_recordings(paths, session.config, namespace),
+                cap,
+                progress=line.messages if line.on else None,
+            )
+        finally:
+            line.end()
     notes = [f"the replay ended early: {outcome.error}"] if outcome.error else []
     out = {}
     missed = 0
