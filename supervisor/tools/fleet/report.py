@@ -34,7 +34,7 @@ def add_parser(fsub: Any) -> None:
         "capped, and what is left out is counted.",
     )
     r.add_argument("dataset", metavar="DATASET", help="the directory fleet replay -o wrote")
-    r.add_argument("-o", "--output", required=True, metavar="FLEET.html")
+    r.add_argument("-o", "--output", required=True, metavar="FLEET.html", help="the page to write")
     r.add_argument(
         "--baseline",
         default=None,
