@@ -354,3 +354,36 @@ def test_bad_input_is_one_line(tmp_path, make, args, message):
     run = report(*[a.format(tmp=tmp_path) for a in args], ok=(1,))
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and message in lines[0], run.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(40))
+def test_a_damaged_parquet_file_is_one_line_never_an_internal_error(fleet, tmp_path, seed, capsys):
+    """Bytes flipped, cut or inserted in one file of a real dataset (either table, or
+    the baseline's): exit 0 (the damage missed what is read) or 1 with one line."""
+    import random
+
+    from supervisor.cli import main
+
+    rng = random.Random(seed)
+    ds, base = tmp_path / "ds", tmp_path / "base"
+    shutil.copytree(fleet["after"], ds)
+    shutil.copytree(fleet["before"], base)
+    target = rng.choice(sorted(ds.rglob("*.parquet")) + sorted(base.rglob("*.parquet")))
+    data = bytearray(target.read_bytes())
+    kind = ("flip", "cut", "insert")[seed % 3]
+    if kind == "flip":
+        for _ in range(rng.randint(1, 8)):
+            data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+    elif kind == "cut":
+        data = data[: rng.randrange(len(data))]
+    else:
+        at = rng.randrange(len(data))
+        data[at:at] = rng.randbytes(rng.randint(1, 50))
+    target.write_bytes(bytes(data))
+    code = main(
+        ["fleet", "report", str(ds), "-o", str(tmp_path / "f.html"), "--baseline", str(base)]
+    )
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert (code, len(err)) in ((0, 0), (1, 1)), (kind, target, code, err)
+    assert not err or "internal error" not in err[0]
