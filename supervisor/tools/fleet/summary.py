@@ -193,15 +193,29 @@ def _configs(bags: pa.Table) -> list[str]:
     return [c for c in bags.column("config_sha256").to_pylist() if c]
 
 
+def _per_bag(table: pa.Table, keys: list[str] | None = None) -> pa.Table:
+    """Violations counted per requirement, config, robot, bag (and ``keys``): the one
+    pass over the rows; everything the page shows comes from this smaller table."""
+    by = ["requirement", "config_sha256", "robot", "bag_sha256", "bag", *(keys or [])]
+    g = table.group_by(by).aggregate(
+        [([], "count_all"), ("recorded_ts", "min"), ("tick", "min"), ("date", "min")]
+    )
+    return g.rename_columns([*by, "count", "first_ts", "first_tick", "first_date"]).set_column(
+        len(by) + 1, "first_ts", pc.cast(g["recorded_ts_min"], pa.int64())
+    )
+
+
 def _maps(table: pa.Table) -> list[HeatMap]:
-    """One heat map per requirement and config, from one group-by: its size is the
-    number of (requirement, config, robot, date) groups, never of rows."""
+    """One heat map per requirement and config. The rows are grouped once (per bag
+    and day); the maps and lists are made from the groups, never from the rows."""
+    per_bag_day = _per_bag(table, ["date"])
     keys = ["requirement", "config_sha256", "robot", "date"]
-    grouped = table.group_by(keys).aggregate([([], "count_all")]).to_pylist()
+    grouped = per_bag_day.group_by(keys).aggregate([("count", "sum")]).to_pylist()
+    per_bag = _regroup(per_bag_day)
     by_req: dict[tuple[str, str], dict[tuple[str, str], int]] = {}
     for g in grouped:
         by_req.setdefault((g["requirement"], g["config_sha256"]), {})[(g["robot"], g["date"])] = g[
-            "count_all"
+            "count_sum"
         ]
     maps = []
     for (req, sha), cells in by_req.items():
@@ -229,51 +243,50 @@ def _maps(table: pa.Table) -> list[HeatMap]:
         )
     maps.sort(key=lambda m: (-m.total, m.requirement, m.config_sha256))
     for m in maps[:MAX_REQUIREMENTS]:
-        mine = table.filter(
+        mine = per_bag.filter(
             pc.and_(
-                pc.equal(table["requirement"], m.requirement),
-                pc.equal(table["config_sha256"], m.config_sha256),
+                pc.equal(per_bag["requirement"], m.requirement),
+                pc.equal(per_bag["config_sha256"], m.config_sha256),
             )
         )
-        m.listed = _listed(mine)
+        m.listed = _top(mine)
         m.bags = pc.count_distinct(mine["bag_sha256"]).as_py()
     return maps
 
 
-def _listed(table: pa.Table) -> list[Violation]:
-    """The ``MAX_LISTED`` bags with the most of ``table``'s violations, each as its
-    first violation with the bag's count."""
-    if table.num_rows == 0:
+def _regroup(per_bag_day: pa.Table) -> pa.Table:
+    """Per bag and day to per bag."""
+    by = ["requirement", "config_sha256", "robot", "bag_sha256", "bag"]
+    g = per_bag_day.group_by(by).aggregate(
+        [("count", "sum"), ("first_ts", "min"), ("first_tick", "min"), ("first_date", "min")]
+    )
+    return g.rename_columns([*by, "count", "first_ts", "first_tick", "first_date"])
+
+
+def _top(per_bag: pa.Table) -> list[Violation]:
+    """The ``MAX_LISTED`` bags with the most violations, each as its first violation
+    with the bag's count."""
+    if per_bag.num_rows == 0:
         return []
-    keys = ["bag", "bag_sha256", "config_sha256", "requirement", "robot"]
-    g = table.group_by(keys).aggregate(
-        [([], "count_all"), ("recorded_ts", "min"), ("tick", "min"), ("date", "min")]
-    )
-    g = g.set_column(
-        g.schema.get_field_index("recorded_ts_min"),
-        "recorded_ts_min",
-        pc.cast(g["recorded_ts_min"], pa.int64()),
-    )
-    top = g.take(
+    top = per_bag.take(
         pc.select_k_unstable(
-            g,
-            k=min(MAX_LISTED, g.num_rows),
-            sort_keys=[("count_all", "descending"), ("robot", "ascending"), ("bag", "ascending")],
+            per_bag,
+            k=min(MAX_LISTED, per_bag.num_rows),
+            sort_keys=[("count", "descending"), ("robot", "ascending"), ("bag", "ascending")],
         )
     )
-    rows = top.to_pylist()
-    rows.sort(key=lambda r: (-r["count_all"], r["robot"], r["bag"]))
+    rows = sorted(top.to_pylist(), key=lambda r: (-r["count"], r["robot"], r["bag"]))
     return [
         Violation(
             r["robot"],
-            r["date_min"],
+            r["first_date"],
             r["requirement"],
             r["bag"],
             r["bag_sha256"],
             r["config_sha256"],
-            r["tick_min"],
-            r["recorded_ts_min"],
-            r["count_all"],
+            r["first_tick"],
+            r["first_ts"],
+            r["count"],
         )
         for r in rows
     ]
@@ -335,9 +348,7 @@ def _changes_of(
 ) -> Changes:
     """``ta``, ``tb``: the baseline's and the new side's violations (their own config
     hashes kept, for the links to each bag's page)."""
-    bags = pa.array(sorted(compared), pa.string())
-    ta = ta.filter(pc.is_in(ta["bag_sha256"], bags))
-    tb = tb.filter(pc.is_in(tb["bag_sha256"], bags))
+    ta, tb = _only(ta, compared), _only(tb, compared)
     keys = ["bag_sha256", "requirement", "recorded_ts"]
     new = tb.join(ta.select(keys), keys=keys, join_type="left anti")
     lost = ta.join(tb.select(keys), keys=keys, join_type="left anti")
@@ -352,12 +363,21 @@ def _changes_of(
     )
 
 
+def _only(table: pa.Table, bags: set[str]) -> pa.Table:
+    """The rows of ``bags``; the table itself when it has no other (the usual case:
+    a filter of a million rows costs more than the check)."""
+    if bags.issuperset(pc.unique(table["bag_sha256"]).to_pylist()):
+        return table
+    return table.filter(pc.is_in(table["bag_sha256"], pa.array(sorted(bags), pa.string())))
+
+
 def _per_requirement(table: pa.Table) -> dict[str, tuple[int, list[Violation]]]:
+    per_bag = _per_bag(table)
     out = {}
-    reqs = sorted(set(table.column("requirement").to_pylist()))
+    reqs = sorted(set(per_bag.column("requirement").to_pylist()))
     for req in reqs[:MAX_REQUIREMENTS]:
-        mine = table.filter(pc.equal(table["requirement"], req))
-        out[req] = (pc.count_distinct(mine["bag_sha256"]).as_py(), _listed(mine))
+        mine = per_bag.filter(pc.equal(per_bag["requirement"], req))
+        out[req] = (mine.num_rows, _top(mine))
     return out
 
 
