@@ -387,3 +387,33 @@ def test_a_damaged_parquet_file_is_one_line_never_an_internal_error(fleet, tmp_p
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert (code, len(err)) in ((0, 0), (1, 1)), (kind, target, code, err)
     assert not err or "internal error" not in err[0]
+
+
+def test_a_terminal_gets_progress_while_bag_pages_are_made(fleet, tmp_path):
+    import pty
+
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(fleet["after"]), "-o",
+         str(tmp_path / "f.html"), "--bags", str(tmp_path / "bags"), "--config",
+         str(fleet["after.yaml"])],
+        stdout=subprocess.PIPE, stderr=follower, text=True,
+    )  # fmt: skip
+    os.close(follower)
+    shown = b""
+    while chunk := _read(leader):
+        shown += chunk
+    out, _ = proc.communicate(timeout=300)
+    os.close(leader)
+    assert proc.returncode == 0
+    pages = len(list((tmp_path / "bags").glob("*.html")))
+    last = shown.decode().rstrip("\r\n").split("\r")[-1]
+    assert pages == 5 and last.strip() == f"fleet report: bag page {pages}/{pages}", shown
+    assert "\r" not in out and out.startswith("wrote ")
+
+
+def _read(fd: int) -> bytes:
+    try:
+        return os.read(fd, 4096)
+    except OSError:  # EIO: the child closed the terminal
+        return b""
