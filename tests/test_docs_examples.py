@@ -15,6 +15,9 @@ Sybil finds the examples; the convention (docs/README.md, "Generated and execute
   test run with the product itself, are copied into its directory;
 - a ```` ```yaml ```` block that begins with ``component:`` is a whole config: it
   must pass ``safety-supervisor check`` (an excerpt begins with another key);
+- a ```` ```sql ```` block is a query run in DuckDB in the example's directory (with
+  its ``<!-- files: NAME -->``), and the ```` ```text ```` block right after it is
+  what it prints (``...`` matching anything);
 - any other block is not an example (a synopsis, an excerpt), and may not hold a
   ``$ `` prompt line (test below).
 
@@ -33,6 +36,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from unittest import SkipTest
 
@@ -50,7 +54,11 @@ EXIT = re.compile(r"^\[exit (\d+)\]$")
 # has to be argued for here too.
 SKIPPED_AT_MOST = 5
 # Files an example may ask for (``<!-- files: NAME -->``): NAME -> what makes them.
-FILES = {"rotated-logs": "doclogs"}
+FILES = {"rotated-logs": "doclogs", "fleet-dataset": "fleetdata"}
+# Files made by the demo over DDS: the examples that ask for them are marked ros.
+FILES_ON_ROS = ("rotated-logs",)
+# A ```sql block and the ```text block right after it (blank lines between).
+SQL = re.compile(r"^```sql\n(?P<sql>.*?)^```\n\s*^```text\n(?P<out>.*?)^```$", re.M | re.S)
 _made: dict[str, Path] = {}
 
 
@@ -164,6 +172,45 @@ def _check_config(example: Example) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class Query:
+    """A ```sql block and its ```text block (not a tuple: Sybil's skips are tuples)."""
+
+    sql: str
+    shown: str
+
+
+def _sql(example: Example) -> str | None:
+    """A query in DuckDB, run where an example runs; its printed table compared."""
+    query, shown = example.parsed.sql, example.parsed.shown
+    with tempfile.TemporaryDirectory(prefix="docs-sql-") as tmp:
+        cwd = Path(tmp)
+        name = example.namespace.pop("files", None)
+        if name is not None:
+            shutil.copytree(_files(name), cwd, dirs_exist_ok=True, symlinks=True)
+        done = subprocess.run(
+            [sys.executable, "-c", "import duckdb, sys; print(duckdb.sql(sys.stdin.read()))"],
+            cwd=cwd,
+            env=_environment(cwd),
+            input=query,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+    got = "\n".join(line.rstrip() for line in done.stdout.splitlines()).strip("\n")
+    expected = "\n".join(line.rstrip() for line in shown.splitlines()).strip("\n")
+    if done.returncode != 0:
+        return f"the query failed (exit {done.returncode}):\n{query}\n{done.stderr}"
+    if not CHECKER.check_output(expected + "\n", got + "\n", doctest.ELLIPSIS):
+        return f"the doc shows:\n{expected}\nthe query printed:\n{got}"
+    return None
+
+
+def _sql_parser(document: Document):  # noqa: ANN202 (Sybil's parser protocol)
+    for m in SQL.finditer(document.text):
+        yield Region(m.start(), m.end(), Query(m.group("sql"), m.group("out")), _sql)
+
+
 def _evaluator(console: bool):  # noqa: ANN202 (Sybil's evaluator protocol)
     def evaluate(example: Example) -> str | None:
         return _run(example, console)
@@ -187,6 +234,7 @@ PARSERS = [
     CodeBlockParser("yaml", _check_config),
     SkipParser(),
     _files_parser,
+    _sql_parser,
 ]
 
 
@@ -198,9 +246,8 @@ def _marks(path: Path) -> list[pytest.MarkDecorator]:
     # The demo runs the daemon and the simulated robot over DDS (on the test's own
     # ROS_DOMAIN_ID, which the examples inherit); so do the files an example asks for.
     text = path.read_text()
-    return (
-        [pytest.mark.ros] if "\n$ safety-supervisor demo " in text or "<!-- files: " in text else []
-    )
+    on_ros = any(f"<!-- files: {name} -->" in text for name in FILES_ON_ROS)
+    return [pytest.mark.ros] if "\n$ safety-supervisor demo " in text or on_ros else []
 
 
 @pytest.mark.parametrize(
@@ -242,6 +289,34 @@ def test_a_prompt_is_never_in_a_block_that_does_not_run() -> None:
         and any(line.startswith("$ ") for line in m.group(2).splitlines())
     ]
     assert not hidden, "\n".join(hidden)
+
+
+def test_every_sql_block_shows_its_output() -> None:
+    fence = re.compile(r"^```sql$", re.M)
+    alone = [
+        f"{path.relative_to(ROOT)}: {len(fence.findall(text)) - len(SQL.findall(text))} "
+        "```sql block(s) without a ```text block right after"
+        for path in DOCS
+        if len(fence.findall(text := path.read_text())) != len(SQL.findall(text))
+    ]
+    assert not alone, "\n".join(alone)
+
+
+def test_a_query_whose_output_differs_fails(tmp_path: Path) -> None:
+    page = tmp_path / "page.md"
+    page.write_text(
+        "```sql\nSELECT 40 + 2 AS n;\n```\n\n```text\n...\n│    42 │\n...\n```\n\n"
+        "```sql\nSELECT 40 + 2 AS n;\n```\n```text\n...\n│    41 │\n...\n```\n\n"
+        "```sql\nSELECT * FROM no_such_table;\n```\n\n```text\n```\n"
+    )
+    outcomes = []
+    for example in _examples(page):
+        try:
+            example.evaluate()
+            outcomes.append("ok")
+        except SybilFailure as e:
+            outcomes.append(str(e.result).splitlines()[0])
+    assert outcomes == ["ok", "the doc shows:", "the query failed (exit 1):"]
 
 
 def test_an_example_whose_output_differs_fails(tmp_path: Path) -> None:

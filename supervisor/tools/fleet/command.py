@@ -13,6 +13,7 @@ from typing import Any
 
 from monitors.errors import UserError
 from supervisor.progress import Line
+from supervisor.tools.fleet.report import add_parser as add_report_parser
 
 EXIT_OK, EXIT_FAIL = 0, 1
 MAX_JOBS = 512
@@ -22,7 +23,8 @@ def add_parser(sub: Any) -> None:
     """Add ``fleet`` and its ``replay`` to the CLI's subparsers."""
     p = sub.add_parser(
         "fleet",
-        help="replay a config over a fleet's archive of bags into a Parquet dataset",
+        help="replay a config over a fleet's archive of bags into a Parquet dataset, "
+        "and report on it",
         description="Requirements regression over recorded fleet data.",
     )
     fsub = p.add_subparsers(dest="fleet_command", required=True, metavar="COMMAND")
@@ -63,6 +65,7 @@ def add_parser(sub: Any) -> None:
         help="the robots' namespace in the bags (default: the config's ros.namespace)",
     )
     r.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    add_report_parser(fsub)
 
 
 def _jobs(text: str) -> int:
@@ -86,6 +89,10 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             file="fleet",
             hint="pip install 'safety-supervisor[fleet]'",
         ) from None
+    if args.fleet_command == "report":
+        from supervisor.tools.fleet.report import cmd_report
+
+        return cmd_report(args)
     from supervisor.tools.fleet.archive import list_archive
     from supervisor.tools.fleet.dataset import Dataset
     from supervisor.tools.fleet.engine import LocalEngine

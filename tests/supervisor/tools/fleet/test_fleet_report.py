@@ -1,0 +1,419 @@
+"""``fleet report`` end to end: datasets made by the real ``fleet replay`` over real
+bags of two robots on three days (tests/support/fleetdata.py), the page written by
+the real CLI and opened in headless Chromium, and what it shows checked against the
+dataset read with DuckDB: counts per robot and day, bags per status, new and lost
+against a baseline with a known difference, the per-bag pages its links lead to.
+Hostile dataset text, a dataset too large to list, and damaged input too."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+from html.parser import HTMLParser
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote, urlsplit
+
+import pytest
+from browser import open_page
+from fleetdata import fleet_archive, fleet_configs, fleet_replay
+
+duckdb = pytest.importorskip("duckdb")
+pa = pytest.importorskip("pyarrow")
+pq = pytest.importorskip("pyarrow.parquet")
+
+VIOLATIONS = "read_parquet('{}/violations/**/*.parquet', hive_partitioning = true)"
+BAGS = "read_parquet('{}/bags/*.parquet')"
+
+
+def report(*args: str | Path, ok: tuple[int, ...] = (0,)) -> subprocess.CompletedProcess[str]:
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert run.returncode in ok, run.stderr
+    assert "Traceback" not in run.stderr and "internal error" not in run.stderr, run.stderr
+    return run
+
+
+def query(sql: str) -> list[tuple[Any, ...]]:
+    return duckdb.sql(sql).fetchall()
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The archive, both configs, and three datasets: ``before`` and ``after`` (one
+    config each) and ``both`` (fleet replay --compare: before as A, after as B)."""
+    tmp = tmp_path_factory.mktemp("fleet")
+    fleet_archive(tmp / "archive")
+    before, after = fleet_configs(tmp)
+    out = {"tmp": tmp, "archive": tmp / "archive", "before.yaml": before, "after.yaml": after}
+    for name, args in (
+        ("before", [before]),
+        ("after", [after]),
+        ("both", [before, "--compare", after]),
+    ):
+        out[name] = tmp / name
+        fleet_replay(args[0], tmp / "archive", "-o", out[name], "--jobs", "2", *args[1:])
+    return out
+
+
+class Tags(HTMLParser):
+    """Every element's tag, attributes and text, in order (for pages not opened in
+    a browser)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.elements: list[tuple[str, dict[str, str]]] = []
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        self.elements.append((tag, {k: v or "" for k, v in attrs}))
+
+
+def elements(html: str) -> list[tuple[str, dict[str, str]]]:
+    p = Tags()
+    p.feed(html)
+    return p.elements
+
+
+def test_the_page_shows_the_datasets_counts_and_links_each_bag_to_its_page(fleet, tmp_path):
+    ds = fleet["after"]
+    out = tmp_path / "site" / "fleet.html"
+    run = report(
+        ds, "-o", out, "--bags", tmp_path / "site" / "bags", "--config", fleet["after.yaml"]
+    )
+    assert run.stderr == ""  # a pipe, not a terminal: no progress
+    assert run.stdout.startswith(f"wrote {out}: ")
+    pw, page, console, requests = open_page(out.as_uri())
+    try:
+        # per requirement, robot and day, as DuckDB counts the dataset
+        shown = page.evaluate(
+            """[...document.querySelectorAll('section.heat-map')].flatMap(s =>
+                [...s.querySelectorAll('tr[data-robot]')].flatMap(r =>
+                  [...r.querySelectorAll('td[data-day]')].filter(c => c.textContent !== '')
+                    .map(c => [s.dataset.requirement, r.dataset.robot, c.dataset.day,
+                               +c.textContent])))"""
+        )
+        want = query(
+            "SELECT requirement, robot, CAST(date AS VARCHAR), count(*) "
+            f"FROM {VIOLATIONS.format(ds)} GROUP BY ALL ORDER BY ALL"
+        )
+        assert sorted(map(tuple, shown)) == want and len({w[2] for w in want}) == 3
+        # the legend says what the colours mean in numbers
+        assert "1000+" in page.locator("#heat-legend").inner_text()
+        # the bags per robot and status, and the failed one's reason
+        bags = page.evaluate(
+            """[...document.querySelectorAll('tr.bag-robot')].flatMap(r =>
+                [...r.querySelectorAll('td[data-status]')].filter(c => +c.textContent > 0)
+                  .map(c => [r.dataset.robot, c.dataset.status, +c.textContent]))"""
+        )
+        assert sorted(map(tuple, bags)) == query(
+            f"SELECT robot, status, count(*) FROM {BAGS.format(ds)} GROUP BY ALL ORDER BY ALL"
+        )
+        reason = page.locator("tr.not-read[data-status='failed']").inner_text()
+        assert "broken/metadata.yaml" in reason
+        # every bag listed links to its own incident page, a file beside the fleet page
+        rows = page.evaluate(
+            """[...document.querySelectorAll('section.heat-map')].flatMap(s =>
+                [...s.querySelectorAll('tr.violation')].map(r => [s.dataset.requirement,
+                  r.querySelector('a') && r.querySelector('a').getAttribute('href'),
+                  r.querySelector('td.mono').textContent, +r.dataset.count]))"""
+        )
+        per_bag = dict(
+            ((req, bag), n)
+            for req, bag, n in query(
+                f"SELECT requirement, bag, count(*) FROM {VIOLATIONS.format(ds)} GROUP BY ALL"
+            )
+        )
+        assert len(rows) == len(per_bag)  # five bags with violations: all listed
+        for req, href, bag, n in rows:
+            assert href and not href.startswith(("/", "file:")), href
+            target = (out.parent / unquote(urlsplit(href).path)).resolve()
+            assert target.is_file() and target.parent == (tmp_path / "site" / "bags"), href
+            # named from hashes: no dataset text reaches a path
+            assert re.fullmatch(r"[0-9a-f]{32}\.html", target.name) and n == per_bag[(req, bag)]
+        assert console == [], console
+        assert requests == [out.as_uri()], requests
+        # a linked page is report's page of that bag: the same count for each requirement
+        req, href, bag, n = rows[0]
+        page.goto((out.parent / unquote(href)).resolve().as_uri())
+        got = page.locator(f".req-row[data-requirement='{req}']").get_attribute("data-violations")
+        assert int(got or -1) == n
+        assert page.locator("#timeline #axis text").count() > 2  # its script ran
+        assert console == [], console
+    finally:
+        pw.stop()
+
+
+def changes(html: str) -> dict[tuple[str, str], tuple[int, int]]:
+    return {
+        (a["data-requirement"], a["data-robot"]): (int(a["data-new"]), int(a["data-lost"]))
+        for tag, a in elements(html)
+        if tag == "tr" and a.get("class") == "change"
+    }
+
+
+def test_new_and_lost_against_a_baseline_as_duckdb_finds_them(fleet, tmp_path):
+    before, after = fleet["before"], fleet["after"]
+    out = tmp_path / "f.html"
+    report(after, "-o", out, "--baseline", before)
+    shown = changes(out.read_text())
+    # new: in after only; lost: in before only (same bag content, requirement, time)
+    diff = """SELECT requirement, robot, count(*) FROM {a} x WHERE NOT EXISTS (
+                SELECT 1 FROM {b} y WHERE x.bag_sha256 = y.bag_sha256
+                AND x.requirement = y.requirement AND x.recorded_ts = y.recorded_ts)
+              GROUP BY ALL"""
+    va, vb = VIOLATIONS.format(before), VIOLATIONS.format(after)
+    new = {(q, r): n for q, r, n in query(diff.format(a=vb, b=va))}
+    lost = {(q, r): n for q, r, n in query(diff.format(a=va, b=vb))}
+    pairs = query(
+        f"SELECT DISTINCT requirement, robot FROM {va} UNION SELECT DISTINCT requirement, robot FROM {vb}"
+    )
+    assert shown == {k: (new.get(k, 0), lost.get(k, 0)) for k in pairs}
+    # the known difference: the raised limit loses violations of 'limit' on both robots
+    assert shown[("limit", "robot-a")][1] > 0 and shown[("limit", "robot-b")][1] > 0
+    assert all(v == (0, 0) for (q, _), v in shown.items() if q != "limit")
+    assert not new
+    # the lost ones are listed by bag, each bag's count as DuckDB finds it
+    lost_bags = {
+        (a["data-robot"], int(a["data-count"]))
+        for tag, a in elements(out.read_text())
+        if tag == "tr" and a.get("class") == "lost-violation"
+    }
+    by_bag = query(diff.format(a=va, b=vb).replace("requirement, robot,", "robot, bag,"))
+    assert lost_bags == {(r, n) for r, _, n in by_bag} and len(by_bag) == 5
+    # a dataset of fleet replay --compare, its baseline named by its config's hash: the same
+    sha = query(f"SELECT DISTINCT config_sha256 FROM {va}")[0][0]
+    out2 = tmp_path / "g.html"
+    report(fleet["both"], "-o", out2, "--baseline", sha[:12])
+    assert changes(out2.read_text()) == shown
+
+
+HOSTILE_ROBOT = "<b id=pwn1>robot"
+HOSTILE_REQ = "<img src=x onerror=alert(1)>"
+HOSTILE_BAG = "</td><script>alert(2)</script>"
+
+
+def test_hostile_dataset_text_is_shown_as_text(fleet, tmp_path):
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    from supervisor.tools.fleet.task import VIOLATIONS as SCHEMA
+
+    part = ds / "violations" / f"robot={HOSTILE_ROBOT}" / "date=2026-06-09"
+    part.mkdir(parents=True)
+    row = {
+        "bag": HOSTILE_BAG,
+        "bag_sha256": "0" * 64,
+        "requirement": HOSTILE_REQ,
+        "tick": 1,
+        "recorded_ts": 1_780_963_200 * 10**9,
+        "config_sha256": query(f"SELECT any_value(config_sha256) FROM {BAGS.format(ds)}")[0][0],
+        "inputs": "{}",
+    }
+    pq.write_table(
+        pa.Table.from_pylist([row], schema=SCHEMA.remove(SCHEMA.get_field_index("date"))),
+        part / "x.parquet",
+    )
+    out = tmp_path / "f.html"
+    report(ds, "-o", out)
+    pw, page, console, requests = open_page(out.as_uri())
+    try:
+        assert page.locator("img, script, #pwn1").count() == 0
+        section = page.locator(
+            "section.heat-map", has=page.locator(f"tr[data-robot='{HOSTILE_ROBOT}']")
+        )
+        assert section.get_attribute("data-requirement") == HOSTILE_REQ
+        text = section.inner_text()
+        assert HOSTILE_REQ in text and HOSTILE_ROBOT in text and HOSTILE_BAG in text
+        assert console == [] and requests == [out.as_uri()], (console, requests)
+    finally:
+        pw.stop()
+
+
+def test_a_dataset_too_large_to_list_makes_a_bounded_page(tmp_path):
+    import pyarrow.dataset as pads
+
+    from supervisor.tools.fleet.summary import MAX_DAYS, MAX_LISTED, MAX_ROBOTS
+
+    robots, days, per_cell = 100, 60, 3
+    n = robots * days * per_cell
+    day0 = 1_780_272_000 * 10**9
+    cells = [(r, d) for r in range(robots) for d in range(days) for _ in range(per_cell)]
+    table = pa.table(
+        {
+            "bag": [f"/data/r{r}/d{d}" for r, d in cells],
+            "bag_sha256": [f"{r:04d}{d:04d}" for r, d in cells],
+            "requirement": ["limit"] * n,
+            "tick": list(range(n)),
+            "recorded_ts": pa.array(
+                [day0 + d * 86_400 * 10**9 for _, d in cells], pa.timestamp("ns", tz="UTC")
+            ),
+            "config_sha256": ["c" * 64] * n,
+            "inputs": ["{}"] * n,
+            "robot": [f"r{r:03d}" for r, _ in cells],
+            "date": [f"2026-{6 + d // 30:02d}-{d % 30 + 1:02d}" for _, d in cells],
+        }
+    )
+    ds = tmp_path / "ds"
+    (ds / "bags").mkdir(parents=True)
+    pads.write_dataset(
+        table,
+        ds / "violations",
+        format="parquet",
+        max_partitions=robots * days,
+        partitioning=pads.partitioning(
+            pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
+        ),
+    )
+    out = tmp_path / "f.html"
+    report(ds, "-o", out)
+    html = out.read_text()
+    tags = elements(html)
+    heat_rows = [a for t, a in tags if t == "tr" and "data-robot" in a and "class" not in a]
+    heat_cells = [a for t, a in tags if t == "td" and "data-day" in a]
+    assert len(heat_rows) == MAX_ROBOTS and len(heat_cells) == MAX_ROBOTS * MAX_DAYS
+    listed = [a for t, a in tags if t == "tr" and a.get("class") == "violation"]
+    assert len(listed) == MAX_LISTED
+    assert (
+        f"{robots - MAX_ROBOTS} more robot(s) with {(robots - MAX_ROBOTS) * days * per_cell:,} violation(s)"
+        in html
+    )
+    assert (
+        f"{days - MAX_DAYS} earlier day(s) with {(days - MAX_DAYS) * robots * per_cell:,} violation(s)"
+        in html
+    )
+    assert f"{robots * days - MAX_LISTED:,} more bag(s) not listed" in html
+    assert len(tags) < 3000 and len(html) < 400_000
+
+
+def test_a_bag_changed_since_its_replay_gets_no_page(tmp_path):
+    from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+    bag = write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 600))
+    cfg = config(tmp_path)
+    fleet_replay(cfg, tmp_path / "fleet", "-o", tmp_path / "ds")
+    data = next(bag.glob("*.mcap"))
+    data.write_bytes(os.urandom(data.stat().st_size))
+    out = tmp_path / "f.html"
+    report(tmp_path / "ds", "-o", out, "--bags", tmp_path / "pages", "--config", cfg)
+    html = out.read_text()
+    assert "its content is not the one replayed" in html
+    assert not [a for t, a in elements(html) if t == "a"]
+    assert list((tmp_path / "pages").iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "make, args, message",
+    [
+        (None, ["{tmp}/none", "-o", "{tmp}/f.html"], "no such dataset directory"),
+        ("plain-dir", ["{tmp}/d", "-o", "{tmp}/f.html"], "no bags/ directory"),
+        ("bags:garbage", ["{tmp}/d", "-o", "{tmp}/f.html"], "x.parquet"),
+        ("violations:garbage", ["{tmp}/d", "-o", "{tmp}/f.html"], "x.parquet"),
+        ("violations:other-columns", ["{tmp}/d", "-o", "{tmp}/f.html"], "violations"),
+        ("violations:no-partition", ["{tmp}/d", "-o", "{tmp}/f.html"], "outside robot=R/date=D"),
+        ("plain-ds", ["{tmp}/d", "-o", "{tmp}/f.html", "--baseline", "{tmp}/nope"], "nor the hash"),
+        ("plain-ds", ["{tmp}/d", "-o", "{tmp}/f.html", "--baseline", "abcdef0123"], "matches 0"),
+        (
+            "plain-ds",
+            ["{tmp}/d", "-o", "{tmp}/f.html", "--config", "{tmp}/c.yaml"],
+            "--config is for --bags",
+        ),
+        ("plain-ds", ["{tmp}/d", "-o", "{tmp}"], "is a directory"),
+    ],
+)
+def test_bad_input_is_one_line(tmp_path, make, args, message):
+    d = tmp_path / "d"
+    if make is not None:
+        (d / "bags").mkdir(parents=True)
+    if make == "plain-dir":
+        (d / "bags").rmdir()
+    elif make is not None and make.startswith(("bags:", "violations:")):
+        table, what = make.split(":")
+        where = d / table if table == "bags" else d / "violations" / "robot=r" / "date=2026-01-01"
+        if what == "no-partition":
+            where = d / "violations"
+        where.mkdir(parents=True, exist_ok=True)
+        if what == "garbage":
+            (where / "x.parquet").write_bytes(b"PAR1garbagePAR1")
+        elif what == "other-columns":
+            pq.write_table(pa.table({"bag": [1], "tick": ["x"]}), where / "x.parquet")
+        else:
+            from supervisor.tools.fleet.task import VIOLATIONS as SCHEMA
+
+            schema = SCHEMA.remove(SCHEMA.get_field_index("date"))
+            pq.write_table(schema.empty_table(), where / "x.parquet")
+            pq.write_table(
+                pa.Table.from_pylist([{"bag": "b", "tick": 1}], schema=schema), where / "y.parquet"
+            )
+    (tmp_path / "c.yaml").write_text("component: x\n")
+    run = report(*[a.format(tmp=tmp_path) for a in args], ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and message in lines[0], run.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(40))
+def test_a_damaged_parquet_file_is_one_line_never_an_internal_error(fleet, tmp_path, seed, capsys):
+    """Bytes flipped, cut or inserted in one file of a real dataset (either table, or
+    the baseline's): exit 0 (the damage missed what is read) or 1 with one line."""
+    import random
+
+    from supervisor.cli import main
+
+    rng = random.Random(seed)
+    ds, base = tmp_path / "ds", tmp_path / "base"
+    shutil.copytree(fleet["after"], ds)
+    shutil.copytree(fleet["before"], base)
+    target = rng.choice(sorted(ds.rglob("*.parquet")) + sorted(base.rglob("*.parquet")))
+    data = bytearray(target.read_bytes())
+    kind = ("flip", "cut", "insert")[seed % 3]
+    if kind == "flip":
+        for _ in range(rng.randint(1, 8)):
+            data[rng.randrange(len(data))] ^= 1 << rng.randrange(8)
+    elif kind == "cut":
+        data = data[: rng.randrange(len(data))]
+    else:
+        at = rng.randrange(len(data))
+        data[at:at] = rng.randbytes(rng.randint(1, 50))
+    target.write_bytes(bytes(data))
+    code = main(
+        ["fleet", "report", str(ds), "-o", str(tmp_path / "f.html"), "--baseline", str(base)]
+    )
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert (code, len(err)) in ((0, 0), (1, 1)), (kind, target, code, err)
+    assert not err or "internal error" not in err[0]
+
+
+def test_a_terminal_gets_progress_while_bag_pages_are_made(fleet, tmp_path):
+    import pty
+
+    leader, follower = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(fleet["after"]), "-o",
+         str(tmp_path / "f.html"), "--bags", str(tmp_path / "bags"), "--config",
+         str(fleet["after.yaml"])],
+        stdout=subprocess.PIPE, stderr=follower, text=True,
+    )  # fmt: skip
+    os.close(follower)
+    shown = b""
+    while chunk := _read(leader):
+        shown += chunk
+    out, _ = proc.communicate(timeout=300)
+    os.close(leader)
+    assert proc.returncode == 0
+    pages = len(list((tmp_path / "bags").glob("*.html")))
+    last = shown.decode().rstrip("\r\n").split("\r")[-1]
+    assert pages == 5 and last.strip() == f"fleet report: bag page {pages}/{pages}", shown
+    assert "\r" not in out and out.startswith("wrote ")
+
+
+def _read(fd: int) -> bytes:
+    try:
+        return os.read(fd, 4096)
+    except OSError:  # EIO: the child closed the terminal
+        return b""
