@@ -619,9 +619,10 @@ class _Gen:
         margins and ``f`` is boolean)."""
         vals: dict[Formula, tuple[str, str]] = {}
         margins: dict[Formula, str] = {}
+        needed = _margins_needed(f) if self.spec.margins else set()
         for g in subterms(f):
             vals[g] = self.node(g, vals, req, body)
-            if self.spec.margins and vals[g][1] == "bool":
+            if g in needed and vals[g][1] == "bool":
                 margins[g] = self.margin(g, vals, margins, req, body)
         return vals[f], margins.get(f)
 
@@ -659,9 +660,10 @@ class _Gen:
                     return self.mmin(body, x, y)
                 if op == "|":
                     return self.mmax(body, x, y)
-                nx, ny = self.mlocal(body, f"(-{x})"), self.mlocal(body, f"(-{y})")
+                nx = self.mlocal(body, f"(-{x})")
                 if op == "->":
                     return self.mmax(body, nx, y)
+                ny = self.mlocal(body, f"(-{y})")
                 if op == "<->":
                     return self.mmin(body, self.mmax(body, nx, y), self.mmax(body, x, ny))
                 return self.mmax(body, self.mmin(body, x, ny), self.mmin(body, nx, y))
@@ -781,6 +783,26 @@ class _Gen:
             return self._window(body, f"{buf}[{lo}]", rest, n, lo)
         assert r is not None
         return self._window(body, r, [f"{buf}[{lo}]"], n, lo)
+
+
+def _margins_needed(f: Formula) -> set[Formula]:
+    """The subformulas whose margins ``f``'s margin reads: through the boolean
+    connectives and the temporal operators that keep their margins (a relation
+    reads values, an atom or a fallen-back window its verdict)."""
+    needed: set[Formula] = set()
+    stack = [f]
+    while stack:
+        g = stack.pop()
+        if g in needed:
+            continue
+        needed.add(g)
+        match g:
+            case Not() | BinOp(op=("&" | "|" | "xor" | "->" | "<->")):
+                stack.extend(g.children())
+            case Past() | Since() if not margin_falls_back(g):
+                if g.hi is None or g.hi >= (g.lo or 0):
+                    stack.extend(g.children())
+    return needed
 
 
 def _stateful(f: Formula) -> bool:
