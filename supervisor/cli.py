@@ -212,14 +212,13 @@ def _print_margins(spec: MonitorSpec) -> None:
     """With step.margins: each requirement's margin state and the windows whose
     margins fall back to booleans (docs/reference/margins.md, "Fallback")."""
     from monitors.backends.c99 import margin_state
-    from monitors.ir.spec import MARGIN_WINDOW_TICKS
+    from monitors.ir.spec import MARGIN_DELAY_TICKS, MARGIN_WINDOW_TICKS
 
+    too_long = f"window over {MARGIN_WINDOW_TICKS} or lower bound over {MARGIN_DELAY_TICKS} ticks"
     for rid, m in margin_state(spec).items():
         line = f"  margin {rid}: {m.bytes} bytes of state"
         if m.fallbacks:
-            line += f"; boolean (longer than {MARGIN_WINDOW_TICKS} ticks): " + ", ".join(
-                m.fallbacks
-            )
+            line += f"; boolean ({too_long}): " + ", ".join(m.fallbacks)
         _out(line)
 
 

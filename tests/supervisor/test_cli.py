@@ -233,7 +233,10 @@ def test_check_prints_each_requirements_margin_state_and_fallback(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     lines = [line for line in r.stdout.splitlines() if line.startswith("  margin ")]
     assert lines[0] == "  margin r1: 8 bytes of state"  # H: its running minimum
-    assert lines[1].startswith("  margin r2: ") and "boolean (longer than 32 ticks): " in lines[1]
+    # within 40 ticks: its delay of 40 is kept, its window of 40 falls back
+    assert lines[1].startswith("  margin r2: ") and lines[1].endswith(
+        "; boolean (window over 32 or lower bound over 1024 ticks): (O[0,39] ((Z FALSE) | halt))"
+    )
     r = cli("compile", path, "--backend", "copilot", "-o", tmp_path / "out")
     assert r.returncode == 1
     assert r.stderr.strip().splitlines() == [

@@ -23,7 +23,12 @@ from monitors.backends.copilot import generate_haskell
 from monitors.backends.load import LoadedMonitor, compile_spec
 from monitors.errors import UserError
 from monitors.ir.formula import Formula, parse_formula
-from monitors.ir.spec import MARGIN_WINDOW_TICKS, MonitorSpec, RequirementSpec
+from monitors.ir.spec import (
+    MARGIN_DELAY_TICKS,
+    MARGIN_WINDOW_TICKS,
+    MonitorSpec,
+    RequirementSpec,
+)
 from monitors.verify.interpret import verdicts
 from monitors.verify.robustness import margins
 from tests.monitors.backends.test_c99 import (
@@ -156,15 +161,20 @@ def test_a_window_within_the_limit_keeps_its_margin_and_a_longer_one_falls_back(
     w = MARGIN_WINDOW_TICKS
     kept, long = parse_formula(f"H[0,{w}] (d0 < 5.0)"), parse_formula(f"H[0,{w + 1}] (d0 < 5.0)")
     since = parse_formula(f"(d1 > 0.0) S[2,{w + 1}] b0")
-    spec = make_spec([kept, long, since], bool_margin=1.0)
+    d = MARGIN_DELAY_TICKS
+    delays = [parse_formula(f"O[{d},{d + w}] (d0 < 1.0)"), parse_formula(f"H[{d + 1},inf] b0")]
+    spec = make_spec([kept, long, since, *delays], bool_margin=1.0)
     state = margin_state(spec)
     assert state["R0"].fallbacks == ()
     assert state["R0"].bytes == (w + 1) * 8 + 4  # w + 1 stored margins and a fill count
     assert state["R1"].fallbacks == (f"(H[0,{w + 1}] (d0 < 5.0))",)
     assert state["R2"].fallbacks == (f"((d1 > 0.0) S[2,{w + 1}] b0)",)
+    assert state["R3"].fallbacks == ()  # a delay of d, then a window of w + 1
+    assert state["R3"].bytes == (d + w + 1) * 8 + 3 * 4  # two rings, their positions, a count
+    assert state["R4"].fallbacks == (f"(H[{d + 1},inf] b0)",)
 
-    d0 = [1.0, 2.0, 4.5, 3.0] + [0.0] * 40
-    trace = _trace(d0=d0, b0=[True] * 44, d1=[1.0] * 44)
+    d0 = [1.0, 2.0, 4.5, 3.0] + [0.0] * (d + 40)
+    trace = _trace(d0=d0, b0=[True] * len(d0), d1=[1.0] * len(d0))
     mon = compile_spec(spec, tmp_path)
     got = run_margins(mon, spec, trace)
     assert got == reference(spec, trace)
@@ -174,6 +184,10 @@ def test_a_window_within_the_limit_keeps_its_margin_and_a_longer_one_falls_back(
     # fallen back: the boolean verdict as +-bool_margin
     assert got[1][:4] == [1.0, 1.0, 1.0, 1.0]
     assert set(got[2]) <= {1.0, -1.0}
+    # delayed by d ticks: empty (-1) until tick d, then 1 - d0 from tick 0 on
+    assert got[3][d - 1 : d + 4] == [-1.0, 0.0, 0.0, 0.0, 0.0]
+    assert got[3][d + 4] == 1.0  # d0 is 0 from tick 4 on
+    assert set(got[4]) == {1.0}  # H over an empty window, then over b0: true
 
 
 def test_reset_requirement_restarts_its_margin_only(tmp_path: Path) -> None:

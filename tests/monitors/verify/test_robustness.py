@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from monitors.frontend.formalize import formalize
 from monitors.frontend.parse import parse_requirement
 from monitors.ir.formula import parse_formula, to_fret
-from monitors.ir.spec import MARGIN_WINDOW_TICKS
+from monitors.ir.spec import MARGIN_DELAY_TICKS, MARGIN_WINDOW_TICKS
 from monitors.verify.interpret import verdicts
 from monitors.verify.robustness import margins
 from tests.monitors.backends.test_c99 import DEFINES, bool_f
@@ -106,6 +106,13 @@ def test_window_longer_than_the_limit_falls_back_to_its_verdict() -> None:
     assert set(m(f"H[0,{w}] (x < 3.0)", trace, bool_margin=1.0)) == {2.0}
     # only the long window falls back; the relation beside it keeps its margin
     assert m(f"(O[0,{w + 1}] (x > 5.0)) | (x < 4.0)", trace)[0] == 3.0
+    # a lower bound only delays: kept up to MARGIN_DELAY_TICKS
+    d = MARGIN_DELAY_TICKS
+    ramp = xs(*[float(t) for t in range(d + 3)])
+    assert m("O[40,41] (x > 5.0)", ramp)[38:43] == [-INF, -INF, -5.0, -4.0, -3.0]
+    assert m(f"O[{d},{d}] (x > 5.0)", ramp, bool_margin=1.0)[d:] == [-5.0, -4.0, -3.0]
+    # beyond it, the verdict: kept, tick d + 1 would be 0 - 0.5 and d + 2 1 - 0.5
+    assert m(f"O[{d + 1},{d + 1}] (x > 0.5)", ramp, bool_margin=1.0)[d:] == [-1.0, -1.0, 1.0]
 
 
 def test_srobot_uv_distance_requirement_through_freds_formalization() -> None:
