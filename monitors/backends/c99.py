@@ -35,6 +35,18 @@ Temporal operators (arguments taken as booleans, i = current tick):
                   using one is expanded into each requirement, as a temporal
                   define is, so each requirement owns (and resets) its own.
 
+Margins (``spec.margins``; docs/reference/margins.md): the step also writes each
+requirement's margin, the robustness of monitors/verify/robustness.py, into
+``monitor_margins[]`` (``<prefix>_margins``).  Only the boolean subformulas the
+requirement's margin reads get a margin (``_margins_needed``); a relation is the
+difference of its sides as doubles; connectives are ternary min/max; Y/Z keep the
+previous margin; unbounded O/H/S a running value; a lower bound of O/H is a delay
+ring of margins, a bounded O/H window a ring maxed as a tree, a bounded S one slot
+per candidate, each min'ed with a's margin every tick.  Windows beyond
+MARGIN_WINDOW_TICKS / MARGIN_DELAY_TICKS (monitors/ir/spec.py) take their boolean
+verdict's margin instead.  Margin state lives in the requirement's struct, so the
+resets reset it.
+
 Values follow monitors/interpret.py exactly: int64 arithmetic is done in
 uint64_t and wrapped back without undefined behaviour, ``/`` and ``mod``
 guard 0 and INT64_MIN / -1, int ``^`` (constant exponent 0..63) is unrolled
