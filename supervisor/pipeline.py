@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import difflib
 import json
+import math
 import random
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -80,6 +81,8 @@ class Project:
             ),
             requirements=tuple(RequirementSpec(r.id, r.formula) for r in self.requirements if r.ok),
             prefix=cfg.step.prefix,
+            margins=cfg.step.margins is not None,
+            bool_margin=math.inf if cfg.step.margins is None else cfg.step.margins,
         )
 
     def first_error(self) -> UserError | None:
