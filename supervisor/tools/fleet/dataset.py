@@ -19,6 +19,7 @@ import hashlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -119,13 +120,23 @@ class Dataset:
         import pyarrow.dataset as ds
 
         try:
-            found = ds.dataset(self.violations_dir, format="parquet", partitioning="hive")
+            found = ds.dataset(self.violations_dir, format="parquet", partitioning=partitions())
             return found.to_table()
         except (pa.ArrowException, OSError) as e:
             raise UserError(
                 f"not a fleet dataset's violations ({printable(str(e))})",
                 file=str(self.violations_dir),
             ) from None
+
+
+def partitions() -> Any:
+    """The violations' hive partitions, as text: a robot named 007 stays "007"
+    (pyarrow infers a number otherwise)."""
+    import pyarrow.dataset as ds
+
+    return ds.partitioning(
+        pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
+    )
 
 
 def _write(path: Path, table: pa.Table) -> None:

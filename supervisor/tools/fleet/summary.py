@@ -20,7 +20,7 @@ import pyarrow.dataset as ds
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
-from supervisor.tools.fleet.dataset import BAGS
+from supervisor.tools.fleet.dataset import BAGS, partitions
 from supervisor.tools.fleet.task import VIOLATIONS
 
 # What one page shows at most; the rest is counted ("N more").
@@ -34,10 +34,6 @@ MAX_TEXT = 300  # characters of one dataset string shown on the page
 # The columns the page reads; ``inputs`` (the largest) is left on disk.
 COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
 _FILE_SCHEMA = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
-# Partition values as text: a robot named 123 stays "123" (inferring would make it int)
-_PARTITIONS = ds.partitioning(
-    pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
-)
 HASH = re.compile(r"[0-9a-f]{8,64}")
 
 
@@ -133,7 +129,7 @@ def read_violations(root: Path) -> pa.Table:
     if not where.is_dir():
         return schema.empty_table()
     try:
-        found = ds.dataset(where, format="parquet", partitioning=_PARTITIONS, schema=schema)
+        found = ds.dataset(where, format="parquet", partitioning=partitions(), schema=schema)
         table = found.to_table(columns=[*COLUMNS, "robot", "date"])
     except (pa.ArrowException, OSError) as e:
         raise UserError(

@@ -336,3 +336,12 @@ def _read(fd: int) -> bytes:
         return os.read(fd, 4096)
     except OSError:  # EIO: the child closed the terminal
         return b""
+
+
+def test_a_robot_named_by_digits_stays_its_name_in_compare(tmp_path):
+    # hive partition values read back as text: "007" is not the number 7
+    write_bag(tmp_path / "fleet" / "007" / "b1", messages(1, 300))
+    a, b = config(tmp_path, "a.yaml", limit=2.0), config(tmp_path, "b.yaml", limit=2.3)
+    run = fleet(a, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", b, ok=(0,))
+    robots = {line.split()[1] for line in run.stdout.splitlines()[3:]}
+    assert robots == {"007"}, run.stdout
