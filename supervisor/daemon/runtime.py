@@ -46,6 +46,9 @@ class Monitor(Protocol):
     def reset(self) -> None: ...
     def reset_requirement(self, index: int) -> None: ...
 
+    # margins(): each requirement's margin after the last tick, where the monitor
+    # has them (LoadedMonitor with MonitorSpec.margins): Runtime.margins asks it.
+
 
 @runtime_checkable
 class BatchMonitor(Monitor, Protocol):
@@ -551,3 +554,9 @@ class Runtime:
         """Judge requirement ``index`` afresh from the next tick (replaces the
         thesis's node relaunch; no tick is skipped)."""
         self.monitor.reset_requirement(index)
+
+    def margins(self) -> Sequence[float]:
+        """Each requirement's margin after the last step (docs/reference/prediction.md):
+        asked only of a monitor built with margins, which a ``predict:`` turns on."""
+        margins: Sequence[float] = cast(Any, self.monitor).margins()
+        return margins

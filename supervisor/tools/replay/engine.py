@@ -56,6 +56,8 @@ class Outcome:
     messages: int = 0
     ticks: int = 0
     violations: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # id -> (tick, t)
+    predictions: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # id -> (tick, t)
+    expired: dict[str, int] = field(default_factory=dict)  # id -> predictions expired
     start_ns: int | None = None
     end_ns: int | None = None
     seconds: float = 0.0
@@ -103,6 +105,18 @@ class _Log:
         if self.out is None:
             return True
         return self.out.supervisor(what, recorded_ts=self._at(), **fields)
+
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        self.outcome.predictions.setdefault(requirement, []).append((fields["tick"], self._t()))
+        if self.out is None:
+            return True
+        return self.out.prediction(requirement, recorded_ts=self._at(), **fields)
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        self.outcome.expired[requirement] = self.outcome.expired.get(requirement, 0) + 1
+        if self.out is None:
+            return True
+        return self.out.prediction_expired(requirement, recorded_ts=self._at(), **fields)
 
 
 def replay(
