@@ -32,6 +32,11 @@ Functions the shim exposes to Python (see load.py):
       for rows in order up to and including the first with a violation; returns
       the rows stepped, ``flags`` holds the last one's;
   ``void ss_reset(void)`` / ``void ss_reset_req(int i)`` when available;
+  with ``spec.margins``: ``const double *ss_margins(void)``, the monitor's array of
+      the requirements' margins after the last step, and ``size_t
+      ss_tick_batch_m(in, n, flags, rows, margins)``, ``ss_tick_batch`` that also
+      copies each row's margins into ``margins`` (``n`` rows of one double per
+      requirement);
   ``const char *ss_layout(void)``: the input/requirement layout and the row
       size, so that a library is never driven with another spec's packing.
 
@@ -57,7 +62,7 @@ import sysconfig
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
-from monitors.backends.c99 import reset_each_name
+from monitors.backends.c99 import margins_name, reset_each_name
 from monitors.errors import UserError
 from monitors.ir.spec import MonitorSpec, c_name
 
@@ -74,6 +79,9 @@ const char *ss_layout(void);
 """
 CDEF_RESET = "void ss_reset(void);\n"
 CDEF_RESET_EACH = "void ss_reset_req(int i);\n"
+CDEF_MARGINS = """const double *ss_margins(void);
+size_t ss_tick_batch_m(const char *in, size_t n, uint8_t *flags, size_t *rows, double *margins);
+"""
 
 # Every object: symbols bound inside the library (see module docstring).
 # -ffp-contract=off: no fused multiply-add, so double results equal the interpreter's
@@ -100,7 +108,8 @@ def layout(spec: MonitorSpec) -> str:
     """The packing contract between the shim and load.py, as text."""
     ins = ",".join(f"{STRUCT_CODES[v.type]}{c_name(v.name)}" for v in spec.inputs)
     reqs = ",".join(c_name(r.handler) for r in spec.requirements)
-    return f"in={ins};row={row_size(spec)};out={reqs}"
+    margins = f";margins={spec.bool_margin!r}" if spec.margins else ""
+    return f"in={ins};row={row_size(spec)};out={reqs}{margins}"
 
 
 def host_source(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
@@ -112,6 +121,8 @@ def host_source(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
         *_host_batches(spec),
         f'const char *ss_layout(void) {{ return "{layout(spec)}"; }}',
     ]
+    if spec.margins:
+        out += _host_margins(spec)
     if reset:
         out.append(f"void ss_reset(void) {{ {spec.reset_name}(); }}")
     if reset_each:
@@ -158,6 +169,38 @@ def _host_declarations(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> l
         out.append(f"void {c_name(r.handler)}(void);")
         out.append(f"void {c_name(r.handler)}(void) {{ ss__out[{i}] = 1u; ss__count++; }}")
     return out
+
+
+def _host_margins(spec: MonitorSpec) -> list[str]:
+    """``ss_margins`` and ``ss_tick_batch_m`` (see the module docstring)."""
+    nreq = max(1, len(spec.requirements))
+    name = margins_name(spec)
+    return [
+        f"extern double {name}[{nreq}];",
+        "const double *ss_margins(void);",
+        f"const double *ss_margins(void) {{ return {name}; }}",
+        "size_t ss_tick_batch_m(const char *ss_in, size_t ss_n, uint8_t *ss_flags, "
+        "size_t *ss_rows, double *ss_margins_out);",
+        "size_t ss_tick_batch_m(const char *ss_in, size_t ss_n, uint8_t *ss_flags, "
+        "size_t *ss_rows, double *ss_margins_out)",
+        "{",
+        "    size_t ss_i, ss_found = 0;",
+        f"    if (ss_n != 0) memset(ss_flags, 0, ss_n * {len(spec.requirements)}u);",
+        "    for (ss_i = 0; ss_i < ss_n; ss_i++) {",
+        f"        ss__out = ss_flags + ss_i * {len(spec.requirements)}u;",
+        "        ss__count = 0;",
+        f"        ss__load(ss_in + ss_i * {row_size(spec)}u);",
+        f"        {spec.step_name}();",
+        f"        memcpy(ss_margins_out + ss_i * {len(spec.requirements)}u, {name}, "
+        f"{8 * len(spec.requirements)}u);",
+        "        if (ss__count != 0) {",
+        "            if (ss_rows != NULL) ss_rows[ss_found] = ss_i;",
+        "            ss_found++;",
+        "        }",
+        "    }",
+        "    return ss_found;",
+        "}",
+    ]
 
 
 def _host_load_and_tick(spec: MonitorSpec) -> list[str]:
@@ -234,8 +277,13 @@ def _host_batches(spec: MonitorSpec) -> list[str]:
     return out
 
 
-def _cdef(reset: bool, reset_each: bool) -> str:
-    return CDEF + (CDEF_RESET if reset else "") + (CDEF_RESET_EACH if reset_each else "")
+def _cdef(reset: bool, reset_each: bool, margins: bool = False) -> str:
+    return (
+        CDEF
+        + (CDEF_RESET if reset else "")
+        + (CDEF_RESET_EACH if reset_each else "")
+        + (CDEF_MARGINS if margins else "")
+    )
 
 
 def _compiler() -> str:
@@ -264,7 +312,7 @@ def build_identity(spec: MonitorSpec, *, reset: bool, reset_each: bool) -> str:
         f"python={sys.implementation.cache_tag} {EXTENSION_SUFFIXES[0]} {sys.version}",
         f"include={sysconfig.get_paths()['include']}",
         host_source(spec, reset=reset, reset_each=reset_each),
-        _cdef(reset, reset_each),
+        _cdef(reset, reset_each, spec.margins),
     ]
     return "\n".join(parts)
 
@@ -310,7 +358,7 @@ def build_library(
     if reset_each and not reset:
         raise ValueError("reset_each needs reset")
     host = host_source(spec, reset=reset, reset_each=reset_each)
-    cdef = _cdef(reset, reset_each)
+    cdef = _cdef(reset, reset_each, spec.margins)
     cc = _compiler()
     digest = hashlib.sha256()
     for part in [cc, *_CFLAGS, *_LDFLAGS, host, cdef, str(Path(include_dir).resolve())]:

@@ -74,7 +74,14 @@ from monitors.ir.formula import (
     subterms,
     to_fret,
 )
-from monitors.ir.spec import C_TYPES, MonitorSpec, RequirementSpec, c_name, expand_defines
+from monitors.ir.spec import (
+    C_TYPES,
+    MonitorSpec,
+    RequirementSpec,
+    c_name,
+    expand_defines,
+    margin_falls_back,
+)
 
 INT64_MIN = -(1 << 63)
 INT64_MAX = (1 << 63) - 1
@@ -233,6 +240,8 @@ class _Req:
     layout: list[tuple[str, int]] = field(default_factory=list)  # (C type, array length)
     inits: list[tuple[str, str]] = field(default_factory=list)  # (member, initial value)
     body: list[str] = field(default_factory=list)
+    margin_bytes: int = 0  # of the members only margins need
+    margin_fallbacks: list[str] = field(default_factory=list)  # windows kept as booleans
 
     @property
     def struct(self) -> str:
@@ -258,7 +267,13 @@ class _Gen:
         self.env: dict[str, str] = {}  # formula variable -> type
         self.names: dict[str, str] = {}  # formula variable -> C expression
         self.define_decls: list[str] = []  # file-scope values of the defines
+        self.margin_names: dict[str, str] = {}  # boolean define -> C name of its margin
         self._check_names()
+        if spec.margins:
+            self.bm = self.const(float(spec.bool_margin))
+            self.neg_bm = self.const(-float(spec.bool_margin))
+            # a static initializer needs a constant expression: no ss__inf() call
+            self.neg_inf_init = "(-1e308 * 10.0)"
 
     # ------------------------------------------------------------ names
     def _check_names(self) -> None:
@@ -284,6 +299,8 @@ class _Gen:
         for d in spec.defines:
             claim(c_name(d.name), f"internal variable '{d.name}'")
         claim(spec.step_name, "the step function")
+        if spec.margins:
+            claim(margins_name(spec), "the margins array")
         claim(spec.reset_name, "the reset function")
         for r in spec.requirements:
             claim(c_name(r.handler), f"handler of requirement '{r.id}'")
@@ -455,8 +472,18 @@ class _Gen:
         return f"ss__wrap({' * '.join(factors)})"
 
     # ------------------------------------------------------------ state
-    def member(self, req: _Req, ctype: str, init: str | None, length: int | None = None) -> str:
+    def member(
+        self,
+        req: _Req,
+        ctype: str,
+        init: str | None,
+        length: int | None = None,
+        *,
+        margin: bool = False,
+    ) -> str:
         name = f"f{len(req.fields)}"
+        if margin:
+            req.margin_bytes += _C_SIZE[ctype][0] * (1 if length is None else length)
         req.fields.append(f"{ctype} {name}{'' if length is None else f'[{length}]'};")
         req.layout.append((ctype, 1 if length is None else length))
         if init is not None:
@@ -585,11 +612,175 @@ class _Gen:
         body.append(f"const {C_TYPES[t]} {v} = {e};")
         return v, t
 
-    def formula(self, f: Formula, req: _Req | None, body: list[str]) -> tuple[str, str]:
+    def formula(
+        self, f: Formula, req: _Req | None, body: list[str]
+    ) -> tuple[tuple[str, str], str | None]:
+        """(C value and type of ``f``, C name of its margin when the spec asks for
+        margins and ``f`` is boolean)."""
         vals: dict[Formula, tuple[str, str]] = {}
+        margins: dict[Formula, str] = {}
         for g in subterms(f):
             vals[g] = self.node(g, vals, req, body)
-        return vals[f]
+            if self.spec.margins and vals[g][1] == "bool":
+                margins[g] = self.margin(g, vals, margins, req, body)
+        return vals[f], margins.get(f)
+
+    # ------------------------------------------------------------ margins
+    # The quantitative semantics of monitors/verify/robustness.py, value for value
+    # (docs/reference/margins.md); every window is a fixed list of assignments.
+    def mlocal(self, body: list[str], e: str) -> str:
+        v = self.fresh()
+        body.append(f"const double {v} = {e};")
+        return v
+
+    def atom(self, e: str, t: str) -> str:
+        return f"({_as_bool(e, t)} ? {self.bm} : {self.neg_bm})"
+
+    def mmin(self, body: list[str], x: str, y: str) -> str:
+        return self.mlocal(body, f"({y} < {x} ? {y} : {x})")
+
+    def mmax(self, body: list[str], x: str, y: str) -> str:
+        return self.mlocal(body, f"({y} > {x} ? {y} : {x})")
+
+    def margin(
+        self,
+        g: Formula,
+        vals: dict[Formula, tuple[str, str]],
+        ms: dict[Formula, str],
+        req: _Req | None,
+        body: list[str],
+    ) -> str:
+        match g:
+            case Not(a):
+                return self.mlocal(body, f"(-{ms[a]})")
+            case BinOp(op, a, b) if op in BOOL_OPS:
+                x, y = ms[a], ms[b]
+                if op == "&":
+                    return self.mmin(body, x, y)
+                if op == "|":
+                    return self.mmax(body, x, y)
+                nx, ny = self.mlocal(body, f"(-{x})"), self.mlocal(body, f"(-{y})")
+                if op == "->":
+                    return self.mmax(body, nx, y)
+                if op == "<->":
+                    return self.mmin(body, self.mmax(body, nx, y), self.mmax(body, x, ny))
+                return self.mmax(body, self.mmin(body, x, ny), self.mmin(body, nx, y))
+            case BinOp(op, a, b) if op in REL_OPS:
+                return self.relation_margin(op, vals[a], vals[b], vals[g], body)
+            case Var(name) if name in self.margin_names:
+                return self.margin_names[name]
+            case Past() | Since() if margin_falls_back(g):
+                assert req is not None
+                req.margin_fallbacks.append(to_fret(g))
+                return self.mlocal(body, self.atom(*vals[g]))
+            case Past() | Since() if g.hi is not None and g.hi < (g.lo or 0):
+                return self.mlocal(body, self.atom(*vals[g]))  # empty window: a constant
+            case Past(op, a) if op in ("Y", "Z"):
+                assert req is not None
+                init = self._init_const(self.neg_bm if op == "Y" else self.bm)
+                prev = self.member(req, "double", init, margin=True)
+                out = self.mlocal(body, prev)
+                body.append(f"{prev} = {ms[a]};")
+                return out
+            case Past(op, a, lo, hi):
+                assert req is not None
+                x = ms[a] if op == "O" else self.mlocal(body, f"(-{ms[a]})")
+                got = self.window_max(req, body, x, lo or 0, hi)
+                return got if op == "O" else self.mlocal(body, f"(-{got})")
+            case Since(op, a, b, lo, hi):
+                assert req is not None
+                x, y = ms[a], ms[b]
+                if op == "T":
+                    x, y = self.mlocal(body, f"(-{x})"), self.mlocal(body, f"(-{y})")
+                got = self.since_margin(req, body, x, y, lo or 0, hi)
+                return got if op == "S" else self.mlocal(body, f"(-{got})")
+        return self.mlocal(body, self.atom(*vals[g]))  # a boolean atom
+
+    def _init_const(self, c: str) -> str:
+        """``c`` as a static initializer may hold it (no ss__inf() call)."""
+        return {"ss__inf()": "(1e308 * 10.0)", "(-ss__inf())": self.neg_inf_init}.get(c, c)
+
+    def relation_margin(
+        self, op: str, a: tuple[str, str], b: tuple[str, str], rel: tuple[str, str], body: list[str]
+    ) -> str:
+        (x, tx), (y, ty) = a, b
+        if tx == ty == "bool":
+            return self.mlocal(body, self.atom(*rel))
+        dx = self.mlocal(body, _as_double(x, tx))
+        dy = self.mlocal(body, _as_double(y, ty))
+        if op in ("<", "<="):
+            d = self.mlocal(body, f"({dy} - {dx})")
+        elif op in (">", ">="):
+            d = self.mlocal(body, f"({dx} - {dy})")
+        else:
+            t = self.mlocal(body, f"({dx} - {dy})")
+            d = self.mlocal(
+                body, f"({t} < 0 ? {t} : -{t})" if op == "=" else f"({t} < 0 ? -{t} : {t})"
+            )
+        # NaN: two equal infinities are 0 apart; a NaN operand is a boolean atom
+        return self.mlocal(body, f"({d} == {d} ? {d} : ({dx} == {dy} ? 0.0 : {self.atom(*rel)}))")
+
+    def _slots(self, req: _Req, count: int) -> tuple[str, str]:
+        """``count`` stored margins, newest first (-inf until filled), and how many
+        ticks have filled them (saturating at ``count``), updated first."""
+        buf = self.member(req, "double", None, count, margin=True)
+        req.inits += [(f"{buf.split('.')[-1]}[{k}]", self.neg_inf_init) for k in range(count)]
+        n = self.member(req, "uint32_t", "0u", margin=True)
+        req.body.append(f"{n} = ({n} < {count}u) ? {n} + 1u : {n};")
+        return buf, n
+
+    def _window(self, body: list[str], start: str, slots: list[str], n: str, lo: int) -> str:
+        """max of ``start`` and ``slots``; -bool_margin while i < lo (fewer than
+        lo + 1 ticks seen: the window is empty)."""
+        best = start
+        for slot in slots:
+            best = self.mmax(body, best, slot)
+        return self.mlocal(body, f"({n} > {lo}u) ? {best} : {self.neg_bm}")
+
+    def window_max(self, req: _Req, body: list[str], x: str, lo: int, hi: int | None) -> str:
+        """O[lo,hi] over the margins ``x``."""
+        if hi is None and lo == 0:
+            m = self.member(req, "double", self.neg_inf_init, margin=True)
+            body.append(f"{m} = ({x} > {m} ? {x} : {m});")
+            return self.mlocal(body, m)
+        count = (hi if hi is not None else lo) + 1
+        buf, n = self._slots(req, count)
+        body += [f"{buf}[{k}] = {buf}[{k - 1}];" for k in range(count - 1, 0, -1)]
+        body.append(f"{buf}[0] = {x};")
+        if hi is not None:
+            rest = [f"{buf}[{k}]" for k in range(lo + 1, hi + 1)]
+            return self._window(body, f"{buf}[{lo}]", rest, n, lo)
+        # unbounded: the running max of the margins that are lo ticks old or older
+        r = self.member(req, "double", self.neg_inf_init, margin=True)
+        body.append(f"{r} = ({buf}[{lo}] > {r} ? {buf}[{lo}] : {r});")
+        return self.mlocal(body, f"({n} > {lo}u) ? {r} : {self.neg_bm}")
+
+    def since_margin(
+        self, req: _Req, body: list[str], x: str, y: str, lo: int, hi: int | None
+    ) -> str:
+        """a S[lo,hi] b over the margins ``x`` (a) and ``y`` (b): slot k holds
+        min(b at i-k, a over (i-k, i])."""
+        if hi is None and lo == 0:
+            s = self.member(req, "double", self.neg_inf_init, margin=True)
+            t = self.mmin(body, x, s)
+            body.append(f"{s} = ({t} > {y} ? {t} : {y});")
+            return self.mlocal(body, s)
+        count = (hi if hi is not None else lo) + 1
+        buf, n = self._slots(req, count)
+        r = None
+        if hi is None:
+            # the candidates older than lo ticks, each min'ed with a at every tick since
+            r = self.member(req, "double", self.neg_inf_init, margin=True)
+            older = self.mmax(body, r, f"{buf}[{lo}]")
+            body.append(f"{r} = ({x} < {older} ? {x} : {older});")
+        for k in range(count - 1, 0, -1):
+            body.append(f"{buf}[{k}] = ({x} < {buf}[{k - 1}] ? {x} : {buf}[{k - 1}]);")
+        body.append(f"{buf}[0] = {y};")
+        if hi is not None:
+            rest = [f"{buf}[{k}]" for k in range(lo + 1, hi + 1)]
+            return self._window(body, f"{buf}[{lo}]", rest, n, lo)
+        assert r is not None
+        return self._window(body, r, [f"{buf}[{lo}]"], n, lo)
 
 
 def _stateful(f: Formula) -> bool:
@@ -635,20 +826,50 @@ def _requirements(spec: MonitorSpec) -> tuple[_Gen, list[str], list[Formula], li
     defines, formulas = _define_plan(spec)
     top: list[str] = []
     for d in defines:
-        e, t = gen.formula(d.expr, None, top)
+        (e, t), m = gen.formula(d.expr, None, top)
         # file scope: each requirement's own function reads it (see generate)
         gen.define_decls.append(f"static {C_TYPES[t]} {c_name(d.name)};")
         top.append(f"{c_name(d.name)} = {e};")
         gen.env[d.name], gen.names[d.name] = t, c_name(d.name)
+        if m is not None:  # a boolean define's margin, read by the requirements using it
+            gen.margin_names[d.name] = f"ss__m_{c_name(d.name)}"
+            gen.define_decls.append(f"static double {gen.margin_names[d.name]};")
+            top.append(f"{gen.margin_names[d.name]} = {m};")
     reqs: list[_Req] = []
     for i, (r, f) in enumerate(zip(spec.requirements, formulas, strict=True)):
         req = _Req(i)
-        e, t = gen.formula(f, req, req.body)
+        (e, t), m = gen.formula(f, req, req.body)
+        if m is not None:
+            req.body.append(f"{margins_name(spec)}[{i}] = {m};")
         req.body.append(f"if (!{_as_bool(e, t)}) {{")
         req.body.append(f"    {c_name(r.handler)}();")
         req.body.append("}")
         reqs.append(req)
     return gen, top, formulas, reqs
+
+
+def margins_name(spec: MonitorSpec) -> str:
+    """C name of the array of the requirements' margins (spec order)."""
+    return f"{spec.prefix}_margins" if spec.prefix else "monitor_margins"
+
+
+@dataclass(frozen=True)
+class MarginState:
+    """What one requirement's margin costs in the C monitor (``check`` prints it)."""
+
+    bytes: int  # state members only margins need
+    fallbacks: tuple[str, ...]  # windows too long to keep: their margin is boolean
+
+
+def margin_state(spec: MonitorSpec) -> dict[str, MarginState]:
+    """Each requirement's margin state, by requirement id (empty without margins)."""
+    if not spec.margins:
+        return {}
+    _, _, _, reqs = _requirements(spec)
+    return {
+        r.id: MarginState(req.margin_bytes, tuple(req.margin_fallbacks))
+        for r, req in zip(spec.requirements, reqs, strict=True)
+    }
 
 
 def state_bytes(spec: MonitorSpec) -> dict[str, int]:
@@ -692,6 +913,12 @@ def generate(spec: MonitorSpec) -> tuple[str, str]:
         c.append("")
     if gen.define_decls:
         c += ["/* the defines' values at this tick */", *gen.define_decls, ""]
+    if spec.margins:
+        c += [
+            "/* each requirement's margin at the last step (docs/reference/margins.md) */",
+            f"double {margins_name(spec)}[{max(1, len(spec.requirements))}];",
+            "",
+        ]
     # One function per requirement, called in order by the step: the compiler's
     # optimiser then works on many small functions instead of one of the whole set's
     # size, which keeps compile time linear in the number of requirements
@@ -734,6 +961,12 @@ def _header(spec: MonitorSpec) -> str:
     h += ["", "/* called by step when the requirement is violated: defined by the host */"]
     h += [f"extern void {c_name(r.handler)}(void);" for r in spec.requirements]
     h += ["", "/* evaluate every requirement for one tick */", f"void {spec.step_name}(void);"]
+    if spec.margins:
+        h += [
+            "",
+            "/* each requirement's margin after the last step (spec order) */",
+            f"extern double {margins_name(spec)}[{max(1, len(spec.requirements))}];",
+        ]
     h += [
         "",
         "/* back to tick 0: everything, or one requirement */",

@@ -475,6 +475,13 @@ def output_name(spec: MonitorSpec) -> str:
 def generate_haskell(spec: MonitorSpec, out_dir: Path | None = None) -> str:
     """The Copilot spec for ``spec`` as a Haskell program.  When run, it writes
     the C files into ``out_dir`` (default: the current directory)."""
+    if spec.margins:
+        # margins are the native backend's (docs/reference/margins.md)
+        raise UserError(
+            "the Copilot backend computes no margins",
+            file=_ERR,
+            hint="use the native backend (--backend native), or turn margins off",
+        )
     g = _Gen(spec)
     _name_variables(spec, g)
     lines = [

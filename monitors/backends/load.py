@@ -18,6 +18,10 @@ with ``__index__``) in [-2**63, 2**63) exactly; ``double`` inputs take
 ``float`` or ``int`` (converted to IEEE double).  A wrong type or an
 out-of-range int raises TypeError.
 
+Margins (``spec.margins``, native backend; docs/reference/margins.md): after each
+``tick``, ``margins()`` is each requirement's margin at that tick (spec order), and
+``tick_batch`` returns every row's margins as well.
+
 Resets: a native monitor has reset functions in C (O(1), no loops).  A
 monitor without them (Copilot generates none) is reset by loading a fresh
 copy of its library: the ``.so`` is copied to a new file in a per-process
@@ -98,6 +102,8 @@ class Batch(NamedTuple):
 
     flags: np.ndarray  # uint8, shape (n, requirements): 1 where violated at that row
     violating: np.ndarray  # intp, ascending: the rows with at least one flag
+    # float64, shape (n, requirements): each row's margins (None without margins)
+    margins: np.ndarray | None = None
 
 
 def row_dtype(spec: MonitorSpec) -> np.dtype:
@@ -192,6 +198,26 @@ class LoadedMonitor:
         self._tick_until = lib.ss_tick_until
         self._reset = getattr(lib, "ss_reset", None)
         self._reset_req = getattr(lib, "ss_reset_req", None)
+        if self.spec.margins:
+            n = len(self.requirement_ids)
+            self._margin_view = memoryview(ffi.buffer(lib.ss_margins(), 8 * n)).cast("B").cast("d")
+            self._tick_batch_m = lib.ss_tick_batch_m
+
+    @property
+    def has_margins(self) -> bool:
+        """True when the step computes margins (``spec.margins``)."""
+        return self.spec.margins
+
+    def margins(self) -> list[float]:
+        """Each requirement's margin at the last tick (requirement order); valid
+        after each ``tick`` (docs/reference/margins.md)."""
+        if not self.spec.margins:
+            raise UserError(
+                "this monitor computes no margins",
+                file=str(self.path),
+                hint="build it from a spec with margins on",
+            )
+        return self._margin_view.tolist()
 
     @property
     def has_reset(self) -> bool:
@@ -274,6 +300,16 @@ class LoadedMonitor:
         nreq = len(self.requirement_ids)
         flags = np.empty((n, nreq), dtype=np.uint8)
         found = np.empty(n, dtype=np.uintp)  # size_t
+        if self.spec.margins:
+            margins = np.empty((n, nreq), dtype=np.float64)
+            count = self._tick_batch_m(
+                ffi.from_buffer("char[]", rows),
+                n,
+                ffi.from_buffer("uint8_t[]", flags, require_writable=True),
+                ffi.from_buffer("size_t[]", found, require_writable=True),
+                ffi.from_buffer("double[]", margins, require_writable=True),
+            )
+            return Batch(flags, found[:count].astype(np.intp), margins)
         count = self._tick_batch(
             ffi.from_buffer("char[]", rows),
             n,

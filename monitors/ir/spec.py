@@ -6,10 +6,11 @@ into C with the contract's interface; the reference interpreter evaluates it.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
-from monitors.ir.formula import Formula, Var, map_children
+from monitors.ir.formula import Formula, Past, Since, Var, map_children
 
 # Formula-level types.  Message fields of other widths are converted to these
 # by the daemon when it copies a field into a monitor input.
@@ -63,6 +64,10 @@ class MonitorSpec:
     defines: tuple[Define, ...] = ()
     prefix: str = ""  # step function is '<prefix>_step' when set, else 'step'
     meta: dict = field(default_factory=dict, compare=False, hash=False)
+    # The step also computes each requirement's margin (docs/reference/margins.md);
+    # bool_margin is a boolean atom's margin when it holds (its negation when not).
+    margins: bool = False
+    bool_margin: float = math.inf
 
     @property
     def step_name(self) -> str:
@@ -75,6 +80,30 @@ class MonitorSpec:
     def expanded(self, req: RequirementSpec) -> Formula:
         """The requirement's formula over inputs only (defines substituted)."""
         return expand_defines(req.formula, self.defines)
+
+
+# The longest window whose margin the C monitor keeps, in ticks: a loop-free window
+# min/max over N stored margins costs N moves and N comparisons each tick, so longer
+# windows fall back to their boolean value (docs/reference/margins.md, "Fallback").
+MARGIN_WINDOW_TICKS = 32
+
+
+def margin_slots(g: Formula) -> int:
+    """How many past margins the C monitor stores for the temporal node ``g`` (0: none
+    or a fixed few; more than MARGIN_WINDOW_TICKS + 1: ``g``'s margin falls back)."""
+    if not isinstance(g, Past | Since) or (isinstance(g, Past) and g.op in ("Y", "Z")):
+        return 0
+    lo = g.lo or 0
+    if g.hi is not None and g.hi < lo:
+        return 0  # empty window: a constant
+    if g.hi is None:
+        return 0 if lo == 0 else lo + 1
+    return g.hi + 1
+
+
+def margin_falls_back(g: Formula) -> bool:
+    """Whether ``g``'s window is too long for its margin to be kept (see above)."""
+    return margin_slots(g) > MARGIN_WINDOW_TICKS + 1
 
 
 def expand_defines(f: Formula, defines: tuple[Define, ...] | list[Define]) -> Formula:
