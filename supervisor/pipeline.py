@@ -80,7 +80,14 @@ class Project:
             ),
             requirements=tuple(RequirementSpec(r.id, r.formula) for r in self.requirements if r.ok),
             prefix=cfg.step.prefix,
+            margins=self.predicts,
         )
+
+    @property
+    def predicts(self) -> bool:
+        """A requirement has ``predict:``: the monitor computes margins
+        (docs/reference/prediction.md)."""
+        return any(r.ok and r.entry.policy_config.predict is not None for r in self.requirements)
 
     def first_error(self) -> UserError | None:
         if self.errors:
