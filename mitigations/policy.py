@@ -103,6 +103,7 @@ class RequirementPolicy:
     predicted_ns: int | None = None  # the open prediction's time
     predicted_tick: int | None = None
     predict_run: int = 0  # consecutive steps whose estimate is inside the horizon
+    predict_armed: bool = True  # the estimate left the horizon since the last prediction
     last_early_ns: int | None = None  # the early actions' last run (their cooldown)
     predictions: int = 0
 
@@ -120,7 +121,6 @@ class RequirementPolicy:
             or self.incident_ns is not None
             or self.latched
             or self.reset_due_ns is not None
-            or self.predicted_ns is not None
         )
 
     def state(self) -> dict[str, Any]:
@@ -211,12 +211,17 @@ class RequirementPolicy:
         while the requirement holds, opens a prediction: a :class:`Forecast` record,
         then the early actions unless within ``cooldown_ms`` of their last run or
         latched.  One prediction is open at a time; it ends at the violation (whose
-        record carries the lead time) or at the horizon (expired)."""
+        record carries the lead time) or at the first step past the horizon at which
+        the requirement holds (expired).  The next one needs an estimate that left
+        the horizon in between: a line fitted across a stop keeps pointing at 0 for
+        up to a window after it."""
         p, trend = self.config.predict, self.trend
         if p is None or trend is None:
             return []
         trend.add(t_ns, margin)
-        expired = self._expire(t_ns)
+        # A violation at the first step past the horizon still counts (the margin
+        # crosses 0 between two steps): a prediction expires at a step that holds.
+        expired = [] if flagged else self._expire(t_ns)
         if flagged or self.in_episode or self.latched or self.predicted_ns is not None:
             self.predict_run = 0
             return expired
@@ -229,11 +234,14 @@ class RequirementPolicy:
             or est.confidence < p.min_confidence
         ):
             self.predict_run = 0
+            self.predict_armed = True
+            return expired
+        if not self.predict_armed:  # still the estimate that made the last prediction
             return expired
         self.predict_run += 1
         if self.predict_run < self.config.debounce_steps:
             return expired
-        self.predict_run = 0
+        self.predict_run, self.predict_armed = 0, False
         self.predicted_ns, self.predicted_tick = t_ns, tick
         self.predictions += 1
         c = self.config
@@ -262,16 +270,11 @@ class RequirementPolicy:
             self.last_early_ns = t_ns
         return effects
 
-    def _expiry_ns(self, horizon_ms: float) -> int:
-        # A violation at the horizon itself still counts as predicted.
-        assert self.predicted_ns is not None
-        return self.predicted_ns + int(horizon_ms * MS) + 1
-
     def _expire(self, t_ns: int) -> list[Effect]:
         p = self.config.predict
         if self.predicted_ns is None or p is None:
             return []
-        if t_ns < self._expiry_ns(p.horizon_ms):
+        if t_ns <= self.predicted_ns + int(p.horizon_ms * MS):
             return []
         detail = {
             "predicted_tick": self.predicted_tick,
@@ -289,8 +292,6 @@ class RequirementPolicy:
         c = self.config
         if self.incident_ns is not None and c.escalate is not None and not self.escalated:
             times.append(self.incident_ns + int(c.escalate.after_ms * MS))
-        if self.predicted_ns is not None and c.predict is not None:
-            times.append(self._expiry_ns(c.predict.horizon_ms))
         # No debounce_ms deadline: an episode starts at a step (on_step), never in
         # on_time, and a deadline on_time cannot move would hold the core's clock.
         live = [t for t in times if t is not None]
@@ -298,7 +299,7 @@ class RequirementPolicy:
 
     def on_time(self, t_ns: int, values: Mapping[str, Any]) -> list[Effect]:
         c = self.config
-        effects: list[Effect] = self._expire(t_ns)
+        effects: list[Effect] = []
         if self.confirm_deadline_ns is not None and c.confirm is not None:
             if values.get(c.confirm.variable) == c.confirm.equals:
                 self.confirm_deadline_ns = None

@@ -24,7 +24,7 @@ from monitors.backends.memory import memory_errors
 from monitors.errors import UserError
 from monitors.frontend.formalize import Formalization, formalize
 from monitors.frontend.parse import Requirement, parse_requirement
-from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula, variables
+from monitors.ir.formula import Const, Formula, FormulaSyntaxError, Past, parse_formula, variables
 from monitors.ir.functions import expand_functions, user_calls
 from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_name, expand_defines
 from monitors.ir.typecheck import check_bool, type_of
@@ -80,14 +80,35 @@ class Project:
             ),
             requirements=tuple(RequirementSpec(r.id, r.formula) for r in self.requirements if r.ok),
             prefix=cfg.step.prefix,
-            margins=self.predicts,
         )
 
     @property
     def predicts(self) -> bool:
-        """A requirement has ``predict:``: the monitor computes margins
-        (docs/reference/prediction.md)."""
+        """A requirement has ``predict:`` (docs/reference/prediction.md)."""
         return any(r.ok and r.entry.policy_config.predict is not None for r in self.requirements)
+
+    def prediction_spec(self) -> MonitorSpec:
+        """The monitor whose margins the predictions fit, stepped beside :meth:`spec`'s
+        with the same inputs: requirement i's formula without an unbounded ``H`` at
+        its top (while ``H f`` holds it breaks exactly when ``f`` next does, and the
+        margin of ``f`` follows the robot both ways where ``H``'s running minimum
+        only falls), ``true`` for a requirement that does not predict; margins on."""
+        spec = self.spec()
+        reqs = [r for r in self.requirements if r.ok]
+        return replace(
+            spec,
+            requirements=tuple(
+                RequirementSpec(
+                    rs.id,
+                    _invariant_body(rs.formula)
+                    if r.entry.policy_config.predict is not None
+                    else Const(True),
+                )
+                for rs, r in zip(spec.requirements, reqs, strict=True)
+            ),
+            prefix=f"{spec.prefix}_predict" if spec.prefix else "predict",
+            margins=True,
+        )
 
     def first_error(self) -> UserError | None:
         if self.errors:
@@ -384,6 +405,13 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
 def project_for(source: str | Path | ConfigSource, *, ros: bool = True) -> Project:
     """The project of a config file, or of its bytes as already read (ConfigSource)."""
     return build_project(load_config(source), ros=ros)
+
+
+def _invariant_body(f: Formula) -> Formula:
+    """``f`` of ``H f`` (unbounded, from now): the formula a prediction fits."""
+    if isinstance(f, Past) and f.op == "H" and not f.lo and f.hi is None:
+        return f.arg
+    return f
 
 
 def monitor_library(
