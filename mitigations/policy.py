@@ -211,31 +211,35 @@ class RequirementPolicy:
         while the requirement holds, opens a prediction: a :class:`Forecast` record,
         then the early actions unless within ``cooldown_ms`` of their last run or
         latched.  One prediction is open at a time; it ends at the violation (whose
-        record carries the lead time) or at the first step past the horizon at which
-        the requirement holds (expired).  The next one needs an estimate that left
-        the horizon in between: a line fitted across a stop keeps pointing at 0 for
-        up to a window after it."""
+        record carries the lead time) or, expired, at the first step past the
+        horizon at which the requirement holds and the estimate is no longer inside
+        the horizon.  The next one needs an estimate that left the horizon in
+        between: a line fitted across a stop keeps pointing at 0 for up to a window
+        after it."""
         p, trend = self.config.predict, self.trend
         if p is None or trend is None:
             return []
         trend.add(t_ns, margin)
-        # A violation at the first step past the horizon still counts (the margin
-        # crosses 0 between two steps): a prediction expires at a step that holds.
-        expired = [] if flagged else self._expire(t_ns)
-        if flagged or self.in_episode or self.latched or self.predicted_ns is not None:
-            self.predict_run = 0
-            return expired
         est = trend.estimate()
-        if (
+        inside = not (
             est is None
             or est.ttv_ms is None
             or not est.margin > 0.0
             or est.ttv_ms > p.horizon_ms
             or est.confidence < p.min_confidence
-        ):
+        )
+        # An open prediction expires at a step that holds, past the horizon, once the
+        # trend no longer points at a violation within it: a violation a step after
+        # the horizon (0 is crossed between steps) still counts as predicted.
+        expired = [] if flagged or inside else self._expire(t_ns)
+        if flagged or self.in_episode or self.latched or self.predicted_ns is not None:
+            self.predict_run = 0
+            return expired
+        if not inside:
             self.predict_run = 0
             self.predict_armed = True
             return expired
+        assert est is not None and est.ttv_ms is not None
         if not self.predict_armed:  # still the estimate that made the last prediction
             return expired
         self.predict_run += 1
