@@ -86,9 +86,12 @@ class Trend:
 
     def add(self, t_ns: int, margin: float) -> None:
         """The margin at ``t_ns`` (not before the previous sample's time).  A margin
-        that is not finite (a boolean atom's +-inf, a NaN) has no trend: the history
-        is cleared and starts again at the next finite one."""
-        if not math.isfinite(margin):
+        that is not finite (a boolean atom's +-inf, a NaN) has no trend, and one at or
+        below 0 is no distance still to cover (violated, or a boundary: the 0 of
+        ``classifier = 0`` where nobody is there): the history is cleared and starts
+        again at the next positive one, so that a line never joins two stretches of
+        a formula whose margin switched between terms."""
+        if not (math.isfinite(margin) and margin > 0.0):
             self.clear()
             return
         if self._n and t_ns < self._t[(self._head + self._n - 1) % self._cap]:
