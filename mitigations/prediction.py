@@ -113,10 +113,15 @@ class Trend:
             self._rebase()
 
     def estimate(self) -> Estimate | None:
-        """The fit of the window, or None while it has fewer than three samples or
-        they all share one time."""
+        """The fit of the window, or None while it has fewer than three samples, or
+        they span less than half the window (and the ring is not full): a line
+        through the first few samples of a stretch is mostly the sensor's
+        resolution (a whole-metre reading's step looks like a sprint)."""
         n = self._n
         if n < MIN_SAMPLES:
+            return None
+        first, last = self._t[self._head], self._t[(self._head + n - 1) % self._cap]
+        if 2 * (last - first) < self.window_ns and n < self._cap:
             return None
         mx, my = self._sx / n, self._sy / n
         sxx = self._sxx - self._sx * mx

@@ -133,6 +133,7 @@ def test_the_window_keeps_only_the_last_samples() -> None:
 
 
 def test_the_ring_is_bounded() -> None:
+    # 16 samples cover 15 ms of the 10 s window: a full ring is fitted anyway
     trend = Trend(window_ms=10_000, horizon_ms=1500, capacity=16)
     _feed(trend, 0, 1, [5.0 - 0.001 * k for k in range(1000)])
     assert len(trend) == 16
@@ -141,8 +142,18 @@ def test_the_ring_is_bounded() -> None:
     assert math.isclose(est.slope, -1.0, rel_tol=1e-9)
 
 
-def test_a_margin_that_is_no_distance_starts_the_history_again() -> None:
+def test_the_first_samples_of_a_stretch_are_not_fitted() -> None:
+    # Half the window first: a reading's step in the first few samples is no trend.
     trend = Trend(window_ms=1000, horizon_ms=1500)
+    _feed(trend, 0, 100, [4.0, 4.0, 3.0, 3.0, 3.0])  # 400 ms of a 1000 ms window
+    assert len(trend) == 5 and trend.estimate() is None
+    trend.add(500 * MS, 3.0)  # 500 ms: half the window
+    est = trend.estimate()
+    assert est is not None and est.samples == 6
+
+
+def test_a_margin_that_is_no_distance_starts_the_history_again() -> None:
+    trend = Trend(window_ms=40, horizon_ms=1500)
     _feed(trend, 0, 10, [3.0, 2.0, 1.0])
     assert trend.estimate() is not None
     trend.add(40 * MS, math.inf)  # a boolean atom decided the margin
