@@ -325,9 +325,10 @@ class PredictConfig:
     """A requirement's ``predict:`` (validated; see mitigations.prediction)."""
 
     horizon_ms: float = 1500.0  # a zero crossing estimated within this is a prediction
-    window_ms: float = 500.0  # the margins the line is fitted to
+    # The margins the line is fitted to.  window_ms and min_confidence are tuned on
+    # bench --predict's sRobot scenarios, seed 1 (docs/BENCHMARKS.md, "Prediction").
+    window_ms: float = 1500.0
     actions: tuple[str, ...] = ()  # the early actions; none: the prediction is logged
-    # Tuned on bench --predict's sRobot scenarios (docs/BENCHMARKS.md, "Prediction").
     min_confidence: float = 0.9
 
 

@@ -100,7 +100,7 @@ def test_a_bare_predict_takes_the_defaults(tmp_path: Path, written: str) -> None
     path.write_text(_config(written))
     (r,) = load_config(path).requirements
     assert r.policy_config.predict == PredictConfig()
-    assert PredictConfig().horizon_ms == 1500.0 and PredictConfig().window_ms == 500.0
+    assert PredictConfig().horizon_ms == 1500.0 and PredictConfig().window_ms == 1500.0
 
 
 def test_without_predict_there_is_no_prediction(tmp_path: Path) -> None:
