@@ -16,6 +16,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from monitors.errors import UserError
 from supervisor.tools.bench.command import add_parser as add_bench_parser
@@ -44,6 +45,9 @@ from supervisor.tools.status import add_parser as add_status_parser
 from supervisor.tools.status import cmd_status
 from supervisor.tools.ui.command import add_parser as add_ui_parser
 from supervisor.tools.ui.command import cmd_ui
+
+if TYPE_CHECKING:
+    from monitors.ir.spec import MonitorSpec
 
 EXIT_OK, EXIT_FAIL = 0, 1  # and 2, a usage error, is argparse's own
 
@@ -204,6 +208,20 @@ def _print_variables(project: object) -> None:
         _out("  " + "  ".join(f"{str(x):<{w}}" for x, w in zip(r, widths, strict=True)).rstrip())
 
 
+def _print_margins(spec: MonitorSpec) -> None:
+    """With step.margins: each requirement's margin state and the windows whose
+    margins fall back to booleans (docs/reference/margins.md, "Fallback")."""
+    from monitors.backends.c99 import margin_state
+    from monitors.ir.spec import MARGIN_DELAY_TICKS, MARGIN_WINDOW_TICKS
+
+    too_long = f"window over {MARGIN_WINDOW_TICKS} or lower bound over {MARGIN_DELAY_TICKS} ticks"
+    for rid, m in margin_state(spec).items():
+        line = f"  margin {rid}: {m.bytes} bytes of state"
+        if m.fallbacks:
+            line += f"; boolean ({too_long}): " + ", ".join(m.fallbacks)
+        _out(line)
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from monitors.backends.load import load_monitor
     from supervisor.analysis_report import format_analysis
@@ -234,6 +252,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         tempfile.TemporaryDirectory(prefix="safety-supervisor-check-") as tmp,
     ):
         load_monitor(monitor_library(spec, Path(tmp), checked.cache, checked.key), spec)
+    _print_margins(spec)
     dt = time.perf_counter() - t0
     if checked.errors:
         _out(

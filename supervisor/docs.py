@@ -247,6 +247,7 @@ def template_yaml() -> str:
             "max_skew_ms": "20",
             "prefix": "Robot",
             "recent": "10",
+            "margins": "true",
         },
     )
     out += [

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import difflib
 import json
+import math
 import random
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -80,6 +81,8 @@ class Project:
             ),
             requirements=tuple(RequirementSpec(r.id, r.formula) for r in self.requirements if r.ok),
             prefix=cfg.step.prefix,
+            margins=cfg.step.margins is not None,
+            bool_margin=math.inf if cfg.step.margins is None else cfg.step.margins,
         )
 
     @property
@@ -92,7 +95,8 @@ class Project:
         with the same inputs: requirement i's formula without an unbounded ``H`` at
         its top (while ``H f`` holds it breaks exactly when ``f`` next does, and the
         margin of ``f`` follows the robot both ways where ``H``'s running minimum
-        only falls), ``true`` for a requirement that does not predict; margins on."""
+        only falls), ``true`` for a requirement that does not predict; margins on,
+        whatever ``step.margins`` says."""
         spec = self.spec()
         reqs = [r for r in self.requirements if r.ok]
         return replace(
@@ -108,6 +112,8 @@ class Project:
             ),
             prefix=f"{spec.prefix}_predict" if spec.prefix else "predict",
             margins=True,
+            # an atom's margin is no distance: infinite, so that it clears the trend
+            bool_margin=math.inf,
         )
 
     def first_error(self) -> UserError | None:

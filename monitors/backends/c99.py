@@ -35,6 +35,18 @@ Temporal operators (arguments taken as booleans, i = current tick):
                   using one is expanded into each requirement, as a temporal
                   define is, so each requirement owns (and resets) its own.
 
+Margins (``spec.margins``; docs/reference/margins.md): the step also writes each
+requirement's margin, the robustness of monitors/verify/robustness.py, into
+``monitor_margins[]`` (``<prefix>_margins``).  Only the boolean subformulas the
+requirement's margin reads get a margin (``_margins_needed``); a relation is the
+difference of its sides as doubles; connectives are ternary min/max; Y/Z keep the
+previous margin; unbounded O/H/S a running value; a lower bound of O/H is a delay
+ring of margins, a bounded O/H window a ring maxed as a tree, a bounded S one slot
+per candidate, each min'ed with a's margin every tick.  Windows beyond
+MARGIN_WINDOW_TICKS / MARGIN_DELAY_TICKS (monitors/ir/spec.py) take their boolean
+verdict's margin instead.  Margin state lives in the requirement's struct, so the
+resets reset it.
+
 Values follow monitors/interpret.py exactly: int64 arithmetic is done in
 uint64_t and wrapped back without undefined behaviour, ``/`` and ``mod``
 guard 0 and INT64_MIN / -1, int ``^`` (constant exponent 0..63) is unrolled
@@ -151,6 +163,8 @@ static int ss__cmp_id(int64_t a, double b)
     frac = b - (double)t;
     return frac > 0.0 ? 1 : (frac < 0.0 ? 4 : 2);
 }""",
+    "minf": """/* margins' infinity: a constant, so that an atom's margin costs no call */
+static const double ss__m_inf = 1e308 * 10.0;""",
     "inf": """static double ss__inf(void)
 {
     return 1e308 * 10.0;
@@ -270,8 +284,12 @@ class _Gen:
         self.margin_names: dict[str, str] = {}  # boolean define -> C name of its margin
         self._check_names()
         if spec.margins:
-            self.bm = self.const(float(spec.bool_margin))
-            self.neg_bm = self.const(-float(spec.bool_margin))
+            if spec.bool_margin == float("inf"):
+                self.use("minf")
+                self.bm, self.neg_bm = "ss__m_inf", "(-ss__m_inf)"
+            else:
+                self.bm = self.const(float(spec.bool_margin))
+                self.neg_bm = self.const(-float(spec.bool_margin))
             # a static initializer needs a constant expression: no ss__inf() call
             self.neg_inf_init = "(-1e308 * 10.0)"
 
@@ -619,9 +637,10 @@ class _Gen:
         margins and ``f`` is boolean)."""
         vals: dict[Formula, tuple[str, str]] = {}
         margins: dict[Formula, str] = {}
+        needed = _margins_needed(f) if self.spec.margins else set()
         for g in subterms(f):
             vals[g] = self.node(g, vals, req, body)
-            if self.spec.margins and vals[g][1] == "bool":
+            if g in needed and vals[g][1] == "bool":
                 margins[g] = self.margin(g, vals, margins, req, body)
         return vals[f], margins.get(f)
 
@@ -659,9 +678,10 @@ class _Gen:
                     return self.mmin(body, x, y)
                 if op == "|":
                     return self.mmax(body, x, y)
-                nx, ny = self.mlocal(body, f"(-{x})"), self.mlocal(body, f"(-{y})")
+                nx = self.mlocal(body, f"(-{x})")
                 if op == "->":
                     return self.mmax(body, nx, y)
+                ny = self.mlocal(body, f"(-{y})")
                 if op == "<->":
                     return self.mmin(body, self.mmax(body, nx, y), self.mmax(body, x, ny))
                 return self.mmax(body, self.mmin(body, x, ny), self.mmin(body, nx, y))
@@ -698,7 +718,7 @@ class _Gen:
 
     def _init_const(self, c: str) -> str:
         """``c`` as a static initializer may hold it (no ss__inf() call)."""
-        return {"ss__inf()": "(1e308 * 10.0)", "(-ss__inf())": self.neg_inf_init}.get(c, c)
+        return {"ss__m_inf": "(1e308 * 10.0)", "(-ss__m_inf)": self.neg_inf_init}.get(c, c)
 
     def relation_margin(
         self, op: str, a: tuple[str, str], b: tuple[str, str], rel: tuple[str, str], body: list[str]
@@ -717,43 +737,72 @@ class _Gen:
             d = self.mlocal(
                 body, f"({t} < 0 ? {t} : -{t})" if op == "=" else f"({t} < 0 ? -{t} : {t})"
             )
+        if "double" not in (tx, ty):
+            return d  # int64 and bool convert to finite doubles: never NaN
         # NaN: two equal infinities are 0 apart; a NaN operand is a boolean atom
         return self.mlocal(body, f"({d} == {d} ? {d} : ({dx} == {dy} ? 0.0 : {self.atom(*rel)}))")
 
     def _slots(self, req: _Req, count: int) -> tuple[str, str]:
         """``count`` stored margins, newest first (-inf until filled), and how many
         ticks have filled them (saturating at ``count``), updated first."""
-        buf = self.member(req, "double", None, count, margin=True)
-        req.inits += [(f"{buf.split('.')[-1]}[{k}]", self.neg_inf_init) for k in range(count)]
+        buf = self._array(req, count)
         n = self.member(req, "uint32_t", "0u", margin=True)
         req.body.append(f"{n} = ({n} < {count}u) ? {n} + 1u : {n};")
         return buf, n
 
+    def _array(self, req: _Req, length: int) -> str:
+        """``length`` stored margins, -inf until written."""
+        buf = self.member(req, "double", None, length, margin=True)
+        req.inits += [(f"{buf.split('.')[-1]}[{k}]", self.neg_inf_init) for k in range(length)]
+        return buf
+
+    def _ring(
+        self, req: _Req, body: list[str], x: str, length: int, *, read: bool = False
+    ) -> tuple[str, str | None]:
+        """A ring of the last ``length`` values of ``x`` (-inf before them): (the
+        array, with ``read`` the value ``x`` had ``length`` ticks ago), one write
+        per tick."""
+        buf = self._array(req, length)
+        pos = self.member(req, "uint32_t", "0u", margin=True)
+        old = self.mlocal(body, f"{buf}[{pos}]") if read else None
+        body.append(f"{buf}[{pos}] = {x};")
+        body.append(f"{pos} = ({pos} + 1u == {length}u) ? 0u : {pos} + 1u;")
+        return buf, old
+
+    def _tree_max(self, body: list[str], items: list[str]) -> str:
+        """max of ``items`` pairwise: log2(n) dependent comparisons, not n (no
+        margin is NaN, so the order does not change the value)."""
+        while len(items) > 1:
+            pairs = [self.mmax(body, a, b) for a, b in zip(items[::2], items[1::2], strict=False)]
+            items = pairs + items[len(pairs) * 2 :]
+        return items[0]
+
     def _window(self, body: list[str], start: str, slots: list[str], n: str, lo: int) -> str:
         """max of ``start`` and ``slots``; -bool_margin while i < lo (fewer than
         lo + 1 ticks seen: the window is empty)."""
-        best = start
-        for slot in slots:
-            best = self.mmax(body, best, slot)
+        best = self._tree_max(body, [start, *slots])
         return self.mlocal(body, f"({n} > {lo}u) ? {best} : {self.neg_bm}")
 
     def window_max(self, req: _Req, body: list[str], x: str, lo: int, hi: int | None) -> str:
-        """O[lo,hi] over the margins ``x``."""
-        if hi is None and lo == 0:
+        """O[lo,hi] over the margins ``x``: ``x`` delayed by lo ticks (a ring of lo),
+        then the running max (unbounded) or the max of a ring of hi - lo + 1."""
+        if lo > 0:
+            n = self.member(req, "uint32_t", "0u", margin=True)
+            body.append(f"{n} = ({n} <= {lo}u) ? {n} + 1u : {n};")
+            _, delayed = self._ring(req, body, x, lo, read=True)
+            assert delayed is not None
+            x = delayed
+        if hi is None:
             m = self.member(req, "double", self.neg_inf_init, margin=True)
             body.append(f"{m} = ({x} > {m} ? {x} : {m});")
-            return self.mlocal(body, m)
-        count = (hi if hi is not None else lo) + 1
-        buf, n = self._slots(req, count)
-        body += [f"{buf}[{k}] = {buf}[{k - 1}];" for k in range(count - 1, 0, -1)]
-        body.append(f"{buf}[0] = {x};")
-        if hi is not None:
-            rest = [f"{buf}[{k}]" for k in range(lo + 1, hi + 1)]
-            return self._window(body, f"{buf}[{lo}]", rest, n, lo)
-        # unbounded: the running max of the margins that are lo ticks old or older
-        r = self.member(req, "double", self.neg_inf_init, margin=True)
-        body.append(f"{r} = ({buf}[{lo}] > {r} ? {buf}[{lo}] : {r});")
-        return self.mlocal(body, f"({n} > {lo}u) ? {r} : {self.neg_bm}")
+            best = m
+        else:
+            w = hi - lo + 1
+            buf, _ = self._ring(req, body, x, w)
+            best = self._tree_max(body, [f"{buf}[{k}]" for k in range(w)])
+        if lo == 0:  # the window holds this tick: never empty
+            return self.mlocal(body, best)
+        return self.mlocal(body, f"({n} > {lo}u) ? {best} : {self.neg_bm}")
 
     def since_margin(
         self, req: _Req, body: list[str], x: str, y: str, lo: int, hi: int | None
@@ -781,6 +830,26 @@ class _Gen:
             return self._window(body, f"{buf}[{lo}]", rest, n, lo)
         assert r is not None
         return self._window(body, r, [f"{buf}[{lo}]"], n, lo)
+
+
+def _margins_needed(f: Formula) -> set[Formula]:
+    """The subformulas whose margins ``f``'s margin reads: through the boolean
+    connectives and the temporal operators that keep their margins (a relation
+    reads values, an atom or a fallen-back window its verdict)."""
+    needed: set[Formula] = set()
+    stack = [f]
+    while stack:
+        g = stack.pop()
+        if g in needed:
+            continue
+        needed.add(g)
+        match g:
+            case Not() | BinOp(op=("&" | "|" | "xor" | "->" | "<->")):
+                stack.extend(g.children())
+            case Past() | Since() if not margin_falls_back(g):
+                if g.hi is None or g.hi >= (g.lo or 0):
+                    stack.extend(g.children())
+    return needed
 
 
 def _stateful(f: Formula) -> bool:

@@ -19,7 +19,9 @@ with ``__index__``) in [-2**63, 2**63) exactly; ``double`` inputs take
 out-of-range int raises TypeError.
 
 Margins (``spec.margins``, native backend; docs/reference/margins.md): after each
-``tick``, ``margins()`` is each requirement's margin at that tick (spec order), and
+``tick``, ``margins()`` is each requirement's margin at that tick (spec order; after
+``tick_batch`` or ``tick_until``, at the last row stepped; 0.0 before a fresh
+monitor's first tick, and a reset leaves them until the next tick), and
 ``tick_batch`` returns every row's margins as well.
 
 Resets: a native monitor has reset functions in C (O(1), no loops).  A

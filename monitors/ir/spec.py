@@ -82,28 +82,28 @@ class MonitorSpec:
         return expand_defines(req.formula, self.defines)
 
 
-# The longest window whose margin the C monitor keeps, in ticks: a loop-free window
-# min/max over N stored margins costs N moves and N comparisons each tick, so longer
-# windows fall back to their boolean value (docs/reference/margins.md, "Fallback").
+# How much of a window's past the C monitor keeps for its margin, in ticks
+# (docs/reference/margins.md, "Cost, and the fallback for long windows").  A loop-free
+# min/max over N stored margins is N comparisons every tick, and a bounded S updates
+# each of its N candidates every tick, so those are bounded by MARGIN_WINDOW_TICKS; a
+# lower bound of O/H only delays (a ring: one read and one write a tick, 8 bytes a
+# tick of state), bounded by MARGIN_DELAY_TICKS.  Longer ones fall back to their
+# boolean value.
 MARGIN_WINDOW_TICKS = 32
-
-
-def margin_slots(g: Formula) -> int:
-    """How many past margins the C monitor stores for the temporal node ``g`` (0: none
-    or a fixed few; more than MARGIN_WINDOW_TICKS + 1: ``g``'s margin falls back)."""
-    if not isinstance(g, Past | Since) or (isinstance(g, Past) and g.op in ("Y", "Z")):
-        return 0
-    lo = g.lo or 0
-    if g.hi is not None and g.hi < lo:
-        return 0  # empty window: a constant
-    if g.hi is None:
-        return 0 if lo == 0 else lo + 1
-    return g.hi + 1
+MARGIN_DELAY_TICKS = 1024
 
 
 def margin_falls_back(g: Formula) -> bool:
-    """Whether ``g``'s window is too long for its margin to be kept (see above)."""
-    return margin_slots(g) > MARGIN_WINDOW_TICKS + 1
+    """Whether the temporal node ``g``'s window is too long for its margin to be kept."""
+    if not isinstance(g, Past | Since) or (isinstance(g, Past) and g.op in ("Y", "Z")):
+        return False
+    lo = g.lo or 0
+    if g.hi is not None and g.hi < lo:
+        return False  # empty window: a constant
+    if isinstance(g, Past):  # O, H: delayed by lo, then hi - lo + 1 margins compared
+        return lo > MARGIN_DELAY_TICKS or (g.hi is not None and g.hi - lo > MARGIN_WINDOW_TICKS)
+    # S, T: every candidate of the last hi (or lo, unbounded) ticks updated each tick
+    return (lo if g.hi is None else g.hi) > MARGIN_WINDOW_TICKS
 
 
 def expand_defines(f: Formula, defines: tuple[Define, ...] | list[Define]) -> Formula:

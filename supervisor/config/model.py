@@ -28,6 +28,9 @@ class StepConfig:
     max_skew_ms: float | None = None
     prefix: str = ""
     line: int | None = None
+    # Each requirement's margin in the step (docs/reference/margins.md): None off, else
+    # a boolean atom's margin (inf for `margins: true`).
+    margins: float | None = None
 
 
 @dataclass

@@ -101,6 +101,12 @@ SECTIONS: tuple[Section, ...] = (
                 "",
                 "accepted and ignored; the number of recent ticks in a violation record is `logging.recent`",
             ),
+            Key(
+                "margins",
+                "`true`, `false` or number > 0",
+                "`false`",
+                "the step also computes each requirement's *margin*, how far it is from breaking, in its inputs' units ([margins.md](margins.md)); a number is a boolean atom's margin (`true`: infinite). Native backend only",
+            ),
         ),
     ),
     Section(

@@ -2,14 +2,25 @@
 
 from __future__ import annotations
 
+import math
 import re
 
-from supervisor.config.fields import as_mapping, check_keys, error_at, number, suggest
+from supervisor.config.fields import (
+    as_mapping,
+    check_keys,
+    error_at,
+    number,
+    suggest,
+    to_number,
+)
 from supervisor.config.model import StepConfig, Variable
 from supervisor.config.yamlload import LineDict
 
 STEP_POLICIES = ("periodic", "on_message", "on_trigger", "synchronized")
-STEP_KEYS = {"policy", "trigger", "period_ms", "stale_after_ms", "max_skew_ms", "prefix", "recent"}
+STEP_KEYS = {
+    "policy", "trigger", "period_ms", "stale_after_ms", "max_skew_ms", "prefix", "recent",
+    "margins",
+}  # fmt: skip
 
 
 def load_step(doc: LineDict) -> StepConfig:
@@ -37,11 +48,25 @@ def load_step(doc: LineDict) -> StepConfig:
         prefix=str(s.get("prefix") or ""),
         line=s.line,
     )
+    if "margins" in s:
+        step.margins = _margins(s)
     if policy == "periodic" and step.period_ms is None:
         raise error_at("step.policy periodic needs step.period_ms", s, "policy")
     if step.prefix and not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", step.prefix):
         raise error_at(f"step.prefix '{step.prefix}' is not a C identifier", s, "prefix")
     return step
+
+
+def _margins(s: LineDict) -> float | None:
+    """``step.margins``: false (off), true (a boolean atom's margin is infinite) or
+    a number > 0 (a boolean atom's margin)."""
+    v = s["margins"]
+    if isinstance(v, bool):
+        return math.inf if v else None
+    x = to_number(v, s, "margins", "step.margins") if isinstance(v, int | float) else 0.0
+    if not x > 0:
+        raise error_at(f"step.margins must be true, false or a number > 0, got '{v}'", s, "margins")
+    return x
 
 
 def check_trigger(step: StepConfig, variables: dict[str, Variable], doc: LineDict) -> None:

@@ -218,3 +218,28 @@ def test_version_is_the_installed_packages():
     r = cli("--version")
     assert r.returncode == 0, r
     assert r.stdout == f"safety-supervisor {version('safety-supervisor')}\n", r
+
+
+def test_check_prints_each_requirements_margin_state_and_fallback(tmp_path):
+    # step.margins: one line per requirement with its margin state; a window longer
+    # than the C monitor keeps says its margin is boolean (docs/reference/margins.md)
+    path = write(
+        tmp_path,
+        CONFIG.replace("period_ms: 100}", "period_ms: 100, margins: true}").replace(
+            "within 1 second", "within 4 seconds"
+        ),
+    )
+    r = cli("check", path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = [line for line in r.stdout.splitlines() if line.startswith("  margin ")]
+    assert lines[0] == "  margin r1: 8 bytes of state"  # H: its running minimum
+    # within 40 ticks: its delay of 40 is kept, its window of 40 falls back
+    assert lines[1].startswith("  margin r2: ") and lines[1].endswith(
+        "; boolean (window over 32 or lower bound over 1024 ticks): (O[0,39] ((Z FALSE) | halt))"
+    )
+    r = cli("compile", path, "--backend", "copilot", "-o", tmp_path / "out")
+    assert r.returncode == 1
+    assert r.stderr.strip().splitlines() == [
+        "copilot: the Copilot backend computes no margins (hint: use the native backend "
+        "(--backend native), or turn margins off)"
+    ]

@@ -5,18 +5,23 @@ a FRET project export's ``ptLTL`` strings also work) with every available
 backend (native, and Copilot where GHC + Copilot are installed) and prints
 the whole compile time of the config (parse, formalize, generate C, build),
 and the cost of one tick through cffi, Python call and input packing
-included.  Prints numbers; asserts nothing.
+included; for the native backend also with margins on (``step.margins``,
+docs/reference/margins.md), with and without reading them.  ``--generated N``
+benchmarks a generated set of N requirements (scalegen.py) instead of a config.
+Prints numbers; asserts nothing.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import random
 import statistics
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from monitors.backends.load import LoadedMonitor, compile_spec
@@ -76,16 +81,26 @@ def _rows(spec: MonitorSpec, n: int) -> list[list[bool | int | float]]:
     return [[pick[v.type]() for v in spec.inputs] for _ in range(n)]
 
 
-def bench(mon: LoadedMonitor, rows: list, repeats: int = 5) -> dict[str, float]:
+def bench(
+    mon: LoadedMonitor, rows: list, repeats: int = 5, read_margins: bool = False
+) -> dict[str, float]:
     """ns per tick (median and best of ``repeats`` passes over ``rows``) and the
-    share of ticks with a violation (those also copy the flags out)."""
+    share of ticks with a violation (those also copy the flags out); with
+    ``read_margins``, each tick also reads the margins into Python."""
     tick = mon.tick
     per: list[float] = []
     for _ in range(repeats):
         mon.reset()
-        start = time.perf_counter_ns()
-        for row in rows:
-            tick(row)
+        if read_margins:
+            read = mon.margins
+            start = time.perf_counter_ns()
+            for row in rows:
+                tick(row)
+                read()
+        else:
+            start = time.perf_counter_ns()
+            for row in rows:
+                tick(row)
         per.append((time.perf_counter_ns() - start) / len(rows))
     mon.reset()
     violating = sum(any(tick(row)) for row in rows) / len(rows)
@@ -101,10 +116,16 @@ def main(argv: list[str] | None = None) -> None:
     )
     ap.add_argument("--ticks", type=int, default=200_000)
     ap.add_argument("--backend", action="append", choices=["native", "copilot"])
+    ap.add_argument("--generated", type=int, metavar="N", help="a generated set of N requirements")
     args = ap.parse_args(argv)
     backends = _backends()
     start = time.perf_counter()
-    if args.source.suffix == ".json":
+    if args.generated:
+        from supervisor.tools.bench.scalegen import generate
+
+        with tempfile.TemporaryDirectory(prefix="ss-bench-") as tmp:
+            spec = spec_from_config(generate(args.generated).write(Path(tmp) / "scale.yaml"))
+    elif args.source.suffix == ".json":
         spec = spec_from_fret_export(args.source)
     else:
         spec = spec_from_config(args.source)
@@ -133,6 +154,73 @@ def main(argv: list[str] | None = None) -> None:
                     f"best), {r['violating']:.0%} of ticks violating; Python call and input "
                     "packing included"
                 )
+            if name == "native":
+                _bench_margins(spec, mon, rows, quiet, Path(tmp))
+
+
+def _bench_margins(
+    spec: MonitorSpec, plain: LoadedMonitor, rows: list, quiet: list, tmp: Path
+) -> None:
+    """The margins rows: the same ticks with ``spec.margins`` on against ``plain``
+    (the boolean monitor), through Python and in C alone (``tick_batch``).  The
+    monitors alternate and each keeps its best pass in this process's CPU time, so
+    that other processes on the machine do not decide the ratios."""
+    from monitors.backends.c99 import margin_state
+    from monitors.backends.throughput import random_columns
+
+    spec = replace(spec, margins=True)
+    start = time.perf_counter()
+    mon = compile_spec(spec, tmp / "margins")
+    build_s = time.perf_counter() - start
+    state = margin_state(spec)
+    fallbacks = sum(1 for m in state.values() if m.fallbacks)
+    print(
+        f"  native, margins on: generate + compile + load {build_s * 1000:.0f} ms; "
+        f"{sum(m.bytes for m in state.values())} bytes of margin state, {fallbacks} of "
+        f"{len(state)} requirements with a window kept boolean"
+    )
+
+    def ticks(m: LoadedMonitor, trace: list, read: bool) -> None:
+        tick, margins = m.tick, m.margins
+        for row in trace:
+            tick(row)
+            if read:
+                margins()
+
+    for label, trace in (("random inputs", rows), ("quiet robot", quiet)):
+        trace = trace[:50_000]
+        runs = {
+            "boolean tick": lambda t=trace: ticks(plain, t, False),
+            "tick": lambda t=trace: ticks(mon, t, False),
+            "tick + margins()": lambda t=trace: ticks(mon, t, True),
+        }
+        best = _best_cpu(runs, 5, len(trace))
+        base = best.pop("boolean tick")
+        print(f"    {label:14s} boolean tick {base:.0f} ns (best CPU time, Python call included)")
+        for what, ns in best.items():
+            print(f"    {'':14s} {what:16s} {ns:5.0f} ns, {ns / base:.2f}x the boolean tick")
+    # the step alone: one C call for 10,000 random rows (flags, and margins copied out)
+    n = 10_000
+    packed = plain.pack_columns(random_columns(spec, n))
+    best = _best_cpu(
+        {"off": lambda: plain.tick_batch(packed), "on": lambda: mon.tick_batch(packed)}, 20, n
+    )
+    off, on = best["off"], best["on"]
+    print(
+        f"    C step alone (tick_batch of {n} rows): {off:.0f} ns/tick boolean, "
+        f"{on:.0f} ns/tick with margins, {on / off:.2f}x"
+    )
+
+
+def _best_cpu(runs: dict[str, Callable[[], object]], repeats: int, per: int) -> dict[str, float]:
+    """Each run's best of ``repeats`` (alternating) in CPU ns, divided by ``per``."""
+    best = dict.fromkeys(runs, math.inf)
+    for _ in range(repeats):
+        for name, run in runs.items():
+            start = time.process_time_ns()
+            run()
+            best[name] = min(best[name], (time.process_time_ns() - start) / per)
+    return best
 
 
 if __name__ == "__main__":
