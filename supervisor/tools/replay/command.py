@@ -215,7 +215,27 @@ def _compare_lines(r: dict[str, Any]) -> list[str]:
             f"{q['id']:<{width}}  {_n(q['a'])}  {_n(q['b'])}  {len(q['only_a']):>6}  "
             f"{len(q['only_b']):>6}  {q['first']}"
         )
+    if r.get("predicting"):
+        out.append("predictions, A beside B:")
+        cols = ["predictions", "expired", "predicted"]
+        heads = [f"{c} {s}" for c in cols for s in "AB"] + ["min lead A (ms)", "min lead B (ms)"]
+        out.append(f"{'requirement':<{width}}  " + "  ".join(heads))
+        for q in r["requirements"]:
+            pa, pb = q.get("predictions_a"), q.get("predictions_b")
+            cells = [_count(p, c) for c in cols for p in (pa, pb)] + [_lead(pa), _lead(pb)]
+            out.append(
+                f"{q['id']:<{width}}  "
+                + "  ".join(f"{v:>{len(h)}}" for v, h in zip(cells, heads, strict=True))
+            )
     return out
+
+
+def _count(p: dict[str, Any] | None, key: str) -> str:
+    return "-" if p is None else str(p[key])
+
+
+def _lead(p: dict[str, Any] | None) -> str:
+    return "-" if p is None or p["min_lead_ms"] is None else f"{p['min_lead_ms']:.0f}"
 
 
 def _n(v: int | None) -> str:

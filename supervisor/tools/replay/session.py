@@ -243,6 +243,12 @@ def compare(
                 "first_a_tick": xa[0][0] if xa else None,
                 "first_b_tick": xb[0][0] if xb else None,
                 "first": _first(xa, xb),
+                # two predictors on the same recordings (docs/reference/prediction.md)
+                **(
+                    {"predictions_a": _predictions(ra, rid), "predictions_b": _predictions(rb, rid)}
+                    if ra.predicting or rb.predicting
+                    else {}
+                ),
             }
         )
     errors = [str(r.error) for r in (ra, rb) if r.error is not None]
@@ -253,6 +259,7 @@ def compare(
         "missing_topics": list(missing),
         "missing": list(missing.values()),
         "requirements": rows,
+        "predicting": ra.predicting or rb.predicting,
         "error": errors[0] if errors else None,
     }
 

@@ -99,3 +99,31 @@ def test_replay_reports_predictions_beside_violations(tmp_path: Path) -> None:
     assert summary["predicting"] is True
     assert (keep["predictions"], keep["expired"], keep["predicted"]) == (2, 1, 1)
     assert keep["min_lead_ms"] == first["predicted_ms"]
+
+
+def test_compare_puts_two_predictors_side_by_side(tmp_path: Path) -> None:
+    # the same requirement, horizons of 1.5 s and 0.4 s: on the same walk the longer
+    # horizon warns earlier, so its least lead time is the larger
+    long, short = tmp_path / "long.yaml", tmp_path / "short.yaml"
+    long.write_text(CONFIG)
+    short.write_text(CONFIG.replace("horizon_ms: 1500", "horizon_ms: 400"))
+    trace = _trace(tmp_path / "t.jsonl", [(2.0, 0.0)])
+    r = cli_main("replay", str(long), str(trace), "--compare", str(short), "--json")
+    assert r.returncode == 0, r.stderr
+    rows = {q["id"]: q for q in json.loads(r.stdout)["requirements"]}
+    a, b = rows["keep_away"]["predictions_a"], rows["keep_away"]["predictions_b"]
+    assert a["predicted"] == b["predicted"] == 1
+    assert a["min_lead_ms"] > 1000 > 400 >= b["min_lead_ms"] > 0
+    assert rows["lamp_known"]["predictions_a"]["predictions"] == 0
+    text = cli_main("replay", str(long), str(trace), "--compare", str(short), "--quiet")
+    table = text.stdout.splitlines()
+    at = table.index("predictions, A beside B:")
+    assert table[at + 1].split() == [
+        "requirement", "predictions", "A", "predictions", "B", "expired", "A", "expired",
+        "B", "predicted", "A", "predicted", "B", "min", "lead", "A", "(ms)", "min", "lead",
+        "B", "(ms)",
+    ]  # fmt: skip
+    keep = next(x for x in table[at:] if x.startswith("keep_away")).split()
+    assert keep[1:7] == [str(a["predictions"]), str(b["predictions"]), str(a["expired"]),
+                         str(b["expired"]), "1", "1"]  # fmt: skip
+    assert float(keep[7]) == round(a["min_lead_ms"]) and float(keep[8]) == round(b["min_lead_ms"])
