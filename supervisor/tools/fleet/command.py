@@ -72,7 +72,7 @@ def add_parser(sub: Any) -> None:
         "--address",
         default=None,
         metavar="ADDR",
-        help="with --engine ray: a running cluster's address (ray start's, or ray://HOST:PORT); "
+        help="with --engine ray: a running cluster's address (HOST:PORT, as ray start prints it); "
         "its workers read the bags and the config at the paths given here",
     )
     r.add_argument("--quiet", action="store_true", help="no progress line on stderr")
