@@ -8,6 +8,7 @@ starts (``ray`` is imported only there: the base install has no Ray).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import logging
 import multiprocessing
 import os
@@ -117,11 +118,19 @@ class RayEngine:
                 return
             remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_run_ray)
             done_ref = ray.put(frozenset(done))  # once in the object store, not per task
-            running = {remote.remote(t, done_ref): t for t in tasks}
+            # A window of tasks in flight, a few per CPU, not the whole archive: each
+            # ray.wait looks at every pending task, and the results waiting for this
+            # process stay few.
+            window = max(4, 4 * int(ray.cluster_resources().get("CPU", 1)))
+            todo = iter(tasks)
+            for t in itertools.islice(todo, window):
+                running[remote.remote(t, done_ref)] = t
             while running:
                 ready, _ = ray.wait(list(running), num_returns=1)
                 for ref in ready:
                     task = running.pop(ref)
+                    for t in itertools.islice(todo, 1):
+                        running[remote.remote(t, done_ref)] = t
                     yield _ray_result(ray, ref, task)
         finally:
             # closed early (an error, Ctrl-C): the tasks not finished are cancelled
