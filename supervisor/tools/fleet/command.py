@@ -100,7 +100,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
             hint="pip install 'safety-supervisor[fleet]'",
         ) from None
     from supervisor.tools.fleet.archive import list_archive
-    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.dataset import Dataset, Writers
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.fleet.task import BagResult, BagTask
     from supervisor.tools.replay.command import checked_namespace
@@ -147,13 +147,19 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     results = engine.results(tasks, done_contents)
     try:
-        for result in _chain(failed_first, results):
-            robot, fp, size = where[result.task.bag]
-            dataset.write(result, robot, fp)
-            counts[result.status] += 1
-            progress.add(result, size)
-            if show:
-                progress.draw()
+        with Writers(dataset) as writers:
+
+            def count(written: list[BagResult]) -> None:  # once its files are written
+                for w in written:
+                    counts[w.status] += 1
+                    progress.add(w, where[w.task.bag][2])
+                    if show:
+                        progress.draw()
+
+            for result in _chain(failed_first, results):
+                robot, fp, _size = where[result.task.bag]
+                count(writers.put(result, robot, fp))
+            count(writers.drain())
     finally:
         results.close()  # an error stops the pool too (engine.py)
         if show:
