@@ -110,6 +110,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
     if args.engine == "ray":
         import_ray()  # missing: one line with the fix, before any config is compiled
+    # made first: an unreachable cluster is said before anything is compiled or read
+    engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     namespace = checked_namespace(args.namespace, "fleet replay")
     configs = [Path(args.config).absolute()]
     if args.compare:
@@ -144,7 +146,6 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     # by content hash too: the same bag under another path is hashed, not replayed
     # (one set for both configs: a task's key is its content and its config's hash)
     done_contents = {f"{s}:{h}" for s, h in done.contents if s in shas}
-    engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     results = engine.results(tasks, done_contents)
     try:
         with Writers(dataset) as writers:

@@ -13,6 +13,7 @@ import logging
 import multiprocessing
 import os
 import shutil
+import socket
 import tempfile
 from collections.abc import Collection, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -84,6 +85,7 @@ class LocalEngine:
 
 
 RAY_MISSING = "pip install 'safety-supervisor[fleet]'"
+REACH_S = 10.0  # a cluster's head that has not answered by then is not there
 
 
 def _run_ray(task: BagTask, done: Collection[str]) -> BagResult:
@@ -103,6 +105,8 @@ class RayEngine:
     def __init__(self, jobs: int | None = None, address: str | None = None) -> None:
         self.jobs = jobs or os.cpu_count() or 1
         self.address = address
+        if address is not None:
+            _reachable(address)
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
         ray = import_ray()
@@ -159,6 +163,27 @@ class RayEngine:
         # temporary directory (removed at the end), no usage report
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
         ray.init(num_cpus=self.jobs, include_dashboard=False, _temp_dir=temp, **quiet)
+
+
+def _reachable(address: str) -> None:
+    """``HOST:PORT`` of a cluster that answers, or one line: Ray's own client retries
+    an unreachable address for minutes, printing warnings."""
+    host, _, port = address.rpartition(":")
+    where = printable(address)
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UserError(
+            f"--address {where!r} is not HOST:PORT",
+            file="fleet replay",
+            hint="the address ray start --head prints, as 10.0.0.5:6379",
+        )
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=REACH_S).close()
+    except OSError as e:
+        raise UserError(
+            f"cannot reach the Ray cluster at {where}: {e.strerror or e}",
+            file="fleet replay",
+            hint="is the cluster up (ray status on its head node)?",
+        ) from None
 
 
 def _ray_result(ray: Any, ref: Any, task: BagTask) -> BagResult:

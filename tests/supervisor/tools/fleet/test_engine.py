@@ -87,6 +87,22 @@ def test_address_without_engine_ray_is_one_line(tmp_path):
     assert len(lines) == 1 and "--engine ray" in lines[0], run.stderr
 
 
+@needs_ray
+@pytest.mark.parametrize(
+    "address, said",
+    [("127.0.0.1:{port}", "cannot reach the Ray cluster"), ("no-port", "is not HOST:PORT")],
+)
+def test_a_cluster_address_that_is_no_cluster_is_one_line(tmp_path, address, said):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    address = address.format(port=_free_port())  # nothing listens there
+    run = fleet_ray(
+        config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--address", address, ok=(1,)
+    )
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and said in lines[0], run.stderr
+    assert not (tmp_path / "ds").exists()  # said before anything was done
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
