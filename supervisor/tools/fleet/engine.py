@@ -110,14 +110,12 @@ class RayEngine:
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
         ray = import_ray()
-        temp = None
-        started = False
-        if not ray.is_initialized():
-            temp = None if self.address else tempfile.mkdtemp(prefix="ss-fleet-ray-")
-            self._init(ray, temp)
-            started = True
+        started = not ray.is_initialized()  # a cluster this engine joins or starts
+        temp = tempfile.mkdtemp(prefix="ss-fleet-ray-") if started and not self.address else None
         running: dict[Any, BagTask] = {}
         try:
+            if started:
+                self._init(ray, temp)
             if not tasks:
                 return
             remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_run_ray)
@@ -162,7 +160,14 @@ class RayEngine:
         # a local cluster: our CPUs, no dashboard, its sockets and logs in our own
         # temporary directory (removed at the end), no usage report
         os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-        ray.init(num_cpus=self.jobs, include_dashboard=False, _temp_dir=temp, **quiet)
+        try:
+            ray.init(num_cpus=self.jobs, include_dashboard=False, _temp_dir=temp, **quiet)
+        except Exception as e:  # noqa: BLE001 - a cluster that cannot start is one line
+            raise UserError(
+                f"cannot start a local Ray cluster: {printable(' '.join(str(e).split()))[:300]}",
+                file="fleet replay",
+                hint="--engine local runs the same tasks in a process pool",
+            ) from None
 
 
 def _reachable(address: str) -> None:

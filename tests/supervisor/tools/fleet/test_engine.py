@@ -103,6 +103,23 @@ def test_a_cluster_address_that_is_no_cluster_is_one_line(tmp_path, address, sai
     assert not (tmp_path / "ds").exists()  # said before anything was done
 
 
+@needs_ray
+def test_a_local_cluster_that_cannot_start_is_one_line(tmp_path):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    # a temporary directory too deep for Ray's Unix sockets (108 bytes a path)
+    deep = tmp_path / ("t" * 120)
+    deep.mkdir()
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(config(tmp_path)),
+         str(tmp_path / "fleet"), "-o", str(tmp_path / "ds"), "--engine", "ray", "--jobs", "1"],
+        capture_output=True, text=True, timeout=300, env={**RAY_ENV, "TMPDIR": str(deep)},
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert "cannot start a local Ray cluster" in lines[0] and "internal error" not in lines[0]
+    assert not list(deep.iterdir())  # its temporary directory removed
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
