@@ -34,6 +34,8 @@ REQUIRED_KINDS: dict[str, re.Pattern[str]] = {
     "COPILOT": re.compile(r"\bCopilot\b"),
     # sshd, ssh-keygen, systemd-analyze, logrotate: the Debian packages .ci/run installs
     "TOOLS": re.compile(r"\binstall Debian's\b"),
+    # the fleet extra's Ray (fleet replay --engine ray)
+    "RAY": re.compile(r"\bray is not installed\b"),
 }
 
 

@@ -35,6 +35,9 @@ def test_unrelated():
 
 def test_tool():
     pytest.skip("logrotate missing (install Debian's logrotate)")
+
+def test_ray():
+    pytest.skip("ray is not installed (pip install 'safety-supervisor[fleet]')")
 """
 
 MODULE_SKIP = """
@@ -68,7 +71,7 @@ def run(tmp_path: Path, **require: str) -> str:
 
 def test_without_the_variables_every_skip_stays_a_skip(tmp_path: Path) -> None:
     out = run(tmp_path)
-    assert "5 skipped" in out and "failed" not in out and "error" not in out, out
+    assert "6 skipped" in out and "failed" not in out and "error" not in out, out
 
 
 @pytest.mark.parametrize(
@@ -78,6 +81,7 @@ def test_without_the_variables_every_skip_stays_a_skip(tmp_path: Path) -> None:
         ("STRACE", "test_skipping.py::test_strace_fixture", "strace cannot trace here"),
         ("ROS", "test_module_skip.py", "rclpy is not installed"),
         ("TOOLS", "test_skipping.py::test_tool", "logrotate missing"),
+        ("RAY", "test_skipping.py::test_ray", "ray is not installed"),
     ],
 )
 def test_a_required_kind_fails_and_says_why(
@@ -89,4 +93,4 @@ def test_a_required_kind_fails_and_says_why(
     assert len(failures) == 1 and test in failures[0], out
     assert f"SAFETY_SUPERVISOR_REQUIRE_{kind}=1 but the test skipped: " in out, out
     assert said in out, out
-    assert "4 skipped" in out, out
+    assert "5 skipped" in out, out

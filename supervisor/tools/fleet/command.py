@@ -64,6 +64,20 @@ def add_parser(sub: Any) -> None:
         metavar="NS",
         help="the robots' namespace in the bags (default: the config's ros.namespace)",
     )
+    r.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="what runs the tasks: a process pool on this machine (local, the default) or "
+        "a Ray cluster (ray: the fleet extra; a local cluster of --jobs CPUs without --address)",
+    )
+    r.add_argument(
+        "--address",
+        default=None,
+        metavar="ADDR",
+        help="with --engine ray: a running cluster's address (HOST:PORT, as ray start prints it); "
+        "its workers read the bags and the config at the paths given here",
+    )
     r.add_argument("--quiet", action="store_true", help="no progress line on stderr")
     add_report_parser(fsub)
 
@@ -94,12 +108,18 @@ def cmd_fleet(args: argparse.Namespace) -> int:
 
         return cmd_report(args)
     from supervisor.tools.fleet.archive import list_archive
-    from supervisor.tools.fleet.dataset import Dataset
-    from supervisor.tools.fleet.engine import LocalEngine
+    from supervisor.tools.fleet.dataset import Dataset, Writers
+    from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.fleet.task import BagResult, BagTask
     from supervisor.tools.replay.command import checked_namespace
     from supervisor.tools.replay.session import loaded
 
+    if args.address is not None and args.engine != "ray":
+        raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
+    if args.engine == "ray":
+        import_ray()  # missing: one line with the fix, before any config is compiled
+    # made first: an unreachable cluster is said before anything is compiled or read
+    engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     namespace = checked_namespace(args.namespace, "fleet replay")
     configs = [Path(args.config).absolute()]
     if args.compare:
@@ -134,14 +154,20 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     # by content hash too: the same bag under another path is hashed, not replayed
     # (one set for both configs: a task's key is its content and its config's hash)
     done_contents = {f"{s}:{h}" for s, h in done.contents if s in shas}
-    results = LocalEngine(args.jobs).results(tasks, done_contents)
+    results = engine.results(tasks, done_contents)
     try:
-        for result in _chain(failed_first, results):
-            robot, fp, size = where[result.task.bag]
-            dataset.write(result, robot, fp)
-            counts[result.status] += 1
-            progress.add(result, size)
-            progress.draw()
+        with Writers(dataset) as writers:
+
+            def count(written: list[BagResult]) -> None:  # once its files are written
+                for w in written:
+                    counts[w.status] += 1
+                    progress.add(w, where[w.task.bag][2])
+                    progress.draw()
+
+            for result in _chain(failed_first, results):
+                robot, fp, _size = where[result.task.bag]
+                count(writers.put(result, robot, fp))
+            count(writers.drain())
     finally:
         results.close()  # an error stops the pool too (engine.py)
         progress.end()

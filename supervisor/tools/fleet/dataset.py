@@ -17,8 +17,11 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
 import pyarrow as pa
@@ -137,6 +140,48 @@ def partitions() -> Any:
     return ds.partitioning(
         pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
     )
+
+
+class Writers:
+    """``Dataset.write`` on a few threads, so that the parent keeps taking results while
+    files are synced: each file is fsynced with its directory (supervisor/files.py),
+    milliseconds on a busy disk, as long as a small bag's whole task
+    (docs/BENCHMARKS.md, "Fleet").  A bag's own files stay in order (its violations,
+    then its row); ``put`` and ``drain`` give back the results whose files are
+    written, in the order they were put, and raise a write's error."""
+
+    THREADS = 4
+    BACKLOG = 64  # results waiting for their files at most: then put waits
+
+    def __init__(self, dataset: Dataset) -> None:
+        self.dataset = dataset
+        self.pool = ThreadPoolExecutor(self.THREADS, thread_name_prefix="fleet-write")
+        self.pending: deque[tuple[Future[None], BagResult]] = deque()
+
+    def put(self, result: BagResult, robot: str, fingerprint: str) -> list[BagResult]:
+        future = self.pool.submit(self.dataset.write, result, robot, fingerprint)
+        self.pending.append((future, result))
+        out = []
+        while self.pending and (self.pending[0][0].done() or len(self.pending) > self.BACKLOG):
+            out.append(self._next())
+        return out
+
+    def drain(self) -> list[BagResult]:
+        return [self._next() for _ in range(len(self.pending))]
+
+    def _next(self) -> BagResult:
+        future, result = self.pending.popleft()
+        future.result()  # its error (a full disk) stops the run, as a write here would
+        return result
+
+    def __enter__(self) -> Writers:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, e: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        # stopped early: the writes not started are dropped; a started one ends whole
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _write(path: Path, table: pa.Table) -> None:

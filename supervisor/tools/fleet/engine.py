@@ -1,18 +1,28 @@
 """Engines: what runs the tasks. An engine takes ``BagTask``s and the content hashes
 already done, and yields each ``BagResult`` as it comes, in any order; the caller
-writes it (dataset.py).  ``local`` is a process pool on this machine; another engine
-(a Ray cluster) is one more class with the same ``results``.
+writes it (dataset.py).  ``LocalEngine`` is a process pool on this machine;
+``RayEngine`` runs the same ``run_task`` as Ray tasks, on a cluster or on a local one it
+starts (``ray`` is imported only there: the base install has no Ray).
 """
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import logging
 import multiprocessing
 import os
+import shutil
+import socket
+import tempfile
 from collections.abc import Collection, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from typing import Any
 
-from supervisor.tools.fleet.task import BagResult, BagTask, run_task
+from monitors.errors import UserError
+from monitors.untrusted import printable
+from supervisor.tools.fleet.task import BagResult, BagTask, _reason, run_task
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
 
@@ -72,3 +82,136 @@ class LocalEngine:
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
             todo = retry
+
+
+RAY_MISSING = "pip install 'safety-supervisor[fleet]'"
+REACH_S = 10.0  # a cluster's head that has not answered by then is not there
+
+
+def _run_ray(task: BagTask, done: Collection[str]) -> BagResult:
+    """A Ray task: ``run_task`` in a Ray worker (a module-level function, so workers
+    import it by name rather than unpickling its code)."""
+    return run_task(task, done)
+
+
+class RayEngine:
+    """The tasks as Ray tasks: on the cluster at ``address`` (``ray start``, KubeRay),
+    or on a local cluster of ``jobs`` CPUs started here and shut down at the end.  The
+    task carries the bag's path, never its bytes: a cluster's workers read the bags on
+    a filesystem they share with this process.  A worker that dies is Ray's to retry
+    (``max_retries``); after ``ATTEMPTS`` deaths the bag is failed, as in
+    ``LocalEngine``."""
+
+    def __init__(self, jobs: int | None = None, address: str | None = None) -> None:
+        self.jobs = jobs or os.cpu_count() or 1
+        self.address = address
+        if address is not None:
+            _reachable(address)
+
+    def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
+        ray = import_ray()
+        started = not ray.is_initialized()  # a cluster this engine joins or starts
+        temp = tempfile.mkdtemp(prefix="ss-fleet-ray-") if started and not self.address else None
+        running: dict[Any, BagTask] = {}
+        try:
+            if started:
+                self._init(ray, temp)
+            if not tasks:
+                return
+            remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_run_ray)
+            done_ref = ray.put(frozenset(done))  # once in the object store, not per task
+            # A window of tasks in flight, a few per CPU, not the whole archive: each
+            # ray.wait looks at every pending task, and the results waiting for this
+            # process stay few.
+            window = max(4, 4 * int(ray.cluster_resources().get("CPU", 1)))
+            todo = iter(tasks)
+            for t in itertools.islice(todo, window):
+                running[remote.remote(t, done_ref)] = t
+            while running:
+                ready, _ = ray.wait(list(running), num_returns=1)
+                for ref in ready:
+                    task = running.pop(ref)
+                    for t in itertools.islice(todo, 1):
+                        running[remote.remote(t, done_ref)] = t
+                    yield _ray_result(ray, ref, task)
+        finally:
+            # closed early (an error, Ctrl-C): the tasks not finished are cancelled
+            for ref in running:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+            if started:
+                ray.shutdown()
+            if temp is not None:
+                shutil.rmtree(temp, ignore_errors=True)
+
+    def _init(self, ray: Any, temp: str | None) -> None:
+        quiet = {"logging_level": logging.ERROR, "log_to_driver": False}
+        if self.address:
+            try:
+                ray.init(address=self.address, **quiet)
+            except Exception as e:  # noqa: BLE001 - Ray's many connection errors are one line
+                raise UserError(
+                    f"cannot join the Ray cluster at {printable(self.address)}: "
+                    f"{printable(' '.join(str(e).split()))[:300]}",
+                    file="fleet replay",
+                    hint="the address of a running cluster (ray start --head prints it)",
+                ) from None
+            return
+        # a local cluster: our CPUs, no dashboard, its sockets and logs in our own
+        # temporary directory (removed at the end), no usage report
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+        try:
+            ray.init(num_cpus=self.jobs, include_dashboard=False, _temp_dir=temp, **quiet)
+        except Exception as e:  # noqa: BLE001 - a cluster that cannot start is one line
+            raise UserError(
+                f"cannot start a local Ray cluster: {printable(' '.join(str(e).split()))[:300]}",
+                file="fleet replay",
+                hint="--engine local runs the same tasks in a process pool",
+            ) from None
+
+
+def _reachable(address: str) -> None:
+    """``HOST:PORT`` of a cluster that answers, or one line: Ray's own client retries
+    an unreachable address for minutes, printing warnings."""
+    host, _, port = address.rpartition(":")
+    where = printable(address)
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UserError(
+            f"--address {where!r} is not HOST:PORT",
+            file="fleet replay",
+            hint="the address ray start --head prints, as 10.0.0.5:6379",
+        )
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=REACH_S).close()
+    except OSError as e:
+        raise UserError(
+            f"cannot reach the Ray cluster at {where}: {e.strerror or e}",
+            file="fleet replay",
+            hint="is the cluster up (ray status on its head node)?",
+        ) from None
+
+
+def _ray_result(ray: Any, ref: Any, task: BagTask) -> BagResult:
+    try:
+        result: BagResult = ray.get(ref)
+        return result
+    except ray.exceptions.WorkerCrashedError:
+        return BagResult(task, "failed", f"its worker process died {ATTEMPTS} times")
+    except ray.exceptions.RayError as e:  # one bag's bug or a node lost is its row
+        cause = getattr(e, "cause", None) or e
+        return BagResult(
+            task, "failed", _reason(f"internal error: {type(cause).__name__}: {cause}")
+        )
+
+
+def import_ray() -> Any:
+    """``ray``, or the one line that says how to install it."""
+    try:
+        import ray
+    except ImportError:
+        raise UserError(
+            "--engine ray needs Ray, which the base install leaves out",
+            file="fleet replay",
+            hint=RAY_MISSING,
+        ) from None
+    return ray

@@ -9,6 +9,7 @@ anything a bag or the config holds: that is the result's status and reason.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -97,6 +98,26 @@ class _Records:
         return True
 
 
+# This worker's configs compiled (config path -> its bytes' SHA-256 and the compiled
+# config): a worker replays many bags with one or two configs, and compiling took
+# most of a small bag's task (docs/BENCHMARKS.md, "Fleet").  Keyed by the bytes read
+# for each task, so a config edited during the run is compiled again.
+_prepared: dict[str, tuple[str, Any]] = {}
+
+
+def _compiled(config: str) -> Any:
+    from supervisor.tools.replay.session import prepare
+
+    try:
+        sha = hashlib.sha256(Path(config).read_bytes()).hexdigest()
+    except OSError:
+        return None  # replay says why, as for any bag
+    kept = _prepared.get(config)
+    if kept is None or kept[0] != sha:
+        kept = _prepared[config] = (sha, prepare(Path(config)))
+    return kept[1]
+
+
 def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
     """Replay one bag. ``done``: ``CONFIG_SHA256:BAG_SHA256`` of the bags already
     replayed (the same bag under another path is then skipped after hashing, not
@@ -115,7 +136,13 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
     records = _Records()
     try:
         run = run_one(
-            Path(task.config), [Path(task.bag)], None, None, namespace=task.namespace, sink=records
+            Path(task.config),
+            [Path(task.bag)],
+            None,
+            None,
+            namespace=task.namespace,
+            sink=records,
+            prepared=_compiled(task.config),
         )
     except NothingToJudge as e:
         return BagResult(task, "skipped", _reason(str(e)), digest, seconds=time.perf_counter() - t0)

@@ -25,11 +25,21 @@ if TYPE_CHECKING:
     from mitigations.violationlog.writer import ViolationLog
 
 
-@contextmanager
-def loaded(config: Path) -> Iterator[Session]:
-    """The config's session, its monitor from the start-up cache (``Cache.open_user``)
-    or built in a temporary directory. Unlike ``run`` it skips the analyses: a
-    replay judges a recording, not the config."""
+@dataclass(frozen=True)
+class Prepared:
+    """A config compiled for replay, its monitor not yet loaded: what ``loaded`` makes
+    a session from.  A process that replays many bags with one config (``fleet
+    replay``'s workers) keeps it: parsing and compiling the config took most of a
+    small bag's replay (docs/BENCHMARKS.md, "Fleet")."""
+
+    project: Any
+    spec: MonitorSpec
+    cache: Cache | None
+    key: str | None
+
+
+def prepare(config: Path) -> Prepared:
+    """The config loaded and compiled, the monitor's cache key computed."""
     cache = Cache.open_user()
     if cache is not None:
         # the requirement parsers' tables too: most of a cold parse (formula.py)
@@ -39,11 +49,20 @@ def loaded(config: Path) -> Iterator[Session]:
     if err is not None:
         raise err
     spec = project.spec()
+    return Prepared(project, spec, cache, monitor_key(spec) if cache is not None else None)
+
+
+@contextmanager
+def loaded(config: Path, prepared: Prepared | None = None) -> Iterator[Session]:
+    """The config's session, its monitor from the start-up cache (``Cache.open_user``)
+    or built in a temporary directory. Unlike ``run`` it skips the analyses: a
+    replay judges a recording, not the config.  ``prepared``: the config already
+    compiled (``prepare``); each session is new all the same."""
+    p = prepared if prepared is not None else prepare(config)
     build = Path(tempfile.mkdtemp(prefix="safety-supervisor-replay-"))
     try:
-        key = monitor_key(spec) if cache is not None else None
-        lib = monitor_library(spec, build, cache, key)
-        session = build_session(project, load_monitor(lib, spec), lambda: None)
+        library = monitor_library(p.spec, build, p.cache, p.key)
+        session = build_session(p.project, load_monitor(library, p.spec), lambda: None)
         try:
             yield session
         finally:
@@ -113,12 +132,14 @@ def run_one(
     fast: bool = True,
     namespace: str | None = None,
     sink: Any = None,
+    prepared: Prepared | None = None,
 ) -> Run:
     """Replay ``paths`` with ``config``, recorded names taken off ``namespace`` (the
     config's ``ros.namespace`` when None).  ``sink``, instead of ``output``: an object
     with the ViolationLog's record methods (``violation``, ``mitigation``, ``reset``,
-    ``supervisor``) that takes the records in memory (``fleet replay``'s task)."""
-    with loaded(config) as session:
+    ``supervisor``) that takes the records in memory (``fleet replay``'s task);
+    ``prepared``: the config compiled once for many bags (``prepare``)."""
+    with loaded(config, prepared) as session:
         cfg = session.config
         recording = open_recordings(expand(paths), cfg, namespace)
         said_later = set(recording.missing.values())

@@ -1,0 +1,285 @@
+"""The engines of ``fleet replay``: the base install never imports Ray; ``--engine ray``
+on a real local Ray cluster gives the local pool's dataset row for row, resumes
+without reading a finished bag, and survives a Ray worker killed mid-task.
+
+The Ray tests skip only where ``ray`` is not installed (CI installs the ``fleet`` extra
+and sets SAFETY_SUPERVISOR_REQUIRE_RAY=1, which fails such a skip: tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from tests.supervisor.tools.fleet.test_fleet_replay import (
+    BAGS,
+    VIOLATIONS,
+    archive,
+    fleet,
+    query,
+)
+from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+needs_ray = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None,
+    reason="ray is not installed (pip install 'safety-supervisor[fleet]')",
+)
+# Token authentication would keep a token in ~/.ray: these clusters are this test's own
+RAY_ENV = {**os.environ, "RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+
+NO_RAY = """
+import sys
+from supervisor.cli import main
+try:
+    main(["fleet", "replay", "--help"])
+except SystemExit:
+    pass
+code = main(sys.argv[1:])
+print("RAY IMPORTED" if sys.modules.get("ray") is not None else "NO RAY", code)
+"""
+
+
+def test_the_cli_and_the_local_engine_never_import_ray(tmp_path):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    args = [config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--jobs", "1"]
+    run = subprocess.run(
+        [sys.executable, "-c", NO_RAY, "fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[-1] == "NO RAY 0", run.stdout
+    assert "1 bags (1 read," in run.stdout
+
+
+def test_engine_ray_without_ray_is_one_line_with_the_fix(tmp_path):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    args = [config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--engine", "ray"]
+    # ray made unimportable in this process only, whether or not it is installed
+    run = subprocess.run(
+        [sys.executable, "-c", "import sys; sys.modules['ray'] = None; " + NO_RAY]
+        + ["fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "pip install 'safety-supervisor[fleet]'" in lines[0], run.stderr
+    assert run.stdout.splitlines()[-1] == "NO RAY 1"
+    assert not (tmp_path / "ds").exists()  # said before anything was done
+
+
+def test_address_without_engine_ray_is_one_line(tmp_path):
+    run = fleet(config(tmp_path), tmp_path, "-o", tmp_path / "ds", "--address", "x:1", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "--engine ray" in lines[0], run.stderr
+
+
+@needs_ray
+@pytest.mark.parametrize(
+    "address, said",
+    [("127.0.0.1:{port}", "cannot reach the Ray cluster"), ("no-port", "is not HOST:PORT")],
+)
+def test_a_cluster_address_that_is_no_cluster_is_one_line(tmp_path, address, said):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    address = address.format(port=_free_port())  # nothing listens there
+    run = fleet_ray(
+        config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--address", address, ok=(1,)
+    )
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and said in lines[0], run.stderr
+    assert not (tmp_path / "ds").exists()  # said before anything was done
+
+
+@needs_ray
+def test_a_local_cluster_that_cannot_start_is_one_line(tmp_path):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    # a temporary directory too deep for Ray's Unix sockets (108 bytes a path)
+    deep = tmp_path / ("t" * 120)
+    deep.mkdir()
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(config(tmp_path)),
+         str(tmp_path / "fleet"), "-o", str(tmp_path / "ds"), "--engine", "ray", "--jobs", "1"],
+        capture_output=True, text=True, timeout=300, env={**RAY_ENV, "TMPDIR": str(deep)},
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert "cannot start a local Ray cluster" in lines[0] and "internal error" not in lines[0]
+    assert not list(deep.iterdir())  # its temporary directory removed
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture
+def ray_cluster() -> Iterator[str]:
+    """A one-node Ray cluster of 2 CPUs started as ``ray start --head`` would be on a
+    real head node; its address.  Stopped by its process group (never ``ray stop``,
+    which stops every cluster of this user)."""
+    temp = tempfile.mkdtemp(prefix="ss-ray-")  # short: Ray's socket paths sit under it
+    ray = Path(sys.executable).with_name("ray")
+    proc = subprocess.Popen(
+        [str(ray), "start", "--head", "--block", "--num-cpus", "2", "--port", str(_free_port()),
+         "--include-dashboard", "false", "--disable-usage-stats", "--temp-dir", temp],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=RAY_ENV,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        address, said = None, []
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the head prints its address once it has started
+            said.append(line)
+            if m := re.search(r"ray start --address='([^']+)'", line):
+                address = m.group(1)
+                break
+        assert address, "".join(said)
+        yield address
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=60)
+        shutil.rmtree(temp, ignore_errors=True)
+
+
+def fleet_ray(*args: str | Path, ok: tuple[int, ...] = (0, 1)) -> subprocess.CompletedProcess[str]:
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", *map(str, args), "--engine", "ray"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=RAY_ENV,
+    )
+    assert run.returncode in ok, run.stderr
+    assert "Traceback" not in run.stderr, run.stderr
+    return run
+
+
+ROWS = "SELECT * FROM {} ORDER BY ALL"
+BAG_ROWS = "SELECT * EXCLUDE (seconds, finished_ts) FROM {} ORDER BY ALL"
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_ray_cluster_gives_the_local_pools_dataset_and_resumes(tmp_path, ray_cluster):
+    bags = archive(tmp_path)  # both formats, a compressed bag, a damaged one, a broken one
+    cfg = config(tmp_path)
+    local, on_ray = tmp_path / "local", tmp_path / "ray"
+    fleet(cfg, tmp_path / "fleet", "-o", local, "--jobs", "2")
+    run = fleet_ray(cfg, tmp_path / "fleet", "-o", on_ray, "--address", ray_cluster)
+    assert "7 bags (5 read, 0 skipped, 1 damaged, 1 failed)" in run.stdout, run.stdout
+    want = query(ROWS.format(VIOLATIONS.format(local)))
+    assert want and query(ROWS.format(VIOLATIONS.format(on_ray))) == want
+    (n, distinct), *_ = query(
+        f"SELECT count(*), count(DISTINCT (bag, requirement, tick)) FROM {VIOLATIONS.format(on_ray)}"
+    )
+    assert n == distinct == len(want)
+    assert query(BAG_ROWS.format(BAGS.format(on_ray))) == query(BAG_ROWS.format(BAGS.format(local)))
+    # Resume: a finished bag's bytes replaced (same size and times: read again, it would
+    # fail) and one bag's row taken away, as an interrupted run leaves it.
+    finished = next(bags["robot-a"][0].glob("*.mcap"))
+    st = finished.stat()
+    finished.write_bytes(os.urandom(st.st_size))
+    os.utime(finished, ns=(st.st_atime_ns, st.st_mtime_ns))
+    b3 = str(bags["robot-b"][0])
+    (row,) = [
+        f for f in (on_ray / "bags").glob("*.parquet")
+        if query(f"SELECT bag FROM read_parquet('{f}')")[0][0] == b3
+    ]  # fmt: skip
+    row.unlink()
+    run = fleet_ray(cfg, tmp_path / "fleet", "-o", on_ray, "--address", ray_cluster)
+    assert "2 bags (1 read, 0 skipped, 0 damaged, 1 failed), 5 done before" in run.stdout
+    assert query(ROWS.format(VIOLATIONS.format(on_ray))) == want
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(on_ray)}")[0] == (7, 7)
+
+
+def _descendants(pid: int) -> list[int]:
+    children: dict[int, list[int]] = {}
+    for d in Path("/proc").iterdir():
+        try:
+            ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            children.setdefault(ppid, []).append(int(d.name))
+        except (OSError, ValueError, IndexError):
+            continue  # not a process, or one that has just exited
+    out, todo = [], [pid]
+    while todo:
+        for c in children.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _ray_worker_reading_a_bag(cli: int) -> int | None:
+    """A Ray worker of the command's own local cluster (``ray::`` in its process title)
+    with a bag's file open: it is in the middle of a task."""
+    for pid in _descendants(cli):
+        try:
+            if not Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::"):
+                continue
+            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
+        except OSError:
+            continue
+        if any(f.endswith((".mcap", ".db3")) for f in fds):
+            return pid
+    return None
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    for i in range(4):
+        write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    # the command starts its own local cluster of one CPU: one worker, one task at a time
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1", "--engine", "ray"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
+    )  # fmt: skip
+    try:
+        victim = wait_until(
+            "a Ray worker reading a bag", lambda: _ray_worker_reading_a_bag(proc.pid), 120
+        )
+        (raylet,) = [p for p in _descendants(proc.pid) if _named(p, b"raylet")]
+        os.kill(victim, signal.SIGKILL)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "4 bags (4 read, 0 skipped, 0 damaged, 0 failed)" in out
+    want = query(ROWS.format(VIOLATIONS.format(clean)))
+    assert want and query(ROWS.format(VIOLATIONS.format(killed))) == want
+    (n, distinct), *_ = query(
+        f"SELECT count(*), count(DISTINCT (bag, requirement, tick)) FROM {VIOLATIONS.format(killed)}"
+    )
+    assert n == distinct == len(want)
+    # the cluster the command started is shut down at its end
+    with pytest.raises(ProcessLookupError):
+        os.kill(raylet, 0)
+
+
+def _named(pid: int, name: bytes) -> bool:
+    try:
+        argv0 = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]
+    except OSError:
+        return False
+    return argv0.endswith(b"/" + name)

@@ -1,0 +1,64 @@
+"""One bag as one task (supervisor/tools/fleet/task.py): a worker compiles its config
+once for all its bags, each bag still judged from a fresh session, and compiles it
+again when the config's bytes change."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import pytest
+
+from supervisor.tools.fleet import task
+from supervisor.tools.fleet.task import BagTask, run_task
+from supervisor.tools.replay.session import replay_files
+from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+pytest.importorskip("pyarrow")
+
+
+def _per_requirement(result: task.BagResult) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for q in result.violations.column("requirement").to_pylist():
+        out[q] = out.get(q, 0) + 1
+    return out
+
+
+def _replayed(cfg: Path, bag: Path) -> dict[str, int]:
+    """What ``replay`` counts for the bag, its config compiled afresh."""
+    return {
+        q["id"]: q["violations"]
+        for q in replay_files(cfg, [bag], None, None)["requirements"]
+        if q["violations"]
+    }
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_one_compile_serves_every_bag_and_an_edited_config_is_compiled_again(tmp_path):
+    bags = [write_bag(tmp_path / f"b{i}", messages(20 + i, 3000)) for i in range(3)]
+    # a damaged bag between two good ones: its half-judged run leaves nothing behind
+    damaged = write_bag(tmp_path / "bad", messages(30, 3000))
+    mcap = next(damaged.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    cfg = config(tmp_path, limit=2.0)
+    task._prepared.clear()
+    order = [bags[0], damaged, bags[1], bags[2]]
+    results = [run_task(BagTask(str(b), "r", str(cfg), _sha(cfg))) for b in order]
+    assert [r.status for r in results] == ["read", "damaged", "read", "read"]
+    assert len(task._prepared) == 1  # compiled once, for the first bag
+    for bag, result in zip(order, results, strict=True):
+        if bag is not damaged:
+            assert _per_requirement(result) == _replayed(cfg, bag) != {}
+    # The config edited in place (a higher limit): its next task compiles it again.
+    before = _per_requirement(results[0])
+    stat = cfg.stat()
+    cfg.write_text(cfg.read_text().replace("speed <= 2.0", "speed <= 2.3"))
+    os.utime(cfg, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # a same-time edit changes nothing
+    again = run_task(BagTask(str(bags[0]), "r", str(cfg), _sha(cfg)))
+    assert _per_requirement(again) == _replayed(cfg, bags[0])
+    assert _per_requirement(again)["limit"] < before["limit"]
+    assert set(again.violations.column("config_sha256").to_pylist()) == {_sha(cfg)}
