@@ -48,6 +48,7 @@ from supervisor.tools.ui.command import cmd_ui
 
 if TYPE_CHECKING:
     from monitors.ir.spec import MonitorSpec
+    from supervisor.pipeline import Project
 
 EXIT_OK, EXIT_FAIL = 0, 1  # and 2, a usage error, is argparse's own
 
@@ -222,6 +223,29 @@ def _print_margins(spec: MonitorSpec) -> None:
         _out(line)
 
 
+def _print_predictions(project: Project) -> None:
+    """With predict:, what each prediction fits and the monitor it costs
+    (docs/reference/prediction.md, "What is fitted")."""
+    if not project.predicts:
+        return
+    from monitors.backends.c99 import margin_state
+    from monitors.ir.formula import to_fret
+
+    spec = project.prediction_spec()
+    state = margin_state(spec)
+    for r, rs in zip([r for r in project.requirements if r.ok], spec.requirements, strict=True):
+        if r.entry.policy_config.predict is None:
+            continue
+        m = state[rs.id]
+        line = (
+            f"  predict {rs.id}: fits the margin of {to_fret(rs.formula)} in a second monitor, "
+            f"stepped beside the boolean one ({m.bytes} bytes of margin state)"
+        )
+        if m.fallbacks:
+            line += "; boolean where a window is too long: " + ", ".join(m.fallbacks)
+        _out(line)
+
+
 def cmd_check(args: argparse.Namespace) -> int:
     from monitors.backends.load import load_monitor
     from supervisor.analysis_report import format_analysis
@@ -253,6 +277,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     ):
         load_monitor(monitor_library(spec, Path(tmp), checked.cache, checked.key), spec)
     _print_margins(spec)
+    _print_predictions(project)
     dt = time.perf_counter() - t0
     if checked.errors:
         _out(

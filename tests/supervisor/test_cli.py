@@ -243,3 +243,24 @@ def test_check_prints_each_requirements_margin_state_and_fallback(tmp_path):
         "copilot: the Copilot backend computes no margins (hint: use the native backend "
         "(--backend native), or turn margins off)"
     ]
+
+
+def test_check_says_what_a_prediction_fits_and_its_second_monitor(tmp_path):
+    # predict: fits the margin of the invariant's body in a monitor of its own, stepped
+    # beside the boolean one (docs/reference/prediction.md, "What is fitted")
+    path = write(
+        tmp_path,
+        CONFIG.replace(
+            "    text: sw shall always satisfy p | halt\n",
+            "    text: sw shall always satisfy x <= 10 | p\n"
+            "    on_violation: [stop]\n"
+            "    predict: {horizon_ms: 1000, actions: [stop]}\n",
+        ),
+    )
+    r = cli("check", path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = [line for line in r.stdout.splitlines() if line.startswith("  predict ")]
+    assert lines == [
+        "  predict r1: fits the margin of ((x <= 10) | p) in a second monitor, "
+        "stepped beside the boolean one (0 bytes of margin state)"
+    ], r.stdout
