@@ -177,6 +177,29 @@ def _fragments(recent: Sequence[Mapping[str, Any]]) -> list[str] | None:
     return out
 
 
+# A violation record's own fields, in the writer's order (violation()); extra
+# fields named like these or the header are renamed, as _emit renames them.
+_VIOLATION_KEYS = (*_BEFORE_RECENT, "recent", "stale", "policy_state")
+
+
+@dataclass(frozen=True)
+class ViolationTemplate:
+    """One requirement's violation record with its fixed fields encoded once
+    (:meth:`ViolationLog.violation_template`, when a config's session is built):
+    on the halt's path only the tick, the values, ``recent``, ``stale``, the policy
+    state and the header's time, ``seq`` and chain are filled in
+    (docs/reference/log.md#durability).  ``head`` is the JSON of ``requirement``,
+    ``text`` and ``formula``, ``tail`` that of the extra fields (renamed as
+    :meth:`ViolationLog.violation` renames them), each without braces."""
+
+    requirement: str
+    text: str
+    formula: str
+    extra: Mapping[str, Any]
+    head: str
+    tail: str
+
+
 def _stderr_is_journal() -> bool:
     """journald reads ``<N>`` level prefixes; a terminal should not see them."""
     try:
@@ -235,6 +258,7 @@ class ViolationLog:
         self._path = Path(path)
         self._config_sha256 = config_sha256
         self._component = component
+        self._head = _header_json(component, config_sha256)
         self._echo = echo
         self._lock = threading.RLock()  # reopen() queues its link record while holding it
         # Rendered as they are (_ENCODE); a record JSON cannot hold as it is (a NaN,
@@ -337,6 +361,7 @@ class ViolationLog:
     def config_sha256(self, value: str) -> None:
         with self._lock:  # records after a reload carry the new hash, none half-way
             self._config_sha256 = value
+            self._head = _header_json(self._component, value)
 
     @property
     def _prev(self) -> str:
@@ -378,6 +403,65 @@ class ViolationLog:
             policy_state=dict(policy_state or {}),
         )
         return self._emit("violation", fields, extra, durable=True)
+
+    @staticmethod
+    def violation_template(
+        requirement: str, *, text: str, formula: str, **extra: Any
+    ) -> ViolationTemplate | None:
+        """The fixed part of ``requirement``'s violation records, for
+        :meth:`violation_from`; None when it has no plain JSON form (its records
+        then take :meth:`violation`)."""
+        fields: dict[str, Any] = dict.fromkeys(_VIOLATION_KEYS)
+        for k, v in extra.items():  # as _emit renames them
+            fields[k + "_" if k in _RESERVED or k in fields else k] = v
+        renamed = {k: v for k, v in fields.items() if k not in _VIOLATION_KEYS}
+        try:
+            head = _ENCODE({"requirement": requirement, "text": text, "formula": formula})
+            tail = _ENCODE(renamed)
+        except (ValueError, TypeError, RecursionError):
+            return None
+        return ViolationTemplate(
+            requirement, text, formula, dict(extra), head[1:-1], f",{tail[1:-1]}" if renamed else ""
+        )
+
+    def violation_from(
+        self,
+        template: ViolationTemplate,
+        *,
+        tick: int,
+        inputs: Mapping[str, Any],
+        recent: Sequence[Mapping[str, Any]] = (),
+        stale: Iterable[str] = (),
+        policy_state: Mapping[str, Any] | None = None,
+    ) -> bool:
+        """:meth:`violation` with ``template``'s fields, the same bytes: only the
+        dynamic fields are encoded here.  A value without a plain JSON form (NaN,
+        a set, another mapping), a row of ``recent`` that is not a :class:`Row` or
+        a tick that is not an int take :meth:`violation`'s way."""
+        stale = list(stale)
+        parts = _fragments(recent) if type(tick) is int else None
+        dynamic = None
+        if parts is not None:
+            try:
+                dynamic = (
+                    f'"tick":{tick},"inputs":{_ENCODE(inputs)},"recent":[{",".join(parts)}],'
+                    f'"stale":{_ENCODE(stale)},"policy_state":{_ENCODE(policy_state or {})}'
+                )
+            except (ValueError, TypeError, RecursionError):
+                dynamic = None
+        if dynamic is None:
+            return self.violation(
+                template.requirement,
+                text=template.text,
+                formula=template.formula,
+                tick=tick,
+                inputs=inputs,
+                recent=recent,
+                stale=stale,
+                policy_state=policy_state,
+                **template.extra,
+            )
+        return self._emit("violation", {}, {}, durable=True, body=(template, dynamic))
 
     def mitigation(
         self,
@@ -606,9 +690,25 @@ class ViolationLog:
         self._seq = seq
         return _Entry(seq, event, ts, rendered, at, durable)
 
+    def _render_template(self, ts: str, template: ViolationTemplate, dynamic: str) -> _Entry:
+        """A violation from its template (:meth:`violation_from`), with the next ``seq``:
+        the header's fields in _render's order, then the template's and the dynamic ones."""
+        seq = self._seq + 1
+        start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
+        text = f'{start}{ZERO_SHA256}","seq":{seq},{template.head},{dynamic}{template.tail}}}'
+        self._seq = seq
+        return _Entry(seq, "violation", ts, text.encode("ascii"), len(start), True)
+
     def _emit(
-        self, event: str, fields: dict[str, Any], extra: Mapping[str, Any], durable: bool = False
+        self,
+        event: str,
+        fields: dict[str, Any],
+        extra: Mapping[str, Any],
+        durable: bool = False,
+        body: tuple[ViolationTemplate, str] | None = None,
     ) -> bool:
+        """``body``: a violation's template and its dynamic fields' JSON
+        (:meth:`violation_from`), rendered instead of ``fields``."""
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
         ts = _now()
@@ -623,7 +723,10 @@ class ViolationLog:
                 if room and self._lost:
                     self._queue_lost()
                 try:
-                    entry = self._render(event, ts, fields, durable)
+                    if body is None:
+                        entry = self._render(event, ts, fields, durable)
+                    else:
+                        entry = self._render_template(ts, *body)
                 except Exception as e:  # noqa: BLE001 - a bad value must not stop monitoring
                     error = f"cannot render the record: {type(e).__name__}: {e}"
                 else:
@@ -883,6 +986,11 @@ class ViolationLog:
             sys.stderr.flush()
         except (OSError, ValueError):
             pass
+
+
+def _header_json(component: str, config_sha256: str) -> str:
+    """The header's ``component`` and ``config_sha256`` as _render encodes them."""
+    return _ENCODE({"component": component, "config_sha256": config_sha256})[1:-1]
 
 
 def _checked_durability(value: str) -> str:
