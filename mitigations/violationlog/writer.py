@@ -756,6 +756,11 @@ class ViolationLog:
                     self._fsync()
             if self._messages:
                 self._flush_messages()
+        if self._prev_hex is None:
+            # The chain's hash of the last line, made now, after the turn's halts, so
+            # that the next violation does not make it before its own halt.
+            with self._lock:
+                self._prev  # noqa: B018 - the property makes and keeps it
         if not self._deferred:
             return
         deferred, self._deferred = self._deferred, []
