@@ -169,3 +169,21 @@ def test_a_template_is_made_once_per_requirement_and_the_slow_way_keeps_nan() ->
             "text",
             "formula",
         ]
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    before=st.binary(max_size=80),
+    after=st.binary(max_size=3000),
+    prev=st.text(alphabet="0123456789abcdef", min_size=64, max_size=64),
+)
+def test_a_line_is_sealed_as_seal_line_seals_it(before: bytes, after: bytes, prev: str) -> None:
+    """The written line (its chain hash filled in, then sealed piece by piece) is
+    seal_line's, byte for byte."""
+    from mitigations.violationlog.format import ZERO_SHA256, seal_line
+    from mitigations.violationlog.writer import _Entry
+
+    body = b"{" + before + ZERO_SHA256.encode() + after + b"}"
+    at = len(before) + 1
+    entry = _Entry(1, "violation", "ts", body, at, True)
+    assert entry.line(prev) == seal_line(body[:at] + prev.encode() + body[at + 64 :])
