@@ -79,6 +79,9 @@ class Core:
         self._stale_after_ns = _stale_after_ns(session)
         self._limits = _limits(session, self._stale_after_ns)
         self._templates = _templates(session, log)
+        # The step's violation records for ``published``, handed over once its
+        # actions are submitted (_after_step): the halt does not wait for them.
+        self._unsent: list[dict[str, Any] | tuple[Any, ...]] = []
 
     # ------------------------------------------------------------ driving
 
@@ -201,6 +204,32 @@ class Core:
         self.supervision.after_step(result)
         if busy or self.supervision.active:
             self._due = 0  # a policy deadline may have moved earlier
+        if self._unsent:
+            self._send()
+
+    def _send(self) -> None:
+        """The records report() wrote, to ``published``, in the order written."""
+        unsent, self._unsent = self._unsent, []
+        if self._published is None:
+            return
+        for item in unsent:
+            if isinstance(item, dict):
+                self._published(item)
+                continue
+            template, result, recent, stale, policy_state = item
+            self._published(
+                {
+                    "requirement": template.requirement,
+                    "text": template.text,
+                    "formula": template.formula,
+                    **template.extra,
+                    "tick": result.tick,
+                    "inputs": dict(result.inputs),
+                    "recent": recent,
+                    "stale": stale,
+                    "policy_state": policy_state,
+                }
+            )
 
     def operator_reset(self, t: int, requirement: str | None = None, **extra: Any) -> list[str]:
         """Reset every requirement's monitor (or ``requirement``'s), lift the latches of
@@ -299,20 +328,8 @@ class Core:
                 policy_state=policy_state,
             )
             self.violations += 1
-            if self._published is not None:
-                self._published(
-                    {
-                        "requirement": template.requirement,
-                        "text": template.text,
-                        "formula": template.formula,
-                        **template.extra,
-                        "tick": result.tick,
-                        "inputs": dict(result.inputs),
-                        "recent": list(rt.recent),
-                        "stale": stale,
-                        "policy_state": policy_state,
-                    }
-                )
+            if self._published is not None:  # the dict made after the halt (_send)
+                self._unsent.append((template, result, list(rt.recent), stale, policy_state))
             return
         req = s.requirements[index]
         record = {
@@ -337,7 +354,7 @@ class Core:
         self.log.violation(**record)
         self.violations += 1
         if self._published is not None:
-            self._published(record)
+            self._unsent.append(record)
 
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
         req = self.session.requirements[index]
