@@ -38,6 +38,7 @@ longer echoes the records it took (docs/reference/log.md).
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
 import sys
@@ -84,6 +85,8 @@ def _now() -> str:
 
 
 _PREV_KEY = b'"prev_sha256":"'
+_SEAL_KEY = b',"line_sha256":"'
+_SEAL_ZEROS = _SEAL_KEY + ZERO_SHA256.encode() + b'"}\n'  # what seal_line hashes at the end
 RETRY_INTERVAL_S = 1.0
 
 
@@ -177,6 +180,29 @@ def _fragments(recent: Sequence[Mapping[str, Any]]) -> list[str] | None:
     return out
 
 
+# A violation record's own fields, in the writer's order (violation()); extra
+# fields named like these or the header are renamed, as _emit renames them.
+_VIOLATION_KEYS = (*_BEFORE_RECENT, "recent", "stale", "policy_state")
+
+
+@dataclass(frozen=True)
+class ViolationTemplate:
+    """One requirement's violation record with its fixed fields encoded once
+    (:meth:`ViolationLog.violation_template`, when a config's session is built):
+    on the halt's path only the tick, the values, ``recent``, ``stale``, the policy
+    state and the header's time, ``seq`` and chain are filled in
+    (docs/reference/log.md#durability).  ``head`` is the JSON of ``requirement``,
+    ``text`` and ``formula``, ``tail`` that of the extra fields (renamed as
+    :meth:`ViolationLog.violation` renames them), each without braces."""
+
+    requirement: str
+    text: str
+    formula: str
+    extra: Mapping[str, Any]
+    head: str
+    tail: str
+
+
 def _stderr_is_journal() -> bool:
     """journald reads ``<N>`` level prefixes; a terminal should not see them."""
     try:
@@ -208,8 +234,17 @@ class _Entry:
     written: bytes | None = None  # the line as written, chain hashes filled in (journal)
 
     def line(self, prev: str) -> bytes:
-        body = self.body[: self.prev_at] + prev.encode() + self.body[self.prev_at + 64 :]
-        return seal_line(body)
+        """The body with ``prev`` filled in and sealed, as ``seal_line`` seals it,
+        hashed piece by piece instead of copied whole twice first (the halt's path)."""
+        body, at = self.body, self.prev_at
+        if not body.endswith(b"}"):  # seal_line's own check, and its message
+            return seal_line(body[:at] + prev.encode() + body[at + 64 :])
+        head, filled, rest = body[:at], prev.encode(), memoryview(body)[at + 64 : -1]
+        digest = hashlib.sha256(head)
+        digest.update(filled)
+        digest.update(rest)
+        digest.update(_SEAL_ZEROS)
+        return b"".join((head, filled, rest, _SEAL_KEY, digest.hexdigest().encode(), b'"}\n'))
 
 
 class ViolationLog:
@@ -235,6 +270,7 @@ class ViolationLog:
         self._path = Path(path)
         self._config_sha256 = config_sha256
         self._component = component
+        self._head = _header_json(component, config_sha256)
         self._echo = echo
         self._lock = threading.RLock()  # reopen() queues its link record while holding it
         # Rendered as they are (_ENCODE); a record JSON cannot hold as it is (a NaN,
@@ -337,6 +373,7 @@ class ViolationLog:
     def config_sha256(self, value: str) -> None:
         with self._lock:  # records after a reload carry the new hash, none half-way
             self._config_sha256 = value
+            self._head = _header_json(self._component, value)
 
     @property
     def _prev(self) -> str:
@@ -378,6 +415,65 @@ class ViolationLog:
             policy_state=dict(policy_state or {}),
         )
         return self._emit("violation", fields, extra, durable=True)
+
+    @staticmethod
+    def violation_template(
+        requirement: str, *, text: str, formula: str, **extra: Any
+    ) -> ViolationTemplate | None:
+        """The fixed part of ``requirement``'s violation records, for
+        :meth:`violation_from`; None when it has no plain JSON form (its records
+        then take :meth:`violation`)."""
+        fields: dict[str, Any] = dict.fromkeys(_VIOLATION_KEYS)
+        for k, v in extra.items():  # as _emit renames them
+            fields[k + "_" if k in _RESERVED or k in fields else k] = v
+        renamed = {k: v for k, v in fields.items() if k not in _VIOLATION_KEYS}
+        try:
+            head = _ENCODE({"requirement": requirement, "text": text, "formula": formula})
+            tail = _ENCODE(renamed)
+        except (ValueError, TypeError, RecursionError):
+            return None
+        return ViolationTemplate(
+            requirement, text, formula, dict(extra), head[1:-1], f",{tail[1:-1]}" if renamed else ""
+        )
+
+    def violation_from(
+        self,
+        template: ViolationTemplate,
+        *,
+        tick: int,
+        inputs: Mapping[str, Any],
+        recent: Sequence[Mapping[str, Any]] = (),
+        stale: Iterable[str] = (),
+        policy_state: Mapping[str, Any] | None = None,
+    ) -> bool:
+        """:meth:`violation` with ``template``'s fields, the same bytes: only the
+        dynamic fields are encoded here.  A value without a plain JSON form (NaN,
+        a set, another mapping), a row of ``recent`` that is not a :class:`Row` or
+        a tick that is not an int take :meth:`violation`'s way."""
+        stale = list(stale)
+        parts = _fragments(recent) if type(tick) is int else None
+        dynamic = None
+        if parts is not None:
+            try:
+                dynamic = (
+                    f'"tick":{tick},"inputs":{_ENCODE(inputs)},"recent":[{",".join(parts)}],'
+                    f'"stale":{_ENCODE(stale)},"policy_state":{_ENCODE(policy_state or {})}'
+                )
+            except (ValueError, TypeError, RecursionError):
+                dynamic = None
+        if dynamic is None:
+            return self.violation(
+                template.requirement,
+                text=template.text,
+                formula=template.formula,
+                tick=tick,
+                inputs=inputs,
+                recent=recent,
+                stale=stale,
+                policy_state=policy_state,
+                **template.extra,
+            )
+        return self._emit("violation", {}, {}, durable=True, body=(template, dynamic))
 
     def mitigation(
         self,
@@ -615,9 +711,25 @@ class ViolationLog:
         self._seq = seq
         return _Entry(seq, event, ts, rendered, at, durable)
 
+    def _render_template(self, ts: str, template: ViolationTemplate, dynamic: str) -> _Entry:
+        """A violation from its template (:meth:`violation_from`), with the next ``seq``:
+        the header's fields in _render's order, then the template's and the dynamic ones."""
+        seq = self._seq + 1
+        start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
+        text = f'{start}{ZERO_SHA256}","seq":{seq},{template.head},{dynamic}{template.tail}}}'
+        self._seq = seq
+        return _Entry(seq, "violation", ts, text.encode("ascii"), len(start), True)
+
     def _emit(
-        self, event: str, fields: dict[str, Any], extra: Mapping[str, Any], durable: bool = False
+        self,
+        event: str,
+        fields: dict[str, Any],
+        extra: Mapping[str, Any],
+        durable: bool = False,
+        body: tuple[ViolationTemplate, str] | None = None,
     ) -> bool:
+        """``body``: a violation's template and its dynamic fields' JSON
+        (:meth:`violation_from`), rendered instead of ``fields``."""
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
         ts = _now()
@@ -632,7 +744,10 @@ class ViolationLog:
                 if room and self._lost:
                     self._queue_lost()
                 try:
-                    entry = self._render(event, ts, fields, durable)
+                    if body is None:
+                        entry = self._render(event, ts, fields, durable)
+                    else:
+                        entry = self._render_template(ts, *body)
                 except Exception as e:  # noqa: BLE001 - a bad value must not stop monitoring
                     error = f"cannot render the record: {type(e).__name__}: {e}"
                 else:
@@ -662,6 +777,11 @@ class ViolationLog:
                     self._fsync()
             if self._messages:
                 self._flush_messages()
+        if self._prev_hex is None:
+            # The chain's hash of the last line, made now, after the turn's halts, so
+            # that the next violation does not make it before its own halt.
+            with self._lock:
+                self._prev  # noqa: B018 - the property makes and keeps it
         if not self._deferred:
             return
         deferred, self._deferred = self._deferred, []
@@ -892,6 +1012,11 @@ class ViolationLog:
             sys.stderr.flush()
         except (OSError, ValueError):
             pass
+
+
+def _header_json(component: str, config_sha256: str) -> str:
+    """The header's ``component`` and ``config_sha256`` as _render encodes them."""
+    return _ENCODE({"component": component, "config_sha256": config_sha256})[1:-1]
 
 
 def _checked_durability(value: str) -> str:

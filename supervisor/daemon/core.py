@@ -81,6 +81,10 @@ class Core:
         self.supervision = Supervision(session.runtime, session.policies, self)
         self._stale_after_ns = _stale_after_ns(session)
         self._limits = _limits(session, self._stale_after_ns)
+        self._templates = _templates(session, log)
+        # The step's violation records for ``published``, handed over once its
+        # actions are submitted (_after_step): the halt does not wait for them.
+        self._unsent: list[dict[str, Any] | tuple[Any, ...]] = []
 
     # ------------------------------------------------------------ driving
 
@@ -205,6 +209,32 @@ class Core:
         self.supervision.after_step(result)
         if busy or self.supervision.active:
             self._due = 0  # a policy deadline may have moved earlier
+        if self._unsent:
+            self._send()
+
+    def _send(self) -> None:
+        """The records report() wrote, to ``published``, in the order written."""
+        unsent, self._unsent = self._unsent, []
+        if self._published is None:
+            return
+        for item in unsent:
+            if isinstance(item, dict):
+                self._published(item)
+                continue
+            template, result, recent, stale, policy_state = item
+            self._published(
+                {
+                    "requirement": template.requirement,
+                    "text": template.text,
+                    "formula": template.formula,
+                    **template.extra,
+                    "tick": result.tick,
+                    "inputs": dict(result.inputs),
+                    "recent": recent,
+                    "stale": stale,
+                    "policy_state": policy_state,
+                }
+            )
 
     def operator_reset(self, t: int, requirement: str | None = None, **extra: Any) -> list[str]:
         """Reset every requirement's monitor (or ``requirement``'s), lift the latches of
@@ -238,6 +268,7 @@ class Core:
         self.supervision.active = {i for i, p in enumerate(new.policies) if p.active}
         self._stale_after_ns = _stale_after_ns(new)
         self._limits = _limits(new, self._stale_after_ns)
+        self._templates = _templates(new, self.log)
         self._due = 0
         if self.now is not None:
             self._mark("reload", self.now, config=new.config.path)
@@ -288,8 +319,26 @@ class Core:
         self, index: int, result: StepResult, policy_state: dict[str, Any], **predicted: float
     ) -> None:
         s = self.session
-        req = s.requirements[index]
         rt = s.runtime
+        template = self._templates[index]
+        if template is not None:
+            # The record from its template (writer.ViolationTemplate): the same bytes
+            # as violation() writes, with less work before the halt.  Written before
+            # any action of this step is submitted, as below.
+            stale = rt.stale_inputs()
+            self.log.violation_from(  # type: ignore[attr-defined]
+                template,
+                tick=result.tick,
+                inputs=result.inputs,
+                recent=rt.recent,
+                stale=stale,
+                policy_state=policy_state,
+            )
+            self.violations += 1
+            if self._published is not None:  # the dict made after the halt (_send)
+                self._unsent.append((template, result, list(rt.recent), stale, policy_state))
+            return
+        req = s.requirements[index]
         record = {
             "requirement": req.id,
             "text": req.entry.text,
@@ -313,7 +362,7 @@ class Core:
         self.log.violation(**record)
         self.violations += 1
         if self._published is not None:
-            self._published(record)
+            self._unsent.append(record)
 
     def forecast(
         self, index: int, forecast: Forecast, result: StepResult | None, t_ns: int
@@ -377,6 +426,25 @@ class Core:
                 on_stale = self.session.config.on_stale
                 if on_stale:
                     self._submit(Request(f"on_stale:{ev.name}", tuple(on_stale), ev.t_ns, "stale"))
+
+
+def _templates(session: Session, log: Log) -> list[Any]:
+    """Each requirement's violation template, made once per session (None: the
+    log has no templates, or the record no plain JSON form; report() then builds
+    the whole record)."""
+    make = getattr(log, "violation_template", None)
+    out: list[Any] = []
+    for i, req in enumerate(session.requirements):
+        if make is None:
+            out.append(None)
+            continue
+        extra = (
+            {"formula_inputs": session.formulas_inputs[i]}
+            if i < len(session.formulas_inputs) and session.formulas_inputs[i]
+            else {}
+        )
+        out.append(make(req.id, text=req.entry.text, formula=session.formulas[i], **extra))
+    return out
 
 
 def _stale_after_ns(session: Session) -> int | None:

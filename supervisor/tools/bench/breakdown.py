@@ -84,6 +84,10 @@ def breakdown(
     log.violation = marks.around(  # type: ignore[method-assign]
         real_violation, "recorded_start", "recorded_end"
     )
+    # the core writes a violation from its requirement's template (writer.ViolationTemplate)
+    log.violation_from = marks.around(  # type: ignore[method-assign]
+        log.violation_from, "recorded_start", "recorded_end"
+    )
     try:
         writer.os.fsync = marks.around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]
         values = [(name, plan.nominal[name]) for name in plan.nominal]

@@ -141,6 +141,38 @@ def test_the_writer_fsyncs_after_the_actions_or_before_them(
         assert write < first_fsync < halt, calls
 
 
+def test_the_chain_hash_of_the_last_line_is_made_at_flush_not_before_the_next_halt(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The loop's flush(), after a turn's halts, makes the chain's hash of the last
+    line written, so the next violation hashes only its own line (its seal) before
+    its halt; the chain is the same and verifies."""
+    import threading
+
+    import mitigations.violationlog.writer as writer
+    from mitigations.violationlog.writer import ViolationLog
+
+    path = tmp_path / "v.log"
+    log = ViolationLog(path, "sRobot", "00", echo=False)
+    log.defer_thread = threading.get_ident()
+    made: list[bytes] = []
+    real = writer.sha256_hex
+    monkeypatch.setattr(writer, "sha256_hex", lambda b: made.append(b) or real(b))
+    for tick in range(3):
+        log.violation("R1", text="t", formula="f", tick=tick, inputs={"x": 1})
+        log.mitigation("R1", action="halt", kind="publish", ok=True, latency_ms=0.1)
+        before = len(made)
+        log.flush()  # the turn's end: fsync, then the last line's chain hash
+        assert len(made) == before + 1
+        assert made[-1] == path.read_bytes().splitlines(keepends=True)[-1]
+    chained = len(made)
+    log.violation("R1", text="t", formula="f", tick=3, inputs={"x": 1})
+    assert len(made) == chained  # no hash of an earlier line on the violation's way
+    log.close()
+    r = run_cli("logs", "--verify", str(path))
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
 def test_a_pending_fsync_is_done_before_the_durability_changes_or_the_file_does(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
