@@ -321,7 +321,9 @@ class Core:
         s = self.session
         rt = s.runtime
         template = self._templates[index]
-        if template is not None:
+        # a violation that followed a prediction carries its lead (predicted_ms), a
+        # field the template does not have: it takes violation()'s whole way
+        if template is not None and not predicted:
             # The record from its template (writer.ViolationTemplate): the same bytes
             # as violation() writes, with less work before the halt.  Written before
             # any action of this step is submitted, as below.
