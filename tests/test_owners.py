@@ -167,3 +167,22 @@ def test_one_progress_line() -> None:
         and not node.value.startswith("\r\n")  # HTTP's line ends, not a redraw
     ]
     assert not found, found
+
+
+def test_every_record_kind_the_core_writes_has_one_discarding_default() -> None:
+    # Sinks that keep some records (fleet's table, report's windows) inherit the rest
+    # from DiscardingLog; the shipped MemoryLog and the writer have every kind too.
+    from mitigations.violationlog.discard import DiscardingLog
+    from mitigations.violationlog.testing import MemoryLog
+    from mitigations.violationlog.writer import ViolationLog
+    from supervisor.daemon.core import Log
+    from supervisor.tools.fleet.task import _Records
+    from supervisor.tools.report.inputs import _Capture
+
+    kinds = {n for n in vars(Log) if not n.startswith("_")}
+    assert {"violation", "prediction_expired"} <= kinds
+    for cls in (DiscardingLog, MemoryLog, ViolationLog):
+        assert kinds <= set(dir(cls)), (cls, kinds - set(dir(cls)))
+    for sink in (_Records, _Capture):
+        assert issubclass(sink, DiscardingLog)
+        assert DiscardingLog.prediction_expired is sink.prediction_expired  # not repeated

@@ -21,6 +21,7 @@ from typing import Any
 
 import pyarrow as pa
 
+from mitigations.violationlog.discard import DiscardingLog
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.archive import content_hash
@@ -69,7 +70,7 @@ class BagResult:
     violations: pa.Table = field(default_factory=VIOLATIONS.empty_table)
 
 
-class _Records:
+class _Records(DiscardingLog):
     """The ``sink`` of run_one: keeps the violation records, drops the others (the
     dry-run mitigations, resets and notes are replay's, not the dataset's)."""
 
@@ -80,21 +81,6 @@ class _Records:
         self.rows.append(
             (requirement, int(fields["tick"]), _ns(recorded_ts), _json(fields.get("inputs", {})))
         )
-        return True
-
-    def mitigation(self, requirement: str, **fields: Any) -> bool:
-        return True
-
-    def reset(self, requirement: str, **fields: Any) -> bool:
-        return True
-
-    def supervisor(self, what: str, **fields: Any) -> bool:
-        return True
-
-    def prediction(self, requirement: str, **fields: Any) -> bool:
-        return True
-
-    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
         return True
 
 

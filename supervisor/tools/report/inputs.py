@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mitigations.violationlog.discard import DiscardingLog
 from monitors.errors import UserError
 from supervisor.config.model import Config
 from supervisor.progress import Line
@@ -193,7 +194,7 @@ def series_from_bag(
     return out, notes
 
 
-class _Capture:
+class _Capture(DiscardingLog):
     """The replay's log: keeps, for the violations wanted, the replayed history since
     the requirement's last reset (resets tracked as the core makes them)."""
 
@@ -217,18 +218,6 @@ class _Capture:
             self.every = self.runtime.tick  # every monitor judges afresh from the next tick
         else:
             self.last[requirement] = int(extra.get("tick", self.runtime.tick))
-        return True
-
-    def mitigation(self, requirement: str, **fields: Any) -> bool:
-        return True
-
-    def supervisor(self, what: str, **fields: Any) -> bool:
-        return True
-
-    def prediction(self, requirement: str, **fields: Any) -> bool:
-        return True
-
-    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
         return True
 
 
