@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from mitigations.prediction import Trend
 from mitigations.settings import PolicyConfig
 
 MS = 1_000_000
@@ -36,6 +37,8 @@ class Report:
 
     tick: int
     policy_state: dict[str, Any]
+    # The lead time of the prediction this violation followed, in ms (None: none open)
+    predicted_ms: float | None = None
 
 
 @dataclass(frozen=True)
@@ -43,7 +46,7 @@ class Act:
     """Run these mitigations (on the engine's workers)."""
 
     actions: tuple[str, ...]
-    stage: str  # violation | escalation | confirm_failed | repeat
+    stage: str  # violation | escalation | confirm_failed | repeat | prediction
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,17 @@ class Note:
     detail: dict[str, Any] = field(default_factory=dict)
 
 
-Effect = Report | Act | ResetMonitor | Note
+@dataclass(frozen=True)
+class Forecast:
+    """Write a ``prediction`` record (a violation is expected within the horizon)
+    before any action of this step, or a ``prediction_expired`` one (the horizon
+    passed without it); docs/reference/prediction.md."""
+
+    what: str  # prediction | prediction_expired
+    detail: dict[str, Any] = field(default_factory=dict)
+
+
+Effect = Report | Act | ResetMonitor | Note | Forecast
 
 
 @dataclass
@@ -85,6 +98,19 @@ class RequirementPolicy:
     # counters (diagnostics)
     violations: int = 0
     last_violation_tick: int | None = None
+    # prediction (config.predict; docs/reference/prediction.md)
+    trend: Trend | None = None  # built from config.predict
+    predicted_ns: int | None = None  # the open prediction's time
+    predicted_tick: int | None = None
+    predict_run: int = 0  # consecutive steps whose estimate is inside the horizon
+    predict_armed: bool = True  # the estimate left the horizon since the last prediction
+    last_early_ns: int | None = None  # the early actions' last run (their cooldown)
+    predictions: int = 0
+
+    def __post_init__(self) -> None:
+        p = self.config.predict
+        if p is not None and self.trend is None:
+            self.trend = Trend(p.window_ms, p.horizon_ms)
 
     @property
     def active(self) -> bool:
@@ -145,7 +171,12 @@ class RequirementPolicy:
         state["cooldown"] = "suppressed" if cooling else "ok"
         if self.latched:
             state["cooldown"] = "latched"  # the mitigation is in force, repeated at repeat_ms
-        effects: list[Effect] = [Report(tick, state)]
+        lead = None
+        if self.predicted_ns is not None:  # the violation came as predicted
+            lead = round((t_ns - self.predicted_ns) / MS, 3)
+            state["predicted_tick"] = self.predicted_tick
+            self.predicted_ns = self.predicted_tick = None
+        effects: list[Effect] = [Report(tick, state, lead)]
         if not cooling and not self.latched:  # else policy_state says why not
             effects.append(Act(self.on_violation, "violation"))
             self.last_act_ns = t_ns
@@ -168,7 +199,94 @@ class RequirementPolicy:
         # flag there is a new episode (reported), but the incident goes on.
         self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
         self.reset_due_ns = None
+        if self.trend is not None:  # the margins start again with the monitor
+            self.trend.clear()
         return ResetMonitor(reason)
+
+    # ------------------------------------------------------------ prediction
+
+    def on_margin(self, margin: float, flagged: bool, tick: int, t_ns: int) -> list[Effect]:
+        """This step's margin (before :meth:`on_step` of the same step).  An estimate
+        inside the horizon, confident enough, on ``debounce_steps`` steps in a row
+        while the requirement holds, opens a prediction: a :class:`Forecast` record,
+        then the early actions unless within ``cooldown_ms`` of their last run or
+        latched.  One prediction is open at a time; it ends at the violation (whose
+        record carries the lead time) or, expired, at the first step past the
+        horizon at which the requirement holds and the estimate is no longer inside
+        the horizon.  The next one needs an estimate that left the horizon in
+        between: a line fitted across a stop keeps pointing at 0 for up to a window
+        after it."""
+        p, trend = self.config.predict, self.trend
+        if p is None or trend is None:
+            return []
+        trend.add(t_ns, margin)
+        est = trend.estimate()
+        inside = not (
+            est is None
+            or est.ttv_ms is None
+            or not est.margin > 0.0
+            or est.ttv_ms > p.horizon_ms
+            or est.confidence < p.min_confidence
+        )
+        # An open prediction expires at a step that holds, past the horizon, once the
+        # trend no longer points at a violation within it: a violation a step after
+        # the horizon (0 is crossed between steps) still counts as predicted.
+        expired = [] if flagged or inside else self._expire(t_ns)
+        if flagged or self.in_episode or self.latched or self.predicted_ns is not None:
+            self.predict_run = 0
+            return expired
+        if not inside:
+            self.predict_run = 0
+            self.predict_armed = True
+            return expired
+        assert est is not None and est.ttv_ms is not None
+        if not self.predict_armed:  # still the estimate that made the last prediction
+            return expired
+        self.predict_run += 1
+        if self.predict_run < self.config.debounce_steps:
+            return expired
+        self.predict_run, self.predict_armed = 0, False
+        self.predicted_ns, self.predicted_tick = t_ns, tick
+        self.predictions += 1
+        c = self.config
+        cooling = self.last_early_ns is not None and t_ns - self.last_early_ns < c.cooldown_ms * MS
+        run = bool(p.actions) and not cooling
+        detail = {
+            "tick": tick,
+            "margin": est.margin,
+            "fitted": est.fitted,
+            "slope": est.slope,
+            "slope_se": est.slope_se,
+            "ttv_ms": est.ttv_ms,
+            "ttv_lo_ms": est.ttv_lo_ms,
+            "ttv_hi_ms": est.ttv_hi_ms,
+            "confidence": est.confidence,
+            "samples": est.samples,
+            "window_ms": p.window_ms,
+            "horizon_ms": p.horizon_ms,
+            "min_confidence": p.min_confidence,
+            "actions": list(p.actions),
+            "cooldown": "suppressed" if p.actions and cooling else "ok",
+        }
+        effects: list[Effect] = [*expired, Forecast("prediction", detail)]
+        if run:
+            effects.append(Act(p.actions, "prediction"))
+            self.last_early_ns = t_ns
+        return effects
+
+    def _expire(self, t_ns: int) -> list[Effect]:
+        p = self.config.predict
+        if self.predicted_ns is None or p is None:
+            return []
+        if t_ns <= self.predicted_ns + int(p.horizon_ms * MS):
+            return []
+        detail = {
+            "predicted_tick": self.predicted_tick,
+            "horizon_ms": p.horizon_ms,
+            "after_ms": round((t_ns - self.predicted_ns) / MS, 3),
+        }
+        self.predicted_ns = self.predicted_tick = None
+        return [Forecast("prediction_expired", detail)]
 
     # ------------------------------------------------------------ clock
 
@@ -233,4 +351,6 @@ class RequirementPolicy:
         self.incident_ns, self.escalated, self.confirm_deadline_ns = None, False, None
         self.run_steps, self.run_since_ns, self.in_episode = 0, None, False
         self.reset_due_ns = None
+        if self.trend is not None:  # the operator reset resets the monitor too
+            self.trend.clear()
         return True, "latch released" if was else "reset"

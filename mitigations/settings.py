@@ -19,6 +19,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from monitors.untrusted import printable
+
 # ------------------------------------------------------------------ mitigations
 
 MITIGATION_KINDS = ("publish", "ssh", "command", "log")
@@ -311,9 +313,29 @@ class Confirm:
     within_ms: float
 
 
+# A requirement's ``predict:`` (docs/reference/prediction.md).
+PREDICT_KEYS = {"horizon_ms", "window_ms", "actions", "min_confidence"}
+# The longest margin window: the trend's ring is bounded anyway
+# (mitigations.prediction.DEFAULT_CAPACITY), and a longer window is no longer a trend.
+MAX_PREDICT_WINDOW_MS = 60_000.0
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    """A requirement's ``predict:`` (validated; see mitigations.prediction)."""
+
+    horizon_ms: float = 1500.0  # a zero crossing estimated within this is a prediction
+    # The margins the line is fitted to.  window_ms and min_confidence are tuned on
+    # bench --predict's sRobot scenarios, seed 1 (docs/BENCHMARKS.md, "Prediction").
+    window_ms: float = 1500.0
+    actions: tuple[str, ...] = ()  # the early actions; none: the prediction is logged
+    min_confidence: float = 0.9
+
+
 @dataclass(frozen=True)
 class PolicyConfig:
-    """A requirement's ``policy:`` (validated; see mitigations.policy for meaning)."""
+    """A requirement's ``policy:`` (validated; see mitigations.policy for meaning),
+    with its ``predict:`` when it has one."""
 
     debounce_steps: int = 1
     debounce_ms: float = 0.0
@@ -324,6 +346,7 @@ class PolicyConfig:
     escalate: Escalation | None = None
     confirm: Confirm | None = None
     repeat_ms: float = 1000.0  # latch: re-publish period
+    predict: PredictConfig | None = None
 
 
 # The longest duration of a policy, in ms: the config's bound on every duration.
@@ -495,6 +518,55 @@ def _duration(
             hint="durations are in milliseconds" if name.endswith("_ms") else None,
         )
     return x
+
+
+def parse_predict(
+    requirement: str, pred: Mapping[str, Any], *, mitigations: Mapping[str, object]
+) -> PredictConfig:
+    """A requirement's ``predict:`` mapping -> its PredictConfig (validated).  A bad
+    setting raises SettingsError whose ``key`` is the offending key of ``pred``."""
+    what = f"predict of '{requirement}'"
+    unknown = sorted(set(pred) - PREDICT_KEYS)
+    if unknown:
+        raise SettingsError(
+            f"{what}: unknown key '{unknown[0]}'",
+            unknown[0],
+            hint=_suggest(str(unknown[0]), dict.fromkeys(PREDICT_KEYS)),
+        )
+    out: dict[str, Any] = {}
+    for name in ("horizon_ms", "window_ms"):
+        if name in pred:
+            out[name] = _duration(pred, name, what)
+    if out.get("window_ms", 0.0) > MAX_PREDICT_WINDOW_MS:
+        raise SettingsError(
+            f"{what}.window_ms must be at most {MAX_PREDICT_WINDOW_MS:g}",
+            "window_ms",
+            hint="the trend is a straight line over the last window of margins",
+        )
+    if "min_confidence" in pred:
+        c = _finite(pred["min_confidence"], f"{what}.min_confidence", "min_confidence", None)
+        if not 0.0 < c <= 1.0:
+            raise SettingsError(
+                f"{what}.min_confidence must be above 0 and at most 1, got {_shown(c)}",
+                "min_confidence",
+                hint="the probability that the margin is gone within the horizon",
+            )
+        out["min_confidence"] = c
+    if "actions" in pred:
+        actions = pred["actions"]
+        if isinstance(actions, str):
+            actions = [actions]
+        if not isinstance(actions, list) or not all(isinstance(x, str) for x in actions):
+            raise SettingsError(f"{what}: actions must be a list of mitigation names", "actions")
+        for name in actions:
+            if name not in mitigations:
+                raise SettingsError(
+                    f"{what}: actions names undefined mitigation '{printable(name)}'",
+                    "actions",
+                    hint=_suggest(name, mitigations),
+                )
+        out["actions"] = tuple(actions)
+    return PredictConfig(**out)
 
 
 def integral_value(text: str, vtype: str) -> bool | int | None:

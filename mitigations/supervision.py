@@ -15,7 +15,15 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
-from mitigations.policy import Act, Effect, Note, Report, RequirementPolicy, ResetMonitor
+from mitigations.policy import (
+    Act,
+    Effect,
+    Forecast,
+    Note,
+    Report,
+    RequirementPolicy,
+    ResetMonitor,
+)
 
 
 class Step(Protocol):
@@ -38,15 +46,20 @@ class Stepper(Protocol):
     def snapshot(self) -> dict[str, Any]: ...
     def reset_requirement(self, index: int) -> None: ...
     def reset_all(self) -> None: ...
+    def margins(self) -> Sequence[float]: ...  # asked only when a requirement predicts
 
 
 class Sink(Protocol):
     """Where effects go (the daemon: log, engine, ROS; tests: a list)."""
 
-    def report(self, index: int, result: Step, policy_state: dict[str, Any]) -> None: ...
+    # predicted_ms is passed only when the violation followed a prediction
+    def report(
+        self, index: int, result: Step, policy_state: dict[str, Any], **predicted: float
+    ) -> None: ...
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None: ...
     def reset(self, index: int, reason: str) -> None: ...
     def note(self, index: int, note: Note, t_ns: int) -> None: ...
+    def forecast(self, index: int, forecast: Forecast, result: Step | None, t_ns: int) -> None: ...
 
 
 class Supervision:
@@ -55,14 +68,31 @@ class Supervision:
         self.policies = list(policies)
         self.sink = sink
         self.active: set[int] = set()  # requirements whose policy has live state
+        # requirements with ``predict:``: their margins are read after every step
+        self.predicting = [i for i, p in enumerate(self.policies) if p.trend is not None]
 
     def after_step(self, result: Step | None) -> None:
-        if result is None or not (result.violated or self.active):
+        if result is None:
+            return
+        if self.predicting:
+            self._predict(result)
+        if not (result.violated or self.active):
             return
         violated = set(result.violated)
         for i in violated | self.active:
             effects = self.policies[i].on_step(
                 i in violated, result.tick, result.t_ns, result.inputs
+            )
+            self._apply(i, effects, result, result.t_ns)
+
+    def _predict(self, result: Step) -> None:
+        # Before the violations of the same step: a prediction's expiry is decided
+        # before a violation after the horizon is reported.
+        margins = self.runtime.margins()
+        flagged = result.violated
+        for i in self.predicting:
+            effects = self.policies[i].on_margin(
+                float(margins[i]), i in flagged, result.tick, result.t_ns
             )
             self._apply(i, effects, result, result.t_ns)
 
@@ -107,7 +137,10 @@ class Supervision:
         for eff in effects:
             if isinstance(eff, Report):
                 assert result is not None
-                self.sink.report(i, result, eff.policy_state)
+                if eff.predicted_ms is None:
+                    self.sink.report(i, result, eff.policy_state)
+                else:
+                    self.sink.report(i, result, eff.policy_state, predicted_ms=eff.predicted_ms)
             elif isinstance(eff, Act):
                 self.sink.act(i, eff.actions, eff.stage, t_ns)
             elif isinstance(eff, ResetMonitor):
@@ -115,6 +148,8 @@ class Supervision:
                 self.sink.reset(i, eff.reason)
             elif isinstance(eff, Note):
                 self.sink.note(i, eff, t_ns)
+            elif isinstance(eff, Forecast):
+                self.sink.forecast(i, eff, result, t_ns)
         if self.policies[i].active:
             self.active.add(i)
         else:

@@ -338,7 +338,7 @@ def template_yaml() -> str:
                 "rationale": "The obstacle sensor reaches 10 m and never reports more.",
                 "assumption": "true",
             },
-            {"on_violation": "[record]", "policy": "{}", "on_pending": "[]"},
+            {"on_violation": "[record]", "policy": "{}", "predict": "{}", "on_pending": "[]"},
         ),
         "id",
     )
@@ -353,7 +353,11 @@ def template_yaml() -> str:
             "on_violation": "[stop, zero_speed]",
             "policy": "",
         },
-        {"assumption": "false", "on_pending": "[]"},
+        {
+            "assumption": "false",
+            "predict": "{horizon_ms: 1500, window_ms: 500, actions: [stop]}",
+            "on_pending": "[]",
+        },
     )
     at = next(i for i, line in enumerate(guarantee) if line.strip() == "policy:") + 1
     guarantee[at:at] = _keys(

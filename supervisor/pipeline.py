@@ -25,7 +25,7 @@ from monitors.backends.memory import memory_errors
 from monitors.errors import UserError
 from monitors.frontend.formalize import Formalization, formalize
 from monitors.frontend.parse import Requirement, parse_requirement
-from monitors.ir.formula import Formula, FormulaSyntaxError, parse_formula, variables
+from monitors.ir.formula import Const, Formula, FormulaSyntaxError, Past, parse_formula, variables
 from monitors.ir.functions import expand_functions, user_calls
 from monitors.ir.spec import Define, MonitorSpec, RequirementSpec, VarDecl, c_name, expand_defines
 from monitors.ir.typecheck import check_bool, type_of
@@ -83,6 +83,37 @@ class Project:
             prefix=cfg.step.prefix,
             margins=cfg.step.margins is not None,
             bool_margin=math.inf if cfg.step.margins is None else cfg.step.margins,
+        )
+
+    @property
+    def predicts(self) -> bool:
+        """A requirement has ``predict:`` (docs/reference/prediction.md)."""
+        return any(r.ok and r.entry.policy_config.predict is not None for r in self.requirements)
+
+    def prediction_spec(self) -> MonitorSpec:
+        """The monitor whose margins the predictions fit, stepped beside :meth:`spec`'s
+        with the same inputs: requirement i's formula without an unbounded ``H`` at
+        its top (while ``H f`` holds it breaks exactly when ``f`` next does, and the
+        margin of ``f`` follows the robot both ways where ``H``'s running minimum
+        only falls), ``true`` for a requirement that does not predict; margins on,
+        whatever ``step.margins`` says."""
+        spec = self.spec()
+        reqs = [r for r in self.requirements if r.ok]
+        return replace(
+            spec,
+            requirements=tuple(
+                RequirementSpec(
+                    rs.id,
+                    _invariant_body(rs.formula)
+                    if r.entry.policy_config.predict is not None
+                    else Const(True),
+                )
+                for rs, r in zip(spec.requirements, reqs, strict=True)
+            ),
+            prefix=f"{spec.prefix}_predict" if spec.prefix else "predict",
+            margins=True,
+            # an atom's margin is no distance: infinite, so that it clears the trend
+            bool_margin=math.inf,
         )
 
     def first_error(self) -> UserError | None:
@@ -380,6 +411,13 @@ def build_project(cfg: Config, *, ros: bool = True) -> Project:
 def project_for(source: str | Path | ConfigSource, *, ros: bool = True) -> Project:
     """The project of a config file, or of its bytes as already read (ConfigSource)."""
     return build_project(load_config(source), ros=ros)
+
+
+def _invariant_body(f: Formula) -> Formula:
+    """``f`` of ``H f`` (unbounded, from now): the formula a prediction fits."""
+    if isinstance(f, Past) and f.op == "H" and not f.lo and f.hi is None:
+        return f.arg
+    return f
 
 
 def monitor_library(

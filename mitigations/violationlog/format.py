@@ -56,7 +56,7 @@ from monitors.untrusted import Untrusted, load_json
 HEADER = ("ts", "event", "component", "config_sha256", "prev_sha256", "seq")
 EMPTY_SHA256 = hashlib.sha256(b"").hexdigest()
 ZERO_SHA256 = "0" * 64
-EVENTS = ("violation", "mitigation", "reset", "supervisor")
+EVENTS = ("violation", "mitigation", "reset", "supervisor", "prediction", "prediction_expired")
 # logging.durability (docs/reference/log.md): when a durable record is fsynced relative
 # to the actions of the same turn of the daemon's loop.  after_publish: written
 # (page cache) before the actions, fsynced after the inline ones are out;
@@ -132,6 +132,18 @@ def details(rec: dict[str, Any]) -> str:
         )
     if ev == "reset":
         return f"reason={rec.get('reason')}"
+    if ev == "prediction":
+        return (
+            f"tick={rec.get('tick')} ttv_ms={_fmt_value(rec.get('ttv_ms'))} "
+            f"[{_fmt_value(rec.get('ttv_lo_ms'))}, {_fmt_value(rec.get('ttv_hi_ms'))}] "
+            f"margin={_fmt_value(rec.get('margin'))} slope={_fmt_value(rec.get('slope'))} "
+            f"confidence={_fmt_value(rec.get('confidence'))}"
+        )
+    if ev == "prediction_expired":
+        return (
+            f"predicted_tick={rec.get('predicted_tick')} "
+            f"horizon_ms={_fmt_value(rec.get('horizon_ms'))}"
+        )
     skip = {*HEADER, "line_sha256", "what"}
     extra = [f"{k}={_fmt_value(v)}" for k, v in rec.items() if k not in skip and k[:1] != "_"]
     return " ".join([str(rec.get("what"))] + extra)
@@ -306,6 +318,34 @@ SCHEMA: dict[str, dict[str, tuple[Check, bool]]] = {
         "recent": (_recent, False),
         "stale": (_strings, False),
         "policy_state": (_flat, False),
+        "predicted_ms": (_number, False),
+    },
+    # docs/reference/prediction.md, "Records"
+    "prediction": {
+        "requirement": (_ident, True),
+        "tick": (_tick, True),
+        "margin": (_number, True),
+        "slope": (_number, True),
+        "ttv_ms": (_number, True),
+        "ttv_lo_ms": (_number, False),
+        "ttv_hi_ms": (_number, False),
+        "fitted": (_number, False),
+        "slope_se": (_number, False),
+        "confidence": (_number, False),
+        "samples": (_count, False),
+        "window_ms": (_number, False),
+        "horizon_ms": (_number, False),
+        "min_confidence": (_number, False),
+        "actions": (_strings, False),
+        "cooldown": (_ident, False),
+        "inputs": (_inputs, False),
+    },
+    "prediction_expired": {
+        "requirement": (_ident, True),
+        "tick": (_tick, False),
+        "predicted_tick": (_tick, False),
+        "horizon_ms": (_number, False),
+        "after_ms": (_number, False),
     },
     "mitigation": {
         "requirement": (_ident, True),

@@ -2,7 +2,8 @@
 (as ``structlog.testing`` is) so that users' tests need not write their own.
 
 :class:`MemoryLog` has the writing interface the daemon's core uses
-(``violation``, ``mitigation``, ``reset``, ``supervisor``, as
+(``violation``, ``mitigation``, ``reset``, ``supervisor``, ``prediction``,
+``prediction_expired``, as
 :class:`mitigations.violationlog.writer.ViolationLog` has them) and keeps each
 call as one record in memory: no file, no hash chain, no fsync.  The fields are
 kept as given, not rendered: the writer's own format is tested against the file
@@ -42,6 +43,12 @@ class MemoryLog:
 
     def supervisor(self, what: str, **fields: Any) -> bool:
         return self._add("supervisor", {"what": what, **fields})
+
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        return self._add("prediction", {"requirement": requirement, **fields})
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        return self._add("prediction_expired", {"requirement": requirement, **fields})
 
     def of(self, event: str) -> list[dict[str, Any]]:
         """The records of one event kind (``violation``, ``supervisor``, ...)."""

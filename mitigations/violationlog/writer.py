@@ -405,6 +405,15 @@ class ViolationLog:
     def reset(self, requirement: str, *, reason: str, **extra: Any) -> bool:
         return self._emit("reset", {"requirement": requirement, "reason": reason}, extra)
 
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        """A violation expected within the horizon (docs/reference/prediction.md):
+        durable as a violation is, since its early actions follow it."""
+        return self._emit("prediction", {"requirement": requirement}, fields, durable=True)
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        """The horizon of a prediction passed without the violation."""
+        return self._emit("prediction_expired", {"requirement": requirement}, fields)
+
     def supervisor(self, what: str, **fields: Any) -> bool:
         """start, ready, reload (ok=..., why=...), stop, input_stale, input_recovered,
         watchdog, ...; any extra fields."""

@@ -111,6 +111,9 @@ class RequirementEntry:
     on_violation_line: int | None = None
     policy_config: PolicyConfig = field(default_factory=PolicyConfig)
     policy_line: int | None = None
+    # ``predict:`` as written (None: no prediction); checked into policy_config.predict
+    predict: dict[str, Any] | None = None
+    predict_line: int | None = None
     # The name as written (FRET's, before mapping it to the C identifier ``id``;
     # docs/reference/config.md, "requirements"): for display only, through
     # monitors.untrusted.printable.

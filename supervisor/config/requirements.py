@@ -8,14 +8,17 @@ their lines.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from mitigations.settings import (
     POLICY_KEYS,
+    PREDICT_KEYS,
     Mitigation,
     PolicyConfig,
     SettingsError,
     parse_policy,
+    parse_predict,
 )
 from monitors.errors import UserError
 from monitors.untrusted import printable
@@ -35,7 +38,16 @@ from supervisor.config.limits import MAX_ID_CHARS, MAX_TEXT_CHARS
 from supervisor.config.model import RequirementEntry, Variable
 from supervisor.config.yamlload import LineDict, LineList
 
-REQ_KEYS = {"id", "text", "rationale", "on_violation", "policy", "assumption", "on_pending"}
+REQ_KEYS = {
+    "id",
+    "text",
+    "rationale",
+    "on_violation",
+    "policy",
+    "predict",
+    "assumption",
+    "on_pending",
+}
 DEFAULTS_KEYS = {"on_violation", "policy", "on_pending"}
 
 
@@ -227,6 +239,12 @@ def _fill_entry(
         check_keys(pol, POLICY_KEYS, f"policy of '{entry.id}'")
         entry.policy = pol
         entry.policy_line = pol.line if isinstance(pol, LineDict) else item.key_line("policy")
+    if "predict" in item:
+        raw = item["predict"]  # a bare "predict:" takes every default
+        pred = as_mapping(as_linedict({}, item) if raw is None else raw, item, "predict", "predict")
+        check_keys(pred, PREDICT_KEYS, f"predict of '{entry.id}'")
+        entry.predict = pred
+        entry.predict_line = item.key_line("predict")
     if "assumption" in item:
         entry.assumption = str(item["assumption"]).lower() == "true"
     else:
@@ -262,8 +280,26 @@ def policy_config(
     variables: dict[str, Variable],
     file: str,
 ) -> PolicyConfig:
-    """``r``'s policy, validated by :func:`mitigations.settings.parse_policy`; an
-    error points at the line of the key it is about."""
+    """``r``'s policy, validated by :func:`mitigations.settings.parse_policy`, with
+    its ``predict:`` (:func:`mitigations.settings.parse_predict`); an error points at
+    the line of the key it is about."""
+    config = _policy(r, mitigations, variables)
+    if r.predict is None:
+        return config
+    pred = r.predict
+    if not isinstance(pred, LineDict):
+        pred = as_linedict(pred, None, r.predict_line or r.id_line)
+    pred.file = pred.file or r.file
+    try:
+        predict = parse_predict(r.id, pred, mitigations=mitigations)
+    except SettingsError as e:
+        raise error_at(e.message, pred, e.key, e.hint) from None
+    return replace(config, predict=predict)
+
+
+def _policy(
+    r: RequirementEntry, mitigations: dict[str, Mitigation], variables: dict[str, Variable]
+) -> PolicyConfig:
     raw = r.policy
     if not raw:
         return PolicyConfig()

@@ -265,6 +265,12 @@ SECTIONS: tuple[Section, ...] = (
                 "[policy](#policy)",
             ),
             Key(
+                "predict",
+                "mapping",
+                "none",
+                "warn ahead: from the requirement's margins, estimate the time until it is violated and act early ([predict](#predict), [prediction.md](prediction.md)). Turns the monitor's margins on",
+            ),
+            Key(
                 "assumption",
                 "`true` / `false`",
                 "`true` when the id contains `assumption` (any case)",
@@ -285,6 +291,39 @@ SECTIONS: tuple[Section, ...] = (
             ),
             Key("policy", "", "", "the same, for `policy`"),
             Key("on_pending", "", "", "accepted and ignored"),
+        ),
+    ),
+    Section(
+        "predict",
+        "mitigations.settings:PREDICT_KEYS",
+        (
+            Key(
+                "horizon_ms",
+                "number > 0",
+                "`{}`",
+                "a time to violation estimated within this is a prediction (a `prediction` record, then `actions`); one not followed by a violation within it is logged as expired",
+                default_of="mitigations.settings:PredictConfig.horizon_ms",
+            ),
+            Key(
+                "window_ms",
+                "number > 0, at most 60000",
+                "`{}`",
+                "the margins of the last `window_ms` are fitted by a straight line (least squares); its slope and spread give the time to violation and its interval",
+                default_of="mitigations.settings:PredictConfig.window_ms",
+            ),
+            Key(
+                "min_confidence",
+                "number above 0, at most 1",
+                "`{}`",
+                "the least probability, under the fit's errors, that the margin is gone within the horizon",
+                default_of="mitigations.settings:PredictConfig.min_confidence",
+            ),
+            Key(
+                "actions",
+                "list of mitigation names (or one name)",
+                "none (the prediction is logged only)",
+                "the early actions, through the requirement's policy (its cooldown counts them)",
+            ),
         ),
     ),
     Section(

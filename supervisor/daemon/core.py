@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from mitigations.engine import Request
-from mitigations.policy import Note
+from mitigations.policy import Forecast, Note
 from mitigations.supervision import Supervision
 from supervisor.daemon.runtime import InputEvent, Rows, StepResult
 from supervisor.daemon.session import Session
@@ -39,6 +39,8 @@ class Log(Protocol):
     def mitigation(self, requirement: str, **fields: Any) -> bool: ...
     def reset(self, requirement: str, *, reason: str, **extra: Any) -> bool: ...
     def supervisor(self, what: str, **fields: Any) -> bool: ...
+    def prediction(self, requirement: str, **fields: Any) -> bool: ...
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool: ...
 
 
 def warn(text: str) -> None:
@@ -72,6 +74,7 @@ class Core:
         self._marker = marker
         self.warn = warn
         self.violations = 0
+        self.predictions = 0
         self.now: int | None = None  # the logical time reached
         self._due = 0  # a lower bound of the next deadline (0: not known)
         self.session = session
@@ -114,7 +117,9 @@ class Core:
     def quiet(self) -> bool:
         """:meth:`rows` may take messages now: the runtime can step a batch and no
         policy is active (so no policy deadline can fall inside it)."""
-        return self.session.runtime.bulk_ready and not self.supervision.active
+        sup = self.supervision
+        # a requirement that predicts reads its margin after every step
+        return self.session.runtime.bulk_ready and not sup.active and not sup.predicting
 
     def rows(self, rows: Rows, *, min_rows: int = 1) -> int:
         """Messages of one input row each (``replay``'s recordings), received at
@@ -279,7 +284,9 @@ class Core:
 
     # ------------------------------------------------------------ Supervision's sink
 
-    def report(self, index: int, result: StepResult, policy_state: dict[str, Any]) -> None:
+    def report(
+        self, index: int, result: StepResult, policy_state: dict[str, Any], **predicted: float
+    ) -> None:
         s = self.session
         req = s.requirements[index]
         rt = s.runtime
@@ -297,6 +304,7 @@ class Core:
             "recent": list(rt.recent),
             "stale": rt.stale_inputs(),
             "policy_state": policy_state,
+            **predicted,  # predicted_ms: the lead time of the prediction it followed
         }
         # Written before any action of this step is submitted: a record of every
         # violation exists even if an action hangs the machine.  The log's
@@ -306,6 +314,19 @@ class Core:
         self.violations += 1
         if self._published is not None:
             self._published(record)
+
+    def forecast(
+        self, index: int, forecast: Forecast, result: StepResult | None, t_ns: int
+    ) -> None:
+        """A prediction's record, written before its early actions are submitted
+        (docs/reference/prediction.md, "Records")."""
+        req = self.session.requirements[index]
+        if forecast.what == "prediction":
+            inputs = dict(result.inputs) if result is not None else self.snapshot()
+            self.predictions += 1
+            self.log.prediction(req.id, **forecast.detail, inputs=inputs)
+        else:
+            self.log.prediction_expired(req.id, tick=self.session.runtime.tick, **forecast.detail)
 
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
         req = self.session.requirements[index]

@@ -46,6 +46,9 @@ class Monitor(Protocol):
     def reset(self) -> None: ...
     def reset_requirement(self, index: int) -> None: ...
 
+    # margins(): each requirement's margin after the last tick, where the monitor
+    # has them (LoadedMonitor with MonitorSpec.margins): Runtime.margins asks it.
+
 
 @runtime_checkable
 class BatchMonitor(Monitor, Protocol):
@@ -188,6 +191,9 @@ class Runtime:
     _derived: list[_Input] = field(default_factory=list)  # ages and rates
     _ready: bool = False
     _bulk: bool = False  # step_rows may take batches (policy, inputs and monitor allow)
+    # The monitor of the predicted requirements' margins (Project.prediction_spec),
+    # stepped with the same values after the monitor; None when nothing predicts.
+    margin_monitor: Any = None
 
     def __post_init__(self) -> None:
         self._in = [_Input(s) for s in self.inputs]
@@ -453,6 +459,8 @@ class Runtime:
             return None
         values = self.values()
         flags = self.monitor.tick(values)
+        if self.margin_monitor is not None:
+            self.margin_monitor.tick(values)
         for inp in self._in:
             inp.fresh = False
             if inp.spec.event:
@@ -470,7 +478,12 @@ class Runtime:
         """:meth:`step_rows` may take a batch now: a message-driven policy with
         plain values, every input has one and none is stale (a recovery would be
         an event to report)."""
-        return self._bulk and self.ready and not any(i.stale for i in self._in)
+        return (
+            self._bulk
+            and self.margin_monitor is None  # margins are read after every step
+            and self.ready
+            and not any(i.stale for i in self._in)
+        )
 
     def step_rows(
         self, rows: Rows, default_after_ns: int | None = None, *, min_rows: int = 1
@@ -546,8 +559,18 @@ class Runtime:
     def reset_all(self) -> None:
         """Judge every requirement afresh from the next tick (operator reset)."""
         self.monitor.reset()
+        if self.margin_monitor is not None:
+            self.margin_monitor.reset()
 
     def reset_requirement(self, index: int) -> None:
         """Judge requirement ``index`` afresh from the next tick (replaces the
         thesis's node relaunch; no tick is skipped)."""
         self.monitor.reset_requirement(index)
+        if self.margin_monitor is not None:
+            self.margin_monitor.reset_requirement(index)
+
+    def margins(self) -> Sequence[float]:
+        """Each predicted requirement's margin after the last step, by requirement
+        index (docs/reference/prediction.md, "What is fitted"): the margin monitor's."""
+        margins: Sequence[float] = self.margin_monitor.margins()
+        return margins

@@ -6,11 +6,15 @@ iterations, so a reload never leaves the loop with half a configuration.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from mitigations.policy import RequirementPolicy
+from monitors.backends.load import compile_spec
 from monitors.ir.formula import to_fret, variables
 from monitors.ir.spec import Define, expand_defines
 from supervisor.config import Config
@@ -71,6 +75,11 @@ def build_runtime(project: Project, monitor: Any) -> Runtime:
 def build_session(
     project: Project, monitor: Any, cleanup: Callable[[], None] | None = None
 ) -> Session:
+    margin_monitor = None
+    if project.predicts:
+        # Off the receive loop, as the whole session is: the predictions' own
+        # monitor (Project.prediction_spec), built once per start or reload.
+        margin_monitor, cleanup = _margin_monitor(project, cleanup)
     cfg = project.config
     reqs = [r for r in project.requirements if r.ok]  # monitor order
     publish = {n for n, m in cfg.mitigations.items() if m.kind == "publish"}
@@ -86,9 +95,11 @@ def build_session(
     formulas = [to_fret(r.formula) for r in reqs]
     expanded = [expand_defines(r.formula, defines) for r in reqs]
     over_inputs = [to_fret(f) for f in expanded]
+    runtime = build_runtime(project, monitor)
+    runtime.margin_monitor = margin_monitor
     return Session(
         project,
-        build_runtime(project, monitor),
+        runtime,
         reqs,
         formulas,
         policies,
@@ -96,3 +107,25 @@ def build_session(
         [x if x != f else None for f, x in zip(formulas, over_inputs, strict=True)],
         [variables(f) for f in expanded],
     )
+
+
+def _margin_monitor(
+    project: Project, cleanup: Callable[[], None] | None
+) -> tuple[Any, Callable[[], None]]:
+    """The margin monitor of ``project``'s predictions, built in a directory of its
+    own that the returned cleanup removes (after ``cleanup``)."""
+    build = Path(tempfile.mkdtemp(prefix="safety-supervisor-predict-"))
+    try:
+        monitor = compile_spec(project.prediction_spec(), build)
+    except BaseException:
+        shutil.rmtree(build, ignore_errors=True)
+        raise
+
+    def both() -> None:
+        try:
+            if cleanup is not None:
+                cleanup()
+        finally:
+            shutil.rmtree(build, ignore_errors=True)
+
+    return monitor, both

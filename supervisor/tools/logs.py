@@ -353,8 +353,10 @@ def human_details(rec: dict[str, Any]) -> tuple[str, list[str]]:
         parts += [f"{k}={_word(v)}" for k, v in (rec.get("inputs") or {}).items()]
         if rec.get("stale"):
             parts.append("stale=" + ",".join(map(str, rec["stale"])))
+        if "predicted_ms" in rec:  # the lead time of the prediction it followed
+            parts.append(f"predicted_ms={rec['predicted_ms']}")  # ms, not a float32
         return " ".join(parts), []
-    if ev in ("mitigation", "reset"):
+    if ev in ("mitigation", "reset", "prediction", "prediction_expired"):
         return details(rec), []
     skip = {*HEADER, "line_sha256", "what"}
     head, more = [str(rec.get("what"))], []

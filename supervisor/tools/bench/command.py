@@ -303,6 +303,19 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         help="only the start-up times: --help, check and run to READY=1, cold and warm cache",
     )
     p.add_argument(
+        "--predict",
+        action="store_true",
+        help="only the predictions: recall, lead times and false predictions per hour "
+        "over labelled scenarios, replayed in this process (docs/reference/prediction.md)",
+    )
+    p.add_argument(
+        "--predict-ahead-ms",
+        type=_positive(float),
+        default=500.0,
+        metavar="X",
+        help="--predict's recall counts violations predicted at least X ms ahead (default 500)",
+    )
+    p.add_argument(
         "--startup-runs",
         type=_positive(int),
         default=5,
@@ -338,6 +351,7 @@ def resolve(args: argparse.Namespace) -> argparse.Namespace:
 def cmd_bench(args: argparse.Namespace) -> int:
     # The experiments load only when a bench runs: `--help` stays light.
     from supervisor.tools.bench.experiments import run
+    from supervisor.tools.bench.predict import format_predict, run_predict
     from supervisor.tools.bench.startup import format_startup, run_startup
 
     resolve(args)
@@ -347,7 +361,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
         restore = signal.signal(signal.SIGTERM, _raise_interrupt)
     progress = None if args.json else _progress
     try:
-        if args.startup:
+        if args.predict:
+            results = run_predict(args, progress)
+        elif args.startup:
             results = run_startup(Path(args.config), args.startup_runs, args.domain_id, progress)
         else:
             results = run(args, progress=progress)
@@ -362,6 +378,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGTERM, restore)
     if args.json:
         print(json.dumps(results, indent=2), flush=True)
+    elif args.predict:
+        print(format_predict(results), flush=True)
     elif args.startup:
         print(format_startup(results), flush=True)
     else:
@@ -371,7 +389,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.out is not None:
         try:
             written = (
-                write_startup(args.out, results) if args.startup else write_out(args.out, results)
+                write_json(args.out, "predict.json", results)
+                if args.predict
+                else write_startup(args.out, results)
+                if args.startup
+                else write_out(args.out, results)
             )
         except OSError as e:
             print(f"safety-supervisor bench: --out {args.out}: {e}", file=sys.stderr, flush=True)
@@ -395,6 +417,14 @@ def write_startup(out: Path, results: dict[str, Any]) -> list[Path]:
     """``startup.json`` in ``out``: the figures of ``--startup``."""
     out.mkdir(parents=True, exist_ok=True)
     js = out / "startup.json"
+    js.write_text(json.dumps(results, indent=2) + "\n")
+    return [js]
+
+
+def write_json(out: Path, name: str, results: dict[str, Any]) -> list[Path]:
+    """``name`` in ``out``: one part's figures (``--predict``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    js = out / name
     js.write_text(json.dumps(results, indent=2) + "\n")
     return [js]
 

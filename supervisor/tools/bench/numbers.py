@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import statistics
 
 
@@ -22,6 +23,15 @@ def percentiles(values: list[float]) -> dict[str, float | None]:
         "max": v[-1],
         "mean": statistics.fmean(v),
     }
+
+
+def percentile(values: list[float], p: float) -> float | None:
+    """The ``p``-th percentile of ``values`` by nearest rank (None if empty), as
+    :func:`percentiles` ranks them: for the figures it does not list (p10)."""
+    if not values:
+        return None
+    v = sorted(values)
+    return v[max(0, min(len(v) - 1, math.ceil(len(v) * p / 100) - 1))]
 
 
 def shown(x: float | None, fmt: str = ".1f") -> str:

@@ -90,6 +90,12 @@ class _Records:
     def supervisor(self, what: str, **fields: Any) -> bool:
         return True
 
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        return True
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        return True
+
 
 def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
     """Replay one bag. ``done``: ``CONFIG_SHA256:BAG_SHA256`` of the bags already

@@ -186,11 +186,17 @@ def _summary_lines(r: dict[str, Any]) -> list[str]:
     ]
     out += r["notes"]
     width = max([len(q["id"]) for q in r["requirements"]] + [11])
-    out.append(f"{'requirement':<{width}}  violations  first tick  first at (s)")
+    # predictions beside the violations, when a requirement predicts
+    more = "  predictions  expired  predicted  min lead (ms)" if r.get("predicting") else ""
+    out.append(f"{'requirement':<{width}}  violations  first tick  first at (s){more}")
     for q in r["requirements"]:
         first = "-" if q["first_tick"] is None else str(q["first_tick"])
         at = "-" if q["first_s"] is None else f"{q['first_s']:.3f}"
-        out.append(f"{q['id']:<{width}}  {q['violations']:>10}  {first:>10}  {at:>12}")
+        line = f"{q['id']:<{width}}  {q['violations']:>10}  {first:>10}  {at:>12}"
+        if more:
+            lead = "-" if q["min_lead_ms"] is None else f"{q['min_lead_ms']:.0f}"
+            line += f"  {q['predictions']:>11}  {q['expired']:>7}  {q['predicted']:>9}  {lead:>13}"
+        out.append(line)
     if r.get("output"):
         out.append(f"records: {r['output']}")
     return out

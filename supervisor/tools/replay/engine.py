@@ -56,6 +56,10 @@ class Outcome:
     messages: int = 0
     ticks: int = 0
     violations: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # id -> (tick, t)
+    predictions: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # id -> (tick, t)
+    expired: dict[str, int] = field(default_factory=dict)  # id -> predictions expired
+    leads: dict[str, list[float]] = field(default_factory=dict)  # id -> predicted_ms
+    predicting: bool = False  # a requirement has predict:
     start_ns: int | None = None
     end_ns: int | None = None
     seconds: float = 0.0
@@ -85,6 +89,8 @@ class _Log:
 
     def violation(self, requirement: str, **fields: Any) -> bool:
         self.outcome.violations.setdefault(requirement, []).append((fields["tick"], self._t()))
+        if "predicted_ms" in fields:
+            self.outcome.leads.setdefault(requirement, []).append(fields["predicted_ms"])
         if self.out is None:
             return True
         return self.out.violation(requirement, recorded_ts=self._at(), **fields)
@@ -104,6 +110,18 @@ class _Log:
             return True
         return self.out.supervisor(what, recorded_ts=self._at(), **fields)
 
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        self.outcome.predictions.setdefault(requirement, []).append((fields["tick"], self._t()))
+        if self.out is None:
+            return True
+        return self.out.prediction(requirement, recorded_ts=self._at(), **fields)
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        self.outcome.expired[requirement] = self.outcome.expired.get(requirement, 0) + 1
+        if self.out is None:
+            return True
+        return self.out.prediction_expired(requirement, recorded_ts=self._at(), **fields)
+
 
 def replay(
     session: Session,
@@ -122,6 +140,7 @@ def replay(
     outcome = Outcome(requirements=[r.id for r in session.config.requirements])
     log = _Log(out, outcome)
     core = log.core = Core(session, log, DryRun(log, session.config), warn=warn)
+    outcome.predicting = bool(core.supervision.predicting)
     names = {
         recording.ids[t]: [v.name for v in vs]
         for t, vs in recording.by_topic.items()

@@ -42,7 +42,13 @@ def loaded(config: Path) -> Iterator[Session]:
     build = Path(tempfile.mkdtemp(prefix="safety-supervisor-replay-"))
     try:
         key = monitor_key(spec) if cache is not None else None
-        yield build_session(project, load_monitor(monitor_library(spec, build, cache, key), spec))
+        lib = monitor_library(spec, build, cache, key)
+        session = build_session(project, load_monitor(lib, spec), lambda: None)
+        try:
+            yield session
+        finally:
+            assert session.cleanup is not None
+            session.cleanup()  # the predictions' monitor, when there is one
     finally:
         shutil.rmtree(build, ignore_errors=True)
 
@@ -192,9 +198,11 @@ def replay_files(
                 "violations": len(v),
                 "first_tick": v[0][0] if v else None,
                 "first_s": _since(outcome, v[0][1]) if v else None,
+                **(_predictions(outcome, rid) if outcome.predicting else {}),
             }
             for rid, v in _by_requirement(outcome).items()
         ],
+        "predicting": outcome.predicting,
         "output": str(output) if output else None,
         "missing_topics": list(run.missing),
         "missing": list(run.missing.values()),
@@ -266,6 +274,18 @@ def _first(xa: list[tuple[int, int]] | None, xb: list[tuple[int, int]] | None) -
 def _by_requirement(outcome: Outcome) -> dict[str, list[tuple[int, int]]]:
     """Every requirement of the config, in config order, with its violations."""
     return {rid: outcome.violations.get(rid, []) for rid in outcome.requirements}
+
+
+def _predictions(outcome: Outcome, rid: str) -> dict[str, Any]:
+    """A requirement's predictions (docs/reference/prediction.md): made, expired, the
+    violations that followed one and their least lead time."""
+    leads = outcome.leads.get(rid, [])
+    return {
+        "predictions": len(outcome.predictions.get(rid, [])),
+        "expired": outcome.expired.get(rid, 0),
+        "predicted": len(leads),
+        "min_lead_ms": min(leads) if leads else None,
+    }
 
 
 def _since(outcome: Outcome, t: int) -> float:

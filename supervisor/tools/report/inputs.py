@@ -225,6 +225,12 @@ class _Capture:
     def supervisor(self, what: str, **fields: Any) -> bool:
         return True
 
+    def prediction(self, requirement: str, **fields: Any) -> bool:
+        return True
+
+    def prediction_expired(self, requirement: str, **fields: Any) -> bool:
+        return True
+
 
 def windows_from_bag(
     config: Path,
