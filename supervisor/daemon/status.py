@@ -30,6 +30,9 @@ ACTIONS_KEPT = 5  # per requirement, the latest
 EVENTS_KEPT = 500  # records between two documents; beyond, the oldest are counted
 MS = 1_000_000
 MAX_UNIT = 200  # a margin's unit text: the names of the inputs it reads, cut
+# The UI refuses a margin or trend past this (supervisor/tools/ui/schema.py,
+# MAX_MARGIN): a larger margin is written as the infinity of its sign, a trend as null.
+MAX_MARGIN = 1e12
 
 
 def requirement_state(pol: RequirementPolicy, now_ns: int) -> str:
@@ -231,24 +234,15 @@ def _margins(
     peek).  ``unit`` names the numeric inputs the requirement reads: a margin is in
     their units (docs/reference/margins.md, "Units")."""
     session = core.session
-    rt = session.runtime
-    n = len(session.requirements)
-    if rt.tick == 0:  # no step yet: the monitors' margins are not valid
-        return [None] * n
-    predicted = rt.margins() if rt.margin_monitor is not None else None
-    mon = rt.monitor
-    every = mon.margins() if getattr(getattr(mon, "spec", None), "margins", False) else None
-    if predicted is None and every is None:
-        return [None] * n
+    latest = core.latest_margins()
     numeric = {v.name for v in session.config.inputs if v.type != "bool"}
     out: list[dict[str, Any] | None] = []
     for i, r in enumerate(session.requirements):
         pol = session.policies[i]
-        source = predicted if pol.trend is not None else every
-        if source is None:
+        m = latest[i]
+        if m is None:
             out.append(None)
             continue
-        m = float(source[i])
         est = pol.trend.estimate() if pol.trend is not None else None
         trend, by = None, None
         if est is not None:
@@ -259,6 +253,10 @@ def _margins(
                 trend, by = (m - m0) / ((now_ns - t0) / 1e9), "difference"
         if update:
             prev[r.id] = (now_ns, m)
+        if abs(m) > MAX_MARGIN:
+            m = math.copysign(math.inf, m)
+        if trend is not None and not abs(trend) <= MAX_MARGIN:
+            trend, by = None, None
         unit = ", ".join(x for x in session.reads[i] if x in numeric) or None
         prediction = None
         if pol.predicted_ns is not None:
@@ -276,7 +274,7 @@ def _margins(
                 "prediction": prediction,
             }
         )
-    if len(prev) > n:  # ids of requirements a reload removed
+    if len(prev) > len(out):  # ids of requirements a reload removed
         keep = {r.id for r in session.requirements}
         for k in [k for k in prev if k not in keep]:
             del prev[k]
