@@ -16,6 +16,7 @@ from supervisor.tools.report.inputs import (
     series_from_log,
     windows_from_bag,
 )
+from supervisor.tools.report.margins import margin_series
 from supervisor.tools.why import Why, Window, why_of, windows_from_log
 
 
@@ -51,6 +52,8 @@ class Report:
     requirements: list[Requirement]
     whys: dict[int, Why]
     notes: list[str]
+    # each violated requirement's margin over its why-trees' windows (margins.py)
+    margins: dict[str, Series] = field(default_factory=dict)
 
 
 def build(
@@ -95,7 +98,9 @@ def build(
             "tick times are estimated from the records' ticks and times"
         )
     whys = {i: why_of(data.records[i], windows.get(i)) for i in shown}
-    return Report(data, cfg_path, no_config, cfg, bags, series, source, reqs, whys, notes)
+    margins, more = margin_series(data, {i: windows[i] for i in shown if i in windows}, cfg)
+    notes += more
+    return Report(data, cfg_path, no_config, cfg, bags, series, source, reqs, whys, notes, margins)
 
 
 def _requirements(data: LogData, project: Any) -> list[Requirement]:

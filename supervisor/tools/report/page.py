@@ -60,8 +60,8 @@ def render(rep: Report) -> str:
     recs = data.records
     comp = next((r.get("component") for r in recs if r.get("component")), "?")
     violated = [q for q in rep.requirements if q.violations]
-    timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys})
-    t0, _ = domain(recs, rep.series)
+    timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys}, rep.margins)
+    t0, _ = domain(recs, {**rep.series, **rep.margins})
     tl_json = script_json(tl_data)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
@@ -77,6 +77,7 @@ def render(rep: Report) -> str:
         f"<p class='muted'>t = 0 s is {e(_ts(t0))}. Inputs: {e(rep.series_source)}. "
         "Wheel: zoom; drag: pan; double-click: whole run; hover: values; a violation's "
         "marker links to why it fired.</p>",
+        _margins_note(rep),
         _legend(),
         timeline,
         "<div id='tip' hidden></div>",
@@ -130,6 +131,19 @@ def _meta(rep: Report, comp: Any, violated: list[Requirement]) -> str:
     return f"<table class='meta'>{body}</table>"
 
 
+def _margins_note(rep: Report) -> str:
+    """What the margin lanes under the inputs are, when there are any."""
+    if not rep.margins:
+        return ""
+    return (
+        "<p class='muted' id='margins-note'>Under the inputs, each violated requirement's "
+        "margin (how far from breaking, in its inputs' units; below 0: violated), "
+        "computed by the reference interpreter over the ticks its why-trees judge, for "
+        "the requirement's formula without an unbounded H at its top, as predictions "
+        "fit it.</p>"
+    )
+
+
 def _legend() -> str:
     items = [
         ("#d0202a", "violation"),
@@ -140,6 +154,10 @@ def _legend() -> str:
         ("#e08a00", "input event"),
         ("#f0a03060", "input stale"),
         ("#5a8fd0", "Boolean true"),
+        ("#e06000", "prediction"),
+        ("#a0a0a0", "prediction expired"),
+        ("#f4b07a", "lead time of a predicted violation"),
+        ("#8a3ab9", "margin (0: dashed)"),
     ]
     return (
         "<p class='legend'>"
