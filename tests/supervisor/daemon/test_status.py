@@ -346,6 +346,11 @@ def test_the_document_carries_each_margin_its_trend_unit_and_open_prediction(tmp
         ttv = m["prediction"]["ttv_ms"]
         assert ttv == pytest.approx(m["value"] / 2.0 * 1000, abs=25)
         assert 0 < ttv <= 1500 and m["prediction"]["since_ms"] <= 20
+        # past the UI's bound (schema.MAX_MARGIN): its sign's infinity, the trend null
+        core.fields([("speed", 5e12)], (t_ms + 20) * MS + 1)
+        core.advance((t_ms + 40) * MS)
+        far = doc(t_ms + 40)["limit"]
+        assert far["value"] == "-inf" and far["trend_per_s"] is None, far
     finally:
         assert session.cleanup is not None
         session.cleanup()
