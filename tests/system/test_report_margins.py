@@ -128,6 +128,11 @@ def test_report_draws_predictions_their_lead_and_margins_from_the_bag(
     )
     assert [float(x) for x in leads] == [pytest.approx(viol["predicted_ms"], rel=1e-5)]
     assert f"predicted {viol['predicted_ms']:.6g} ms ahead" in html
+    # and in the requirement's section: its predictions and the lead they gave
+    assert (
+        f"<td class='predictions'>2 made, 1 expired; 1 violation(s) predicted, lead min "
+        f"{viol['predicted_ms']:.6g} ms, p50 {viol['predicted_ms']:.6g} ms</td>"
+    ) in html
     # the margin replayed from the bag: from the reset before the violation to it
     v = _check_margins(html, log)
     assert len(v) > 50  # the whole window since the last reset, not the record's recent

@@ -31,6 +31,9 @@ class Requirement:
     # action -> {"kind", "ok", "failed", "dry_run"}
     actions: dict[str, dict[str, Any]] = field(default_factory=dict)
     latencies: list[float] = field(default_factory=list)  # ms, actions actually run
+    predictions: int = 0  # its `prediction` records
+    expired: int = 0  # its `prediction_expired` records
+    leads: list[float] = field(default_factory=list)  # ms, its violations' predicted_ms
 
     @property
     def latency(self) -> tuple[float, float] | None:
@@ -127,6 +130,13 @@ def _requirements(data: LogData, project: Any) -> list[Requirement]:
             q.violations.append(i)
             q.text = q.text or str(rec.get("text") or "")
             q.formula = q.formula or str(rec.get("formula") or "")
+            lead = rec.get("predicted_ms")
+            if isinstance(lead, int | float) and not isinstance(lead, bool):
+                q.leads.append(float(lead))
+        elif ev == "prediction":
+            q.predictions += 1
+        elif ev == "prediction_expired":
+            q.expired += 1
         elif ev == "mitigation":
             name = str(rec.get("action"))
             a = q.actions.setdefault(

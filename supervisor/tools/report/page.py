@@ -12,6 +12,7 @@ from typing import Any
 from monitors.verify.why import WhyNode
 from supervisor.tools.report.assets import CSS, JS
 from supervisor.tools.report.build import Report, Requirement
+from supervisor.tools.report.data import median
 from supervisor.tools.report.inputs import SHOWN_PER_REQUIREMENT
 from supervisor.tools.report.timeline import MAJOR, domain, marker_text, svg
 from supervisor.tools.why import Why
@@ -213,6 +214,15 @@ def _req_table(rep: Report) -> str:
     return f"<table id='req-table'>{head}{''.join(rows)}</table>"
 
 
+def _predictions(q: Requirement) -> str:
+    """Its predictions, the expired ones, and the lead times of the violations they
+    predicted (docs/reference/prediction.md)."""
+    text = f"{q.predictions} made, {q.expired} expired; {len(q.leads)} violation(s) predicted"
+    if q.leads:
+        text += f", lead min {min(q.leads):.6g} ms, p50 {median(q.leads):.6g} ms"
+    return text
+
+
 def _req_detail(rep: Report, q: Requirement) -> str:
     no_cfg = f"(needs the config: {rep.no_config})"
     first, last = _first_last(rep, q)
@@ -231,6 +241,8 @@ def _req_detail(rep: Report, q: Requirement) -> str:
     )
     body += f"<tr><td>mitigations</td><td>{_actions(q)}</td></tr>"
     body += f"<tr><td>detection to action</td><td>{e(_latency(q))}</td></tr>"
+    if q.predictions or q.expired or q.leads:
+        body += f"<tr><td>predictions</td><td class='predictions'>{e(_predictions(q))}</td></tr>"
     return (
         f"<section class='requirement' id='req-{e(q.id)}' data-requirement='{e(q.id)}'>"
         f"<h3>{e(q.id)}</h3><table class='meta'>{body}</table></section>"
