@@ -7,8 +7,8 @@ ticks), so no monitor is built for the page.  The formula is the requirement's
 without an unbounded ``H`` at its top, as the predictions fit it
 (docs/reference/prediction.md): the margin of "now", which rises as well as falls,
 where the ``H``'s running minimum only falls.  Ticks are placed in time by the
-records' ticks and times (inputs.tick_clock), and each line is thinned to
-inputs.MAX_POINTS points.
+records' ticks and times (inputs.tick_clock), the line broken between windows
+that do not meet, and thinned to inputs.MAX_POINTS points.
 """
 
 from __future__ import annotations
@@ -66,7 +66,14 @@ def margin_series(
     for rid, got in per.items():
         if not any(math.isfinite(m) for m in got.values()):
             continue  # boolean atoms only: nothing to draw on a scale
-        pts: list[tuple[int, Any]] = sorted((at(run, tick), m) for (run, tick), m in got.items())
+        pts: list[tuple[int, Any]] = []
+        prev: tuple[int, int] | None = None
+        for run, tick in sorted(got):
+            if prev is not None and (run, tick - 1) != prev:
+                pts.append((at(run, tick), math.nan))  # windows apart: a gap, not a line
+            pts.append((at(run, tick), got[(run, tick)]))
+            prev = (run, tick)
+        pts.sort(key=lambda p: p[0])  # stable: a gap stays before its point
         out[PREFIX + rid] = Series(PREFIX + rid, "number", thin(pts, "number"))
     notes = [f"no margins of {rid}: {why}" for rid, why in problems.items() if rid not in per]
     return out, notes
