@@ -301,6 +301,23 @@ class Core:
         """Inputs without a value yet: nothing is stepped until each has one."""
         return self.session.runtime.missing_inputs()
 
+    def latest_margins(self) -> list[float | None]:
+        """Each requirement's margin after the last step (status.py): the predictions'
+        monitor's for a requirement with ``predict:``, else the monitor's with
+        ``step.margins``; None where margins are off or before the first step."""
+        rt = self.session.runtime
+        n = len(self.session.requirements)
+        if rt.tick == 0:
+            return [None] * n
+        predicted = rt.margins() if rt.margin_monitor is not None else None
+        mon = rt.monitor
+        every = mon.margins() if getattr(getattr(mon, "spec", None), "margins", False) else None
+        out: list[float | None] = []
+        for i, pol in enumerate(self.session.policies):
+            source = predicted if pol.trend is not None else every
+            out.append(None if source is None else float(source[i]))
+        return out
+
     def count_own(self, name: str) -> None:
         """The daemon's own message came back on input ``name``'s topic (loss.py)."""
         self.session.runtime.count_own(name)

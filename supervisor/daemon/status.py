@@ -1,15 +1,17 @@
 """The status document of ``/safety_supervisor/status``: what an operator's page
 shows (``ui``, docs/reference/ros-interfaces.md, "Status").
 
-One JSON document every ``ros.status_ms``: each requirement's state, each input's
-latest value and age, the supervisor's health, and the records made since the
-previous document (so a page's event feed misses none).  No rclpy here: the node
+One JSON document every ``ros.status_ms``: each requirement's state (and, with
+margins on, its latest margin and trend), each input's latest value and age, the
+supervisor's health, and the records made since the previous document (so a page's
+event feed misses none).  No rclpy here: the node
 publishes what :class:`StatusBoard` builds.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
 import socket
 import threading
@@ -27,6 +29,10 @@ SCHEMA = 1
 ACTIONS_KEPT = 5  # per requirement, the latest
 EVENTS_KEPT = 500  # records between two documents; beyond, the oldest are counted
 MS = 1_000_000
+MAX_UNIT = 200  # a margin's unit text: the names of the inputs it reads, cut
+# The UI refuses a margin or trend past this (supervisor/tools/ui/schema.py,
+# MAX_MARGIN): a larger margin is written as the infinity of its sign, a trend as null.
+MAX_MARGIN = 1e12
 
 
 def requirement_state(pol: RequirementPolicy, now_ns: int) -> str:
@@ -65,6 +71,9 @@ class StatusBoard:
         self._prev: tuple[int, int, int] | None = None  # (t, ticks, received)
         # each input's value_precision, looked up once per variable as configured
         self._precisions: dict[tuple[Any, ...], str | None] = {}
+        # each requirement's margin in the previous document: the trend of one
+        # without a predictor is the difference to it
+        self._prev_margins: dict[str, tuple[int, float]] = {}
 
     def record(self, line: str) -> None:
         """A record as the log rendered it (ViolationLog.tee)."""
@@ -114,6 +123,9 @@ class StatusBoard:
             self.started_mono = now_ns
         events, dropped, actions, last = self._take_records(take=not peek)
         requirements = _requirements(core, now_ns, actions, last)
+        margins = _margins(core, now_ns, self._prev_margins, update=not peek)
+        for r, m in zip(requirements, margins, strict=True):
+            r["margin"] = m
         inputs = _inputs(core, stats, now_ns, self._precision)
         doc = {
             "schema": SCHEMA,
@@ -202,6 +214,71 @@ def _requirements(
             }
         )
     return requirements
+
+
+MARGIN_DIGITS = 6  # significant digits of a margin's trend and a prediction's times
+
+
+def _sig(x: float) -> float:
+    return float(f"{x:.{MARGIN_DIGITS}g}")
+
+
+def _margins(
+    core: Core, now_ns: int, prev: dict[str, tuple[int, float]], *, update: bool
+) -> list[dict[str, Any] | None]:
+    """Each requirement's margin entry (docs/reference/ros-interfaces.md, "Status"),
+    None where margins are off: the predictions' monitor's margin for a requirement
+    with ``predict:`` (what its predictor fits), else the monitor's with
+    ``step.margins``.  ``trend`` is the predictor's slope when it has a fit, else the
+    difference to the previous document's margin (``prev``, updated unless a
+    peek).  ``unit`` names the numeric inputs the requirement reads: a margin is in
+    their units (docs/reference/margins.md, "Units")."""
+    session = core.session
+    latest = core.latest_margins()
+    numeric = {v.name for v in session.config.inputs if v.type != "bool"}
+    out: list[dict[str, Any] | None] = []
+    for i, r in enumerate(session.requirements):
+        pol = session.policies[i]
+        m = latest[i]
+        if m is None:
+            out.append(None)
+            continue
+        est = pol.trend.estimate() if pol.trend is not None else None
+        trend, by = None, None
+        if est is not None:
+            trend, by = est.slope, "predictor"
+        elif r.id in prev:
+            t0, m0 = prev[r.id]
+            if now_ns > t0 and math.isfinite(m) and math.isfinite(m0):
+                trend, by = (m - m0) / ((now_ns - t0) / 1e9), "difference"
+        if update:
+            prev[r.id] = (now_ns, m)
+        if abs(m) > MAX_MARGIN:
+            m = math.copysign(math.inf, m)
+        if trend is not None and not abs(trend) <= MAX_MARGIN:
+            trend, by = None, None
+        unit = ", ".join(x for x in session.reads[i] if x in numeric) or None
+        prediction = None
+        if pol.predicted_ns is not None:
+            prediction = {
+                "tick": pol.predicted_tick,
+                "since_ms": _sig(max(now_ns - pol.predicted_ns, 0) / MS),
+                "ttv_ms": None if est is None or est.ttv_ms is None else _sig(est.ttv_ms),
+            }
+        out.append(
+            {
+                "value": m,  # json_safe writes an infinite one "inf" / "-inf"
+                "trend_per_s": None if trend is None else _sig(trend),
+                "trend_from": by,
+                "unit": unit[:MAX_UNIT] if unit else None,
+                "prediction": prediction,
+            }
+        )
+    if len(prev) > len(out):  # ids of requirements a reload removed
+        keep = {r.id for r in session.requirements}
+        for k in [k for k in prev if k not in keep]:
+            del prev[k]
+    return out
 
 
 def _inputs(

@@ -213,7 +213,37 @@ FORGED = [
     ("schema", lambda d: d.update(schema=2)),
     ("supervisor", lambda d: d.pop("supervisor")),
     ("requirements[0].id", lambda d: d["requirements"][0].update(id="x" * 100000)),
-]
+    ("requirements[0].margin.value", lambda d: d["requirements"][0].update(margin={"value": "nan"})),
+    ("requirements[0].margin.value", lambda d: d["requirements"][0].update(margin={"value": 1e300})),
+    ("requirements[0].margin.value", lambda d: d["requirements"][0].update(margin={"value": "1"})),
+    ("requirements[0].margin.value", lambda d: d["requirements"][0].update(margin={"value": True})),
+    ("requirements[0].margin.value", lambda d: d["requirements"][0].update(margin={"unit": "m"})),
+    ("requirements[0].margin.trend_per_s",
+     lambda d: d["requirements"][0].update(margin={"value": 1.0, "trend_per_s": -1e13})),
+    ("requirements[0].margin.unit",
+     lambda d: d["requirements"][0].update(margin={"value": 1.0, "unit": ["<b>"]})),
+    ("requirements[0].margin.prediction.ttv_ms",
+     lambda d: d["requirements"][0].update(margin={"value": 1.0, "prediction": {"ttv_ms": -5}})),
+    ("requirements[0].margin", lambda d: d["requirements"][0].update(margin=[1.0])),
+]  # fmt: skip
+
+
+def test_a_margin_passes_finite_or_as_the_daemons_infinity() -> None:
+    doc = status_doc("/run/x.sock")
+    doc["requirements"][0]["margin"] = {
+        "value": 2, "trend_per_s": -0.5, "trend_from": "predictor", "unit": "distance",
+        "prediction": {"tick": 7, "since_ms": 40.0, "ttv_ms": 1200.0}, "surprise": 1,
+    }  # fmt: skip
+    doc["requirements"][1]["margin"] = {"value": "-inf"}
+    out = parse_status(json.dumps(doc).encode())
+    assert out["requirements"][0]["margin"] == {
+        "value": 2.0, "trend_per_s": -0.5, "trend_from": "predictor", "unit": "distance",
+        "prediction": {"tick": 7, "since_ms": 40.0, "ttv_ms": 1200.0},
+    }  # fmt: skip
+    assert out["requirements"][1]["margin"]["value"] == "-inf"
+    assert out["requirements"][1]["margin"]["prediction"] is None
+    # an older daemon's document, or margins off: null
+    assert parse_status(json.dumps(status_doc("/x")).encode())["requirements"][0]["margin"] is None
 
 
 @pytest.mark.parametrize(("field", "forge"), FORGED, ids=[f for f, _ in FORGED])
@@ -263,6 +293,11 @@ def _typed(out: dict[str, Any]) -> None:
     """What the page relies on of an accepted document (page.py)."""
     for r in out["requirements"]:
         assert isinstance(r["id"], str) and r["id"]
+        if r["margin"] is not None:  # what the gauge draws
+            v = r["margin"]["value"]
+            assert v in ("inf", "-inf") or (isinstance(v, float) and abs(v) <= 1e12), v
+            t = r["margin"]["trend_per_s"]
+            assert t is None or (isinstance(t, float) and abs(t) <= 1e12), t
         assert isinstance(r["violations"], int) and not isinstance(r["violations"], bool)
         assert all(isinstance(s, str) for s in r["stale_inputs"])
         for a in r["actions"]:
@@ -281,6 +316,8 @@ def _typed(out: dict[str, Any]) -> None:
 def test_any_value_anywhere_is_accepted_typed_or_refused_in_one_line(data: Any) -> None:
     doc = status_doc("/run/x.sock")
     doc["events"] = [{"event": "violation", "ts": "t", "requirement": "r", "tick": 1}]
+    doc["requirements"][0]["margin"] = {"value": 1.5, "trend_per_s": -0.5, "unit": "d",
+                                        "prediction": {"tick": 1, "ttv_ms": 900.0}}  # fmt: skip
     path = data.draw(st.sampled_from(_places(doc)[1:]))
     value = data.draw(JSON)
     target = doc

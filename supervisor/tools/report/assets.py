@@ -27,6 +27,10 @@ table{border-collapse:collapse;margin:6px 0}td,th{border:1px solid #d4d8de;paddi
 #timeline .mk.mitigation.dry{stroke-dasharray:2 2}
 #timeline .mk.reset{stroke:#3060c0}#timeline .mk.supervisor.major{stroke:#7040a0;stroke-width:3}
 #timeline .mk.supervisor.minor{stroke:#99a}#timeline .mk.supervisor.input{stroke:#e08a00}
+#timeline .mk.prediction{stroke:#e06000;stroke-width:3}#timeline .mk.prediction.expired{stroke:#a0a0a0}
+#timeline .lead{fill:#f4b07a;opacity:.7}
+#timeline .line.margin{stroke:#8a3ab9}
+#timeline .zero{stroke:#556;stroke-width:1;stroke-dasharray:4 3;vector-effect:non-scaling-stroke}
 #timeline #cursor{stroke:#000;stroke-width:1;opacity:.4;vector-effect:non-scaling-stroke}
 #timeline #axis text{font-size:10px;text-anchor:middle;fill:#445}#timeline #axis line{stroke:#445}
 #tip{position:absolute;background:#fffffff0;border:1px solid #99a;padding:4px 7px;

@@ -16,6 +16,7 @@ from supervisor.tools.report.inputs import (
     series_from_log,
     windows_from_bag,
 )
+from supervisor.tools.report.margins import margin_series
 from supervisor.tools.why import Why, Window, why_of, windows_from_log
 
 
@@ -30,6 +31,9 @@ class Requirement:
     # action -> {"kind", "ok", "failed", "dry_run"}
     actions: dict[str, dict[str, Any]] = field(default_factory=dict)
     latencies: list[float] = field(default_factory=list)  # ms, actions actually run
+    predictions: int = 0  # its `prediction` records
+    expired: int = 0  # its `prediction_expired` records
+    leads: list[float] = field(default_factory=list)  # ms, its violations' predicted_ms
 
     @property
     def latency(self) -> tuple[float, float] | None:
@@ -51,6 +55,8 @@ class Report:
     requirements: list[Requirement]
     whys: dict[int, Why]
     notes: list[str]
+    # each violated requirement's margin over its why-trees' windows (margins.py)
+    margins: dict[str, Series] = field(default_factory=dict)
 
 
 def build(
@@ -95,7 +101,9 @@ def build(
             "tick times are estimated from the records' ticks and times"
         )
     whys = {i: why_of(data.records[i], windows.get(i)) for i in shown}
-    return Report(data, cfg_path, no_config, cfg, bags, series, source, reqs, whys, notes)
+    margins, more = margin_series(data, {i: windows[i] for i in shown if i in windows}, cfg)
+    notes += more
+    return Report(data, cfg_path, no_config, cfg, bags, series, source, reqs, whys, notes, margins)
 
 
 def _requirements(data: LogData, project: Any) -> list[Requirement]:
@@ -122,6 +130,13 @@ def _requirements(data: LogData, project: Any) -> list[Requirement]:
             q.violations.append(i)
             q.text = q.text or str(rec.get("text") or "")
             q.formula = q.formula or str(rec.get("formula") or "")
+            lead = rec.get("predicted_ms")
+            if isinstance(lead, int | float) and not isinstance(lead, bool):
+                q.leads.append(float(lead))
+        elif ev == "prediction":
+            q.predictions += 1
+        elif ev == "prediction_expired":
+            q.expired += 1
         elif ev == "mitigation":
             name = str(rec.get("action"))
             a = q.actions.setdefault(

@@ -123,7 +123,7 @@ def tick_clock(data: LogData, period_ns: int | None) -> Callable[[int, int], int
 
 
 def series_from_log(data: LogData, cfg: Config | None) -> dict[str, Series]:
-    period = _period_ns(cfg)
+    period = period_ns(cfg)
     at = tick_clock(data, period)
     seen: dict[str, dict[tuple[int, int], Value]] = {}
     for r in data.records:
@@ -145,7 +145,7 @@ def series_from_log(data: LogData, cfg: Config | None) -> dict[str, Series]:
     return out
 
 
-def _period_ns(cfg: Config | None) -> int | None:
+def period_ns(cfg: Config | None) -> int | None:
     if cfg is None or cfg.step.policy != "periodic" or not cfg.step.period_ms:
         return None
     return int(cfg.step.period_ms * 1e6)

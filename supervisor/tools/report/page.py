@@ -12,6 +12,7 @@ from typing import Any
 from monitors.verify.why import WhyNode
 from supervisor.tools.report.assets import CSS, JS
 from supervisor.tools.report.build import Report, Requirement
+from supervisor.tools.report.data import median
 from supervisor.tools.report.inputs import SHOWN_PER_REQUIREMENT
 from supervisor.tools.report.timeline import MAJOR, domain, marker_text, svg
 from supervisor.tools.why import Why
@@ -60,8 +61,8 @@ def render(rep: Report) -> str:
     recs = data.records
     comp = next((r.get("component") for r in recs if r.get("component")), "?")
     violated = [q for q in rep.requirements if q.violations]
-    timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys})
-    t0, _ = domain(recs, rep.series)
+    timeline, tl_data = svg(recs, rep.series, {i: anchor(i) for i in rep.whys}, rep.margins)
+    t0, _ = domain(recs, {**rep.series, **rep.margins})
     tl_json = script_json(tl_data)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
@@ -77,6 +78,7 @@ def render(rep: Report) -> str:
         f"<p class='muted'>t = 0 s is {e(_ts(t0))}. Inputs: {e(rep.series_source)}. "
         "Wheel: zoom; drag: pan; double-click: whole run; hover: values; a violation's "
         "marker links to why it fired.</p>",
+        _margins_note(rep),
         _legend(),
         timeline,
         "<div id='tip' hidden></div>",
@@ -130,6 +132,19 @@ def _meta(rep: Report, comp: Any, violated: list[Requirement]) -> str:
     return f"<table class='meta'>{body}</table>"
 
 
+def _margins_note(rep: Report) -> str:
+    """What the margin lanes under the inputs are, when there are any."""
+    if not rep.margins:
+        return ""
+    return (
+        "<p class='muted' id='margins-note'>Under the inputs, each violated requirement's "
+        "margin (how far from breaking, in its inputs' units; below 0: violated), "
+        "computed by the reference interpreter over the ticks its why-trees judge, for "
+        "the requirement's formula without an unbounded H at its top, as predictions "
+        "fit it.</p>"
+    )
+
+
 def _legend() -> str:
     items = [
         ("#d0202a", "violation"),
@@ -140,6 +155,10 @@ def _legend() -> str:
         ("#e08a00", "input event"),
         ("#f0a03060", "input stale"),
         ("#5a8fd0", "Boolean true"),
+        ("#e06000", "prediction"),
+        ("#a0a0a0", "prediction expired"),
+        ("#f4b07a", "lead time of a predicted violation"),
+        ("#8a3ab9", "margin (0: dashed)"),
     ]
     return (
         "<p class='legend'>"
@@ -195,6 +214,15 @@ def _req_table(rep: Report) -> str:
     return f"<table id='req-table'>{head}{''.join(rows)}</table>"
 
 
+def _predictions(q: Requirement) -> str:
+    """Its predictions, the expired ones, and the lead times of the violations they
+    predicted (docs/reference/prediction.md)."""
+    text = f"{q.predictions} made, {q.expired} expired; {len(q.leads)} violation(s) predicted"
+    if q.leads:
+        text += f", lead min {min(q.leads):.6g} ms, p50 {median(q.leads):.6g} ms"
+    return text
+
+
 def _req_detail(rep: Report, q: Requirement) -> str:
     no_cfg = f"(needs the config: {rep.no_config})"
     first, last = _first_last(rep, q)
@@ -213,6 +241,8 @@ def _req_detail(rep: Report, q: Requirement) -> str:
     )
     body += f"<tr><td>mitigations</td><td>{_actions(q)}</td></tr>"
     body += f"<tr><td>detection to action</td><td>{e(_latency(q))}</td></tr>"
+    if q.predictions or q.expired or q.leads:
+        body += f"<tr><td>predictions</td><td class='predictions'>{e(_predictions(q))}</td></tr>"
     return (
         f"<section class='requirement' id='req-{e(q.id)}' data-requirement='{e(q.id)}'>"
         f"<h3>{e(q.id)}</h3><table class='meta'>{body}</table></section>"

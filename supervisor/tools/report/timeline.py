@@ -1,6 +1,7 @@
-"""The timeline as inline SVG: event lanes (violations, mitigations, resets, the
-supervisor's own events) over the inputs (numbers as step lines, Booleans as bands,
-stale stretches shaded).
+"""The timeline as inline SVG: event lanes (violations, predictions with their lead
+times, mitigations, resets, the supervisor's own events) over the inputs (numbers as
+step lines, Booleans as bands, stale stretches shaded), and under them the violated
+requirements' margins (margins.py) with their zero line.
 
 Drawn in Python so that the page reads without scripts; the page's small script
 (page.py) only zooms (one horizontal scale on the plot group, strokes kept by
@@ -58,7 +59,22 @@ def marker_text(r: dict[str, Any]) -> str:
     ev = r.get("event")
     ts = r.get("recorded_ts") or r.get("ts")
     if ev == "violation":
-        return f"VIOLATION {r.get('requirement')} tick={r.get('tick')} at {ts}"
+        lead = r.get("predicted_ms")
+        ahead = f" predicted {_fmt(lead)} ms ahead" if lead is not None else ""
+        return f"VIOLATION {r.get('requirement')} tick={r.get('tick')}{ahead} at {ts}"
+    if ev == "prediction":
+        return (
+            f"PREDICTION {r.get('requirement')} tick={r.get('tick')}: violated in "
+            f"{_fmt(r.get('ttv_ms'))} ms ({_fmt(r.get('ttv_lo_ms'))}..{_fmt(r.get('ttv_hi_ms'))}),"
+            f" margin {_fmt(r.get('margin'))}, slope {_fmt(r.get('slope'))}/s, confidence "
+            f"{_fmt(r.get('confidence'))} at {ts}"
+        )
+    if ev == "prediction_expired":
+        return (
+            f"prediction expired {r.get('requirement')}: the prediction of tick "
+            f"{r.get('predicted_tick')} not followed by a violation "
+            f"{_fmt(r.get('after_ms'))} ms later at {ts}"
+        )
     if ev == "mitigation":
         ok = "ok" if r.get("ok") else f"FAILED ({r.get('error')})"
         dry = " dry_run" if r.get("dry_run") else ""
@@ -77,6 +93,9 @@ def marker_text(r: dict[str, Any]) -> str:
     return f"{r.get('what')} {rest} at {ts}".strip()
 
 
+PREDICTIONS = ("prediction", "prediction_expired")
+
+
 def domain(records: list[dict[str, Any]], series: dict[str, Series]) -> tuple[int, int]:
     ts = [r["_t"] for r in records]
     for s in series.values():
@@ -88,22 +107,33 @@ def domain(records: list[dict[str, Any]], series: dict[str, Series]) -> tuple[in
 
 
 def svg(
-    records: list[dict[str, Any]], series: dict[str, Series], anchors: dict[int, str]
+    records: list[dict[str, Any]],
+    series: dict[str, Series],
+    anchors: dict[int, str],
+    margins: dict[str, Series] | None = None,
 ) -> tuple[str, dict[str, Any]]:
     """The SVG and the data the script reads (times in seconds from t0).
 
     ``anchors``: the index of a violation record -> the id of its why-tree section
-    (its marker links there)."""
-    t0, t1 = domain(records, series)
+    (its marker links there).  ``margins``: drawn under the inputs, each with its
+    zero line; a predictions lane only when the records have predictions."""
+    margins = margins or {}
+    t0, t1 = domain(records, {**series, **margins})
     lanes: list[Lane] = []
     y = 0.0
-    for name in ("violations", "mitigations", "resets", "supervisor"):
+    events = ["violations", "mitigations", "resets", "supervisor"]
+    if any(r.get("event") in PREDICTIONS for r in records):
+        events.insert(1, "predictions")
+    for name in events:
         lanes.append(Lane(name, y, LANE, "event"))
         y += LANE
     for s in series.values():
         h = BAND if s.kind == "bool" else NUM
         lanes.append(Lane(s.name, y + 4, h, s.kind))
         y += h + 8
+    for s in margins.values():
+        lanes.append(Lane(s.name, y + 4, NUM, "margin"))
+        y += NUM + 8
     height = y
     body: list[str] = []
     by_name = {ln.name: ln for ln in lanes}
@@ -112,15 +142,19 @@ def svg(
         body.append(f'<rect class="{cls}" x="0" y="{ln.y}" width="{W}" height="{ln.h}"/>')
     for name, s in series.items():
         body.extend(_input(s, by_name[name], t0, t1))
+    for name, s in margins.items():
+        body.extend(_input(s, by_name[name], t0, t1, margin=True))
+    if "predictions" in by_name:
+        body.extend(_leads(records, by_name["predictions"], t0, t1))
     body.extend(_stale(records, by_name, t0, t1))
     body.extend(_events(records, by_name, t0, t1, height, anchors))
     labels = []
     for ln in lanes:
         text = ln.name
-        s = series.get(ln.name)
+        s = series.get(ln.name) or margins.get(ln.name)
         extra = ""
         if s is not None and s.kind == "number":
-            lo, hi = _range(s)
+            lo, hi = _range(s, margin=ln.kind == "margin")
             extra = f'<tspan class="range" x="{LABEL - 8}" dy="13">{_fmt(lo)} .. {_fmt(hi)}</tspan>'
         labels.append(
             f'<text class="lane-label" x="{LABEL - 8}" y="{ln.y + min(ln.h, 22) / 2 + 4 + TOP}">'
@@ -149,7 +183,7 @@ def svg(
                 "t": [round((t - t0) / 1e9, 9) for t, _ in s.points],
                 "v": [_json_value(v) for _, v in s.points],
             }
-            for s in series.values()
+            for s in (*series.values(), *margins.values())
         ],
     }
     return out, data
@@ -161,14 +195,17 @@ def _json_value(v: Any) -> Any:
     return v
 
 
-def _range(s: Series) -> tuple[float, float]:
+def _range(s: Series, *, margin: bool = False) -> tuple[float, float]:
+    """The values' range; a margin's always holds 0 (its zero line is in the lane)."""
     vals = [float(v) for _, v in s.points if math.isfinite(float(v))]
+    if margin:
+        vals.append(0.0)
     if not vals:
         return 0.0, 1.0
     return min(vals), max(vals)
 
 
-def _input(s: Series, ln: Lane, t0: int, t1: int) -> list[str]:
+def _input(s: Series, ln: Lane, t0: int, t1: int, *, margin: bool = False) -> list[str]:
     if not s.points:
         return []
     end = s.points[-1][0]
@@ -183,7 +220,7 @@ def _input(s: Series, ln: Lane, t0: int, t1: int) -> list[str]:
                     f'height="{ln.h - 6}"/>'
                 )
         return out
-    lo, hi = _range(s)
+    lo, hi = _range(s, margin=margin)
     span = hi - lo
 
     def yv(v: float) -> float:
@@ -201,7 +238,36 @@ def _input(s: Series, ln: Lane, t0: int, t1: int) -> list[str]:
             continue
         parts.append(f"H{x}V{yv(f)}" if pen else f"M{x} {yv(f)}")
         pen = True
-    return [f'<path class="line" d="{"".join(parts)}"/>'] if parts else []
+    if not margin:
+        return [f'<path class="line" d="{"".join(parts)}"/>'] if parts else []
+    z = yv(0.0)
+    zero = f'<line class="zero" x1="0" x2="{W}" y1="{z}" y2="{z}"/>'
+    path = f'<path class="line margin" d="{"".join(parts)}"/>' if parts else ""
+    return [zero, path]
+
+
+def _leads(records: list[dict[str, Any]], ln: Lane, t0: int, t1: int) -> list[str]:
+    """Each predicted violation's lead time: a bar in the predictions lane from
+    ``predicted_ms`` before the violation to the violation."""
+    out = []
+    for r in records:
+        lead = r.get("predicted_ms")
+        if r.get("event") != "violation" or isinstance(lead, bool):
+            continue
+        if not isinstance(lead, int | float) or not 0 <= lead < 1e9:  # the log's: anything
+            continue
+        b = r["_t"]
+        a = b - int(lead * 1_000_000)
+        xa, xb = _x(a, t0, t1), _x(b, t0, t1)
+        rid = str(r.get("requirement"))
+        req = escape(rid)
+        said = f"{rid} predicted {_fmt(lead)} ms ahead"
+        out.append(
+            f'<rect class="lead" data-requirement="{req}" data-lead-ms="{_fmt(lead)}" '
+            f'x="{xa}" y="{ln.y + 6}" width="{max(xb - xa, 0.5)}" height="{ln.h - 12}">'
+            f"{_title(said)}</rect>"
+        )
+    return out
 
 
 def _stale(records: list[dict[str, Any]], lanes: dict[str, Lane], t0: int, t1: int) -> list[str]:
@@ -254,6 +320,11 @@ def _events(
             cls += " dry" if r.get("dry_run") else ""
         elif ev == "reset":
             ln, cls = lanes["resets"], "reset"
+        elif ev in PREDICTIONS:
+            ln, cls = (
+                lanes["predictions"],
+                "prediction" + (" expired" if ev != "prediction" else ""),
+            )
         else:
             ln = lanes["supervisor"]
             what = str(r.get("what"))

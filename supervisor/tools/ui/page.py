@@ -74,6 +74,14 @@ svg.spark polyline { fill: none; stroke: #1565c0; stroke-width: 1.5; }
 #trust div { background: #fff3c4; color: #8a6d00; border: 1px solid #e0c96b; border-radius: 4px;
              padding: 4px 8px; margin-top: 8px; font-weight: 600; }
 #trust-note { color: #777; font-size: 12px; margin: 6px 12px 0; }
+/* a requirement's margin (docs/reference/margins.md): a gauge around 0, its value and
+   unit, the trend's arrow; an open prediction in its own colour */
+.margin { font-size: 12px; margin-top: 4px; white-space: nowrap; }
+svg.gauge { display: inline-block; vertical-align: middle; width: 80px; height: 12px; }
+svg.gauge .bg { fill: #eee; } svg.gauge .zero { stroke: #555; stroke-width: 1; }
+svg.gauge .pos { fill: #43a047; } svg.gauge .neg { fill: #e53935; }
+.predicted { display: block; background: #ffe0b2; color: #e65100; font-weight: 600;
+             border-radius: 4px; padding: 0 6px; margin-top: 2px; }
 </style>
 </head>
 <body data-live="0">
@@ -158,6 +166,7 @@ const M = {
   learned: {}, seen: {}, values: {}, reset: {available: false, why: "connecting"},
   lastAt: {},  // requirement -> its last violation on this page's clock (now())
   hist: {}, feed: [], connected: false, invalid: {count: 0}, publishers: [],
+  marginMax: {},  // requirement -> the largest finite |margin| seen: its gauge's full scale
 };
 const $ = (id) => document.getElementById(id);
 const esc = (s) => String(s ?? "").replace(/[&<>"']/g,
@@ -348,6 +357,36 @@ function heldFor(id) {
 const PRESSING = ["latched", "escalated", "violated"];
 let heldShown = "";  // the requirements shown as recently violated, to re-render on change
 
+// A requirement's margin as a gauge: the bar from 0 to the margin, scaled by the
+// largest finite margin this page saw of it (an infinite one fills its half); its
+// value, unit and trend's arrow (margin units per second); an open prediction's
+// time to violation.  Nothing when margins are off.
+function gauge(r) {
+  if (r.margin == null) return "";
+  const m = obj(r.margin);
+  const v = m.value, x = num(v);
+  const inf = v === "inf" ? 1 : v === "-inf" ? -1 : 0;
+  if (x == null && !inf) return "";
+  const top = Math.max(M.marginMax[r.id] || 0, x == null ? 0 : Math.abs(x));
+  M.marginMax[r.id] = top;
+  const frac = inf || (top > 0 ? x / top : 0);
+  const w = Math.abs(frac) * 39, at = frac >= 0 ? 40 : 40 - w;
+  const shown = inf ? (inf > 0 ? "+\u221e" : "-\u221e") : Number(x.toPrecision(4)).toString();
+  const t = num(m.trend_per_s);
+  const arrow = t == null ? "" : t > 0 ? "\u2191" : t < 0 ? "\u2193" : "\u2192";
+  const trend = t == null ? "" : ` <span class="trend" title="${esc(m.trend_from)}">${arrow} ` +
+    `${esc(Number(t.toPrecision(3)))}/s</span>`;
+  const unit = typeof m.unit === "string" && m.unit ? ` <span class="muted">(${esc(m.unit)})</span>` : "";
+  const p = m.prediction == null ? null : obj(m.prediction);
+  const ttv = p && num(p.ttv_ms) != null ? `in ${esc((p.ttv_ms / 1000).toFixed(1))} s` : "ahead";
+  const pred = p ? `<span class="predicted" data-ttv-ms="${esc(num(p.ttv_ms))}">violation predicted ${ttv}</span>` : "";
+  return `<div class="margin" data-margin="${esc(inf ? v : x)}">margin ` +
+    `<svg class="gauge" viewBox="0 0 80 12"><rect class="bg" x="0" y="2" width="80" height="8"/>` +
+    `<rect class="${frac >= 0 ? "pos" : "neg"}" x="${at.toFixed(1)}" y="2" width="${w.toFixed(1)}" height="8"/>` +
+    `<line class="zero" x1="40" y1="0" x2="40" y2="12"/></svg> ` +
+    `<span class="value">${esc(shown)}</span>${unit}${trend}${pred}</div>`;
+}
+
 function renderRequirements() {
   // the most recently violated first; the others in the document's order (stable sort)
   const list = requirements().map((r) => obj(r));
@@ -379,7 +418,7 @@ function renderRequirements() {
     return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" ` +
       `data-daemon-state="${esc(daemonState)}" data-violations="${esc(count)}">` +
       `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
-      `<td>${badge}${stale}</td>` +
+      `<td>${badge}${stale}${gauge(r)}</td>` +
       `<td>${esc(count)}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
       `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
   });

@@ -34,6 +34,9 @@ MAX_TEXT = 16 * 1024  # one string (a requirement's text or formula)
 MAX_NAME = 256  # an id, a name, a topic, a time
 STATES = ("latched", "escalated", "debouncing", "violated", "cooldown", "holding")
 NONFINITE = ("nan", "inf", "-inf")  # how the daemon writes them (json_safe)
+# A margin is in its inputs' units (docs/reference/margins.md): past 1e12 of any unit
+# it is no reading of a robot but a forged or broken value the page would draw.
+MAX_MARGIN = 1e12
 
 Check = Callable[[Any, str], Any]
 
@@ -121,6 +124,49 @@ def value(v: Any, where: str) -> Any:
     raise _fail(where, 'a bool, a number, "nan", "inf", "-inf" or null', v)
 
 
+def within(limit: float) -> Check:
+    """A finite number from -limit to limit, or null."""
+
+    def check(v: Any, where: str) -> Any:
+        if v is None:
+            return None
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, int | float)
+            or not math.isfinite(v)
+            or abs(v) > limit
+        ):
+            raise _fail(where, f"a finite number within +-{limit:g} or null", v)
+        return float(v)
+
+    return _default(check, None)
+
+
+def margin_value(v: Any, where: str) -> Any:
+    """A margin: finite and within MAX_MARGIN, or the daemon's spelling of a boolean
+    atom's infinite one ("inf", "-inf"); never NaN."""
+    if isinstance(v, str) and v in ("inf", "-inf"):
+        return v
+    if (
+        v is None
+        or isinstance(v, bool)
+        or not isinstance(v, int | float)
+        or not math.isfinite(v)
+        or abs(v) > MAX_MARGIN
+    ):
+        raise _fail(where, f'a finite number within +-{MAX_MARGIN:g}, "inf" or "-inf"', v)
+    return float(v)
+
+
+def optional(check: Check) -> Check:
+    """``check``, or null."""
+
+    def inner(v: Any, where: str) -> Any:
+        return None if v is None else check(v, where)
+
+    return _default(inner, None)
+
+
 def any_text(v: Any, where: str) -> Any:
     """A free-form detail: a string as is, anything else as its JSON text."""
     if v is None or isinstance(v, str):
@@ -187,6 +233,24 @@ ACTION = record(
         "dry_run": boolean(optional=True),
     }
 )
+PREDICTION = record(
+    {
+        "tick": integer(optional=True),
+        "since_ms": number(optional=True),
+        "ttv_ms": number(optional=True),
+    }
+)
+MARGIN = record(
+    {
+        "value": margin_value,
+        # margin units per second: the predictor's slope, or a difference
+        "trend_per_s": within(MAX_MARGIN),
+        "trend_from": optional(one_of("predictor", "difference")),
+        "unit": NAME,
+        "prediction": optional(PREDICTION),
+    },
+    required=("value",),
+)
 REQUIREMENT = record(
     {
         "id": text(MAX_NAME, optional=False, empty=False),
@@ -198,6 +262,7 @@ REQUIREMENT = record(
         "last_tick": integer(optional=True),
         "stale_inputs": listof(text(MAX_NAME, optional=False), MAX_ITEMS),
         "actions": listof(ACTION, MAX_ACTIONS),
+        "margin": optional(MARGIN),  # null: margins off (or no step yet)
     },
     required=("id", "state"),
 )

@@ -276,3 +276,81 @@ def test_an_input_says_when_its_value_is_a_float32(tmp_path: Path):
         "mean": None,  # computed in double
         "count": None,
     }
+
+
+MARGINS = """\
+component: lamp
+step: {policy: periodic, period_ms: 20, margins: true}
+variables:
+  distance: {type: double, topic: /distance, msg: std_msgs/msg/Float64}
+  uv_on: {type: bool, topic: /uv, msg: std_msgs/msg/Bool}
+  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}
+requirements:
+  - id: keep_away
+    text: lamp shall always satisfy uv_on -> distance >= 3.0
+    on_violation: [note]
+    predict: {horizon_ms: 1500, window_ms: 500, actions: [note]}
+  - id: limit
+    text: lamp shall always satisfy speed <= 2.0
+    on_violation: [note]
+  - id: lamp_on
+    text: lamp shall always satisfy uv_on
+    on_violation: [note]
+mitigations:
+  note: {log: {message: note}}
+"""
+
+
+def test_the_document_carries_each_margin_its_trend_unit_and_open_prediction(tmp_path: Path):
+    (tmp_path / "c.yaml").write_text(MARGINS)
+    project = project_for(tmp_path / "c.yaml", ros=False)
+    assert project.ok, project.first_error()
+    session = build_session(project, compile_spec(project.spec(), tmp_path / "b"))
+    try:
+        board = StatusBoard("safety_supervisor")
+        core = Core(session, MemoryLog(), lambda _r: None, warn=lambda _t: None)
+
+        def doc(t_ms: int, peek: bool = False) -> dict[str, dict[str, Any]]:
+            d = board.document(core, now_ns=t_ms * MS, reloads=0, recording=False,
+                               watchdog_s=None, control_socket=None, peek=peek)  # fmt: skip
+            json.dumps(d)
+            return {r["id"]: r["margin"] for r in d["requirements"]}
+
+        core.start(0)
+        assert doc(0) == {"keep_away": None, "limit": None, "lamp_on": None}  # no step yet
+        core.fields([("uv_on", True), ("distance", 9.0), ("speed", 0.5)], 1 * MS)
+        core.advance(100 * MS)
+        first = doc(100)
+        # limit: H (speed <= 2.0) with margins on: 2.0 - 0.5, the monitor's own; no
+        # trend at the first document
+        assert first["limit"]["value"] == 1.5 and first["limit"]["trend_per_s"] is None
+        assert first["limit"]["unit"] == "speed" and first["limit"]["prediction"] is None
+        assert first["lamp_on"]["value"] == "inf"  # a boolean atom's, written as json_safe does
+        assert first["lamp_on"]["unit"] is None
+        assert first["keep_away"]["value"] == 6.0 and first["keep_away"]["unit"] == "distance"
+        core.fields([("speed", 1.5)], 101 * MS)
+        core.advance(300 * MS)
+        assert doc(300, peek=True)["limit"]["trend_per_s"] == pytest.approx(-1.0 / 0.2)
+        second = doc(600)  # the peek left the previous document's margins as they were
+        assert second["limit"]["value"] == 0.5
+        assert second["limit"]["trend_per_s"] == pytest.approx(-1.0 / 0.5)
+        assert second["limit"]["trend_from"] == "difference"
+        # a walk in at 2 m/s: the predictor's slope, and the prediction while open
+        for t_ms in range(620, 3000, 20):
+            core.fields([("distance", 9.0 - 2.0 * (t_ms - 600) / 1000)], t_ms * MS + 1)
+            m = doc(t_ms)["keep_away"]
+            if m["prediction"] is not None:
+                break
+        assert m["trend_from"] == "predictor" and m["trend_per_s"] == pytest.approx(-2.0)
+        assert m["value"] == pytest.approx(6.0 - 2.0 * (t_ms - 620) / 1000)
+        ttv = m["prediction"]["ttv_ms"]
+        assert ttv == pytest.approx(m["value"] / 2.0 * 1000, abs=25)
+        assert 0 < ttv <= 1500 and m["prediction"]["since_ms"] <= 20
+        # past the UI's bound (schema.MAX_MARGIN): its sign's infinity, the trend null
+        core.fields([("speed", 5e12)], (t_ms + 20) * MS + 1)
+        core.advance((t_ms + 40) * MS)
+        far = doc(t_ms + 40)["limit"]
+        assert far["value"] == "-inf" and far["trend_per_s"] is None, far
+    finally:
+        assert session.cleanup is not None
+        session.cleanup()

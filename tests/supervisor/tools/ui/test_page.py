@@ -410,3 +410,61 @@ def test_ui_serves_the_hold_it_was_given(tmp_path: Path) -> None:
             assert f'const HOLD_S = Number("{shown}") >= 0' in body.decode(), extra
         finally:
             child.stop()
+
+
+# ---------------------------------------------------------------- margins
+
+
+def test_the_margins_are_gauges_with_unit_trend_and_prediction(tmp_path: Path) -> None:
+    """docs/reference/commands.md, ui: a gauge around 0 scaled by the largest margin
+    seen, the value, unit (as text), the trend's arrow, an open prediction."""
+    import json
+
+    from supervisor.tools.ui.schema import parse_status
+
+    def margin(value: Any, **over: Any) -> dict[str, Any]:
+        return {"value": value, "trend_per_s": None, "trend_from": None, "unit": "d",
+                "prediction": None, **over}  # fmt: skip
+
+    reqs = [
+        requirement("near", margin=margin(2.0, trend_per_s=-1.5, trend_from="predictor",
+                                          unit="<img src=x>",
+                                          prediction={"tick": 3, "since_ms": 40.0,
+                                                      "ttv_ms": 1234.0})),
+        requirement("far", margin=margin(4.0, trend_per_s=0.25, trend_from="difference")),
+        requirement("broken", state="violated", margin=margin(-1.0)),
+        requirement("atom", margin=margin("inf", unit=None)),
+        requirement("off"),
+    ]  # fmt: skip
+    doc = parse_status(json.dumps(status_doc("/x", requirements=reqs)).encode())
+    with page_of(tmp_path, doc) as (_hub, page, _console, _requests, _sock):
+
+        def gauge(rid: str) -> dict[str, Any]:
+            return page.eval_on_selector(
+                f"tr.req[data-requirement='{rid}'] .margin",
+                """m => ({margin: m.dataset.margin, text: m.textContent,
+                    bar: m.querySelector('rect.pos, rect.neg').getAttribute('class'),
+                    width: +m.querySelector('rect.pos, rect.neg').getAttribute('width'),
+                    predicted: m.querySelector('.predicted')?.textContent ?? null,
+                    imgs: m.querySelectorAll('img').length})""",
+            )
+
+        near, far, broken, atom = (gauge(r) for r in ("near", "far", "broken", "atom"))
+        assert page.query_selector("tr.req[data-requirement='off'] .margin") is None
+        assert (near["margin"], far["margin"], broken["margin"], atom["margin"]) == (
+            "2", "4", "-1", "inf",
+        )  # fmt: skip
+        # each scaled by its own largest margin seen: one document, each full or empty
+        assert near["bar"] == far["bar"] == atom["bar"] == "pos" and broken["bar"] == "neg"
+        assert near["width"] == far["width"] == broken["width"] == atom["width"] == 39
+        assert "\u2193 -1.5/s" in near["text"] and "\u2191 0.25/s" in far["text"]
+        assert "(<img src=x>)" in near["text"] and near["imgs"] == 0  # text, not markup
+        assert near["predicted"] == "violation predicted in 1.2 s"
+        assert far["predicted"] is None and "+\u221e" in atom["text"]
+        # the next document: the scale keeps the largest margin seen (2), so 1 is half
+        reqs[0]["margin"] = margin(1.0)
+        _hub.on_status(parse_status(json.dumps(status_doc("/x", requirements=reqs)).encode()))
+        wait_js(page, "document.querySelector(\"tr.req[data-requirement='near'] .margin\")"
+                      ".dataset.margin === '1'")  # fmt: skip
+        near = gauge("near")
+        assert near["width"] == 19.5 and near["predicted"] is None
