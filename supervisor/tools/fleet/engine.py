@@ -38,6 +38,14 @@ def _run(task: BagTask) -> BagResult:
     return run_task(task, _done)
 
 
+def _warm() -> int:
+    """What every task imports, imported while the parent still compiles the config
+    and lists the archive (``LocalEngine.start``)."""
+    import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
+
+    return os.getpid()
+
+
 class LocalEngine:
     """``jobs`` worker processes (``spawn``: a worker starts clean, never a fork of a
     parent that may hold threads).  A worker that dies (killed, out of memory)
@@ -45,17 +53,48 @@ class LocalEngine:
 
     def __init__(self, jobs: int | None = None) -> None:
         self.jobs = jobs or os.cpu_count() or 1
+        self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
+        self.warm: list[Future[int]] = []  # the started workers' imports (their pids)
+
+    def start(self, done: Collection[str]) -> None:
+        """Start the workers now, each importing what a task needs, so that their
+        start-up overlaps the parent's (the config compiled, the archive listed): a
+        serial part of every run otherwise (docs/BENCHMARKS.md, "Fleet").  ``results``
+        with the same ``done`` uses them."""
+        self.close()
+        done = frozenset(done)
+        pool = self._pool(self.jobs, done)
+        self._started = (pool, done)
+        # spawned one per submit (concurrent.futures), each import on a worker of its own
+        self.warm = [pool.submit(_warm) for _ in range(self.jobs)]
+
+    def close(self) -> None:
+        """The started workers stopped, when ``results`` did not take them."""
+        if self._started is not None:
+            self._started[0].shutdown(wait=True, cancel_futures=True)
+            self._started = None
+
+    @staticmethod
+    def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=jobs,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init,
+            initargs=(done,),
+        )
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
         todo = [(t, 1) for t in tasks]  # (task, attempt)
+        started, self._started = self._started, None
+        if started is not None and (not todo or started[1] != frozenset(done)):
+            started[0].shutdown(wait=True, cancel_futures=True)
+            started = None
         while todo:
             retry: list[tuple[BagTask, int]] = []
-            pool = ProcessPoolExecutor(
-                max_workers=min(self.jobs, len(todo)),
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_init,
-                initargs=(frozenset(done),),
-            )
+            if started is not None:
+                pool, started = started[0], None
+            else:
+                pool = self._pool(min(self.jobs, len(todo)), frozenset(done))
             # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
             # started are dropped, not run to the end of the archive
             try:

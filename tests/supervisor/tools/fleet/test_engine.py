@@ -283,3 +283,30 @@ def _named(pid: int, name: bytes) -> bool:
     except OSError:
         return False
     return argv0.endswith(b"/" + name)
+
+
+def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
+    """``start`` spawns the workers (their imports overlap the parent's compile and
+    listing); ``results`` runs the tasks on those same workers, no second pool, and
+    ``close`` stops workers that no run took."""
+    import multiprocessing
+
+    from supervisor.tools.fleet.engine import LocalEngine
+    from supervisor.tools.fleet.task import BagTask
+
+    cfg = config(tmp_path)
+    bags = [write_bag(tmp_path / f"b{i}", messages(i, 300)) for i in range(4)]
+    engine = LocalEngine(2)
+    engine.start(frozenset())
+    warm = {f.result(timeout=120) for f in engine.warm}  # each a worker's pid
+    seen: set[int] = set()
+    tasks = [BagTask(str(b), "r", str(cfg), "c" * 64) for b in bags]
+    for result in engine.results(tasks, frozenset()):
+        assert result.status == "read", result.reason
+        seen |= {p.pid for p in multiprocessing.active_children()}
+    assert warm <= seen and len(seen) == 2  # the started workers, no other
+    idle = LocalEngine(2)
+    idle.start(frozenset())
+    started = {f.result(timeout=120) for f in idle.warm}
+    idle.close()
+    assert not started & {p.pid for p in multiprocessing.active_children()}
