@@ -119,13 +119,11 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     namespace = checked_namespace(args.namespace, "fleet replay")
     # what an earlier run finished, read (nothing made yet) before the workers start:
-    # they take it at their start, while this process compiles and lists
+    # they take it at their start, while this process compiles the config
     done = Dataset(Path(args.output), make=False).done()
     # by content hash too: the same bag under another path is hashed, not replayed
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
-    if isinstance(engine, LocalEngine):
-        engine.start(done_contents)
     try:
         return _replay(args, engine, namespace, done, done_contents)
     finally:
@@ -138,19 +136,23 @@ def _replay(
 ) -> int:
     from supervisor.tools.fleet.archive import list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers
+    from supervisor.tools.fleet.engine import LocalEngine
     from supervisor.tools.fleet.task import BagResult, BagTask
     from supervisor.tools.replay.session import loaded
 
     configs = [Path(args.config).absolute()]
     if args.compare:
         configs.append(Path(args.compare).absolute())
+    bags = list_archive(args.archives, args.robot_from)
+    if isinstance(engine, LocalEngine):
+        # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned)
+        engine.start(done_contents, len(bags) * len(configs))
     shas = []
     for c in configs:
         # compiled here once: a bad config is one error before any bag, and the
         # workers find its monitor in the start-up cache
         with loaded(c) as session:
             shas.append(session.config.sha256)
-    bags = list_archive(args.archives, args.robot_from)
     dataset = Dataset(Path(args.output))
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size

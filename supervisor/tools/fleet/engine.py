@@ -57,23 +57,28 @@ class LocalEngine:
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
         self.warm: list[Future[int]] = []  # the started workers' imports (their pids)
 
-    def start(self, done: Collection[str]) -> None:
+    def start(self, done: Collection[str], tasks: int | None = None) -> None:
         """Start the workers now, each importing what a task needs, so that their
-        start-up overlaps the parent's (the config compiled, the archive listed): a
-        serial part of every run otherwise (docs/BENCHMARKS.md, "Fleet").  ``results``
-        with the same ``done`` uses them."""
+        start-up overlaps the parent's (the config compiled): a serial part of every
+        run otherwise (docs/BENCHMARKS.md, "Fleet").  ``tasks``: at most that many
+        tasks to come (no more workers than that).  ``results`` with the same
+        ``done`` uses them."""
         self.close()
+        workers = self.jobs if tasks is None else min(self.jobs, tasks)
+        if workers < 1:
+            return
         done = frozenset(done)
-        pool = self._pool(self.jobs, done)
+        pool = self._pool(workers, done)
         self._started = (pool, done)
         # spawned one per submit (concurrent.futures), each import on a worker of its own
-        self.warm = [pool.submit(_warm) for _ in range(self.jobs)]
+        self.warm = [pool.submit(_warm) for _ in range(workers)]
 
     def close(self) -> None:
         """The started workers stopped, when ``results`` did not take them."""
         if self._started is not None:
             self._started[0].shutdown(wait=True, cancel_futures=True)
             self._started = None
+        self.warm = []
 
     @staticmethod
     def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:

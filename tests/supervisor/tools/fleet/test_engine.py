@@ -305,11 +305,14 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
         assert result.status == "read", result.reason
         seen |= {p.pid for p in multiprocessing.active_children()}
     assert warm <= seen and len(seen) == 2  # the started workers, no other
-    idle = LocalEngine(2)
-    idle.start(frozenset())
+    idle = LocalEngine(4)
+    idle.start(frozenset(), 2)  # no more workers than tasks to come
+    assert len(idle.warm) == 2
     started = {f.result(timeout=120) for f in idle.warm}
     idle.close()
     assert not started & {p.pid for p in multiprocessing.active_children()}
+    idle.start(frozenset(), 0)  # nothing to run: nothing started
+    assert not idle.warm and not multiprocessing.active_children()
 
 
 class _Taken(list):  # type: ignore[type-arg]
