@@ -274,8 +274,43 @@ def typestore_of(
     otherwise (a different REP-2011 hash, as rosbag2's stub definitions); else the
     recording's own.  rosbags' Jazzy types stand in for a package not installed,
     but never over a definition of the recording that parses.  Each type used
-    instead of the recording's definition is said in ``said``, one line each."""
-    defs = list(defs)
+    instead of the recording's definition is said in ``said``, one line each.
+
+    The same definitions give the same store, kept (a few, the last used): bags of
+    one robot define the same types, and making the store and its classes took a
+    fifth of a small bag's replay (docs/BENCHMARKS.md, "Fleet").  Readers only read
+    a store, and rosbags' generated deserializers come with it."""
+    key = (
+        tuple(defs),
+        tuple(used),
+        tuple(prefixes) if prefixes is not None else os.environ.get("AMENT_PREFIX_PATH"),
+    )
+    kept = _stores.pop(key, None)
+    if kept is None:
+        kept = _typestore(list(key[0]), key[1], prefixes)
+    _stores[key] = kept  # the last used, last out
+    while len(_stores) > STORES_KEPT:
+        del _stores[next(iter(_stores))]
+    store, replaced = kept
+    if said is not None:
+        for typ, theirs, where, inst_hash in replaced:
+            said.append(
+                f"warning: {label}: type {typ}: the recording's definition ({theirs}) "
+                f"is not {where} (hash {inst_hash}): decoded with that one"
+            )
+    return store
+
+
+STORES_KEPT = 8
+# (definitions, types used, where installed types are) -> the store, and the types
+# it decodes otherwise than the recording defines them (said by typestore_of)
+_stores: dict[tuple[Any, ...], tuple[Typestore, list[tuple[str, str, str, str]]]] = {}
+
+
+def _typestore(
+    defs: list[tuple[str, str, str]], used: Iterable[str], prefixes: Sequence[Path] | None
+) -> tuple[Typestore, list[tuple[str, str, str, str]]]:
+    replaced: list[tuple[str, str, str, str]] = []
     bag, parsed = _bag_types(defs)
     defined = {normalise_type(name) for name, _enc, text in defs if text}
     defined |= {f"{n}_Event" for n in defined if "/srv/" in n}
@@ -302,12 +337,8 @@ def typestore_of(
             bag_hash = _hash(typ, own) if own else None
             if bag_hash is not None and bag_hash == inst_hash:
                 continue
-            if said is not None:
-                theirs = f"hash {bag_hash}" if bag_hash else "does not parse"
-                said.append(
-                    f"warning: {label}: type {typ}: the recording's definition ({theirs}) "
-                    f"is not {where} (hash {inst_hash}): decoded with that one"
-                )
+            theirs = f"hash {bag_hash}" if bag_hash else "does not parse"
+            replaced.append((typ, theirs, where, str(inst_hash)))
         chosen.update(inst)
     # Only what the recording's types use (and the daemon's records, std_msgs/String):
     # making a class of each of rosbags' 170 Jazzy types costs 0.1 s per bag.
@@ -316,4 +347,4 @@ def typestore_of(
         needed.update(_closure(typ, chosen, jazzy, partial=True) or {})
     store = get_typestore(Stores.EMPTY)
     store.register(needed)
-    return store
+    return store, replaced

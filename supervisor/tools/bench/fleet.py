@@ -152,9 +152,12 @@ def run_fleet(
     proc = children.start(argv, env=children.child_env(), stdout=-1, stderr=-1)
     peaks: dict[int, int] = {}
     killed = False
+    # the sampling period; finer when a kill waits for the bags finished: a small
+    # archive's second half can take less than 0.1 s
+    period = 0.1 if stop_after is None else 0.005
     while True:
         try:
-            proc.wait(timeout=0.1)  # the sampling period
+            proc.wait(timeout=period)
             break
         except subprocess.TimeoutExpired:  # still running
             for pid, kb in _workers(proc.pid).items():

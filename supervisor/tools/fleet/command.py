@@ -107,12 +107,9 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         from supervisor.tools.fleet.report import cmd_report
 
         return cmd_report(args)
-    from supervisor.tools.fleet.archive import list_archive
-    from supervisor.tools.fleet.dataset import Dataset, Writers
+    from supervisor.tools.fleet.dataset import Dataset
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
-    from supervisor.tools.fleet.task import BagResult, BagTask
     from supervisor.tools.replay.command import checked_namespace
-    from supervisor.tools.replay.session import loaded
 
     if args.address is not None and args.engine != "ray":
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
@@ -121,18 +118,42 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     # made first: an unreachable cluster is said before anything is compiled or read
     engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
     namespace = checked_namespace(args.namespace, "fleet replay")
+    # what an earlier run finished, read (nothing made yet) before the workers start:
+    # they take it at their start, while this process compiles the config
+    done = Dataset(Path(args.output), make=False).done()
+    # by content hash too: the same bag under another path is hashed, not replayed
+    # (a task's key is its config's hash and its content: other configs' never match)
+    done_contents = {f"{s}:{h}" for s, h in done.contents}
+    try:
+        return _replay(args, engine, namespace, done, done_contents)
+    finally:
+        if isinstance(engine, LocalEngine):
+            engine.close()  # started, and not taken by a run stopped by an error
+
+
+def _replay(
+    args: argparse.Namespace, engine: Any, namespace: str | None, done: Any, done_contents: set[str]
+) -> int:
+    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.dataset import Dataset, Writers
+    from supervisor.tools.fleet.engine import LocalEngine
+    from supervisor.tools.fleet.task import BagResult, BagTask
+    from supervisor.tools.replay.session import loaded
+
     configs = [Path(args.config).absolute()]
     if args.compare:
         configs.append(Path(args.compare).absolute())
+    bags = list_archive(args.archives, args.robot_from)
+    if isinstance(engine, LocalEngine):
+        # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned)
+        engine.start(done_contents, len(bags) * len(configs))
     shas = []
     for c in configs:
         # compiled here once: a bad config is one error before any bag, and the
         # workers find its monitor in the start-up cache
         with loaded(c) as session:
             shas.append(session.config.sha256)
-    bags = list_archive(args.archives, args.robot_from)
     dataset = Dataset(Path(args.output))
-    done = dataset.done()
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
     failed_first: list[BagResult] = []
@@ -151,9 +172,6 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     line = Line("fleet", on=False if args.quiet else None)
     progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks), line)
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
-    # by content hash too: the same bag under another path is hashed, not replayed
-    # (one set for both configs: a task's key is its content and its config's hash)
-    done_contents = {f"{s}:{h}" for s, h in done.contents if s in shas}
     results = engine.results(tasks, done_contents)
     try:
         with Writers(dataset) as writers:

@@ -60,9 +60,11 @@ class Done:
 
 
 class Dataset:
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, *, make: bool = True) -> None:
+        """``make``: the directory made now (else only read: ``done`` before a run)."""
         try:  # made before any bag is read: a dataset that cannot be written is said first
-            root.mkdir(parents=True, exist_ok=True)
+            if make:
+                root.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise UserError(f"cannot make the dataset: {e.strerror or e}", file=str(root)) from None
         self.root = root

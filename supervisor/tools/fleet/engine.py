@@ -25,6 +25,7 @@ from monitors.untrusted import printable
 from supervisor.tools.fleet.task import BagResult, BagTask, _reason, run_task
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
+WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
 
 _done: Collection[str] = ()
 
@@ -38,6 +39,14 @@ def _run(task: BagTask) -> BagResult:
     return run_task(task, _done)
 
 
+def _warm() -> int:
+    """What every task imports, imported while the parent still compiles the config
+    and lists the archive (``LocalEngine.start``)."""
+    import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
+
+    return os.getpid()
+
+
 class LocalEngine:
     """``jobs`` worker processes (``spawn``: a worker starts clean, never a fork of a
     parent that may hold threads).  A worker that dies (killed, out of memory)
@@ -45,43 +54,99 @@ class LocalEngine:
 
     def __init__(self, jobs: int | None = None) -> None:
         self.jobs = jobs or os.cpu_count() or 1
+        self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
+        self.warm: list[Future[int]] = []  # the started workers' imports (their pids)
+
+    def start(self, done: Collection[str], tasks: int | None = None) -> None:
+        """Start the workers now, each importing what a task needs, so that their
+        start-up overlaps the parent's (the config compiled): a serial part of every
+        run otherwise (docs/BENCHMARKS.md, "Fleet").  ``tasks``: at most that many
+        tasks to come (no more workers than that).  ``results`` with the same
+        ``done`` uses them."""
+        self.close()
+        workers = self.jobs if tasks is None else min(self.jobs, tasks)
+        if workers < 1:
+            return
+        done = frozenset(done)
+        pool = self._pool(workers, done)
+        self._started = (pool, done)
+        # spawned one per submit (concurrent.futures), each import on a worker of its own
+        self.warm = [pool.submit(_warm) for _ in range(workers)]
+
+    def close(self) -> None:
+        """The started workers stopped, when ``results`` did not take them."""
+        if self._started is not None:
+            self._started[0].shutdown(wait=True, cancel_futures=True)
+            self._started = None
+        self.warm = []
+
+    @staticmethod
+    def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(
+            max_workers=jobs,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_init,
+            initargs=(done,),
+        )
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
-        todo = [(t, 1) for t in tasks]  # (task, attempt)
-        while todo:
+        # (task, attempt), taken as the window has room: each wait() installs a waiter
+        # on every future it is given, so the whole archive in flight cost the parent
+        # time growing with the square of the bags
+        todo: Iterator[tuple[BagTask, int]] = ((t, 1) for t in tasks)
+        started, self._started = self._started, None
+        if started is not None and (not tasks or started[1] != frozenset(done)):
+            started[0].shutdown(wait=True, cancel_futures=True)
+            started = None
+        left = len(tasks)
+        while left:
             retry: list[tuple[BagTask, int]] = []
-            pool = ProcessPoolExecutor(
-                max_workers=min(self.jobs, len(todo)),
-                mp_context=multiprocessing.get_context("spawn"),
-                initializer=_init,
-                initargs=(frozenset(done),),
-            )
+            if started is not None:
+                pool, started = started[0], None
+            else:
+                pool = self._pool(min(self.jobs, left), frozenset(done))
+            window = WINDOW_PER_JOB * self.jobs
+            broken = False
             # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
             # started are dropped, not run to the end of the archive
             try:
-                running: dict[Future[BagResult], tuple[BagTask, int]] = {
-                    pool.submit(_run, t): (t, n) for t, n in todo
-                }
-                while running:
+                running: dict[Future[BagResult], tuple[BagTask, int]] = {}
+                while True:
+                    while not broken and len(running) < window:
+                        nxt = next(todo, None)
+                        if nxt is None:
+                            break
+                        try:
+                            running[pool.submit(_run, nxt[0])] = nxt
+                        except BrokenProcessPool:  # a worker died: the next pool runs it
+                            broken = True
+                            retry.append(nxt)
+                    if not running:
+                        break
                     finished, _ = wait(running, return_when=FIRST_COMPLETED)
                     for f in finished:
                         task, n = running.pop(f)
                         try:
                             yield f.result()
+                            left -= 1
                         except BrokenProcessPool:
+                            broken = True
                             if n < ATTEMPTS:
                                 retry.append((task, n + 1))
                             else:
+                                left -= 1
                                 yield BagResult(
                                     task, "failed", f"its worker process died {n} times"
                                 )
                         except Exception as e:  # noqa: BLE001 - one bag's bug is its row
+                            left -= 1
                             yield BagResult(
                                 task, "failed", f"internal error: {type(e).__name__}: {e}"
                             )
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
-            todo = retry
+            # the next pool: the tasks its worker's death took down, then those not started
+            todo = itertools.chain(retry, todo)
 
 
 RAY_MISSING = "pip install 'safety-supervisor[fleet]'"

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from monitors.backends.load import load_monitor
+from monitors.backends.load import LoadedMonitor, load_monitor
 from monitors.ir.formula import use_parser_cache
 from monitors.ir.spec import MonitorSpec
 from supervisor.cache import Cache
@@ -36,6 +36,10 @@ class Prepared:
     spec: MonitorSpec
     cache: Cache | None
     key: str | None
+    # monitors of finished sessions, given back by ``loaded``: the next session resets
+    # one (an O(1) C call) rather than loading a new copy of the library, a temporary
+    # directory, a file copy and a dlopen per bag (docs/BENCHMARKS.md, "Fleet")
+    spare: list[LoadedMonitor] = field(default_factory=list, compare=False)
 
 
 def prepare(config: Path) -> Prepared:
@@ -59,17 +63,25 @@ def loaded(config: Path, prepared: Prepared | None = None) -> Iterator[Session]:
     replay judges a recording, not the config.  ``prepared``: the config already
     compiled (``prepare``); each session is new all the same."""
     p = prepared if prepared is not None else prepare(config)
-    build = Path(tempfile.mkdtemp(prefix="safety-supervisor-replay-"))
+    monitor = p.spare.pop() if p.spare else None
+    build: Path | None = None
     try:
-        library = monitor_library(p.spec, build, p.cache, p.key)
-        session = build_session(p.project, load_monitor(library, p.spec), lambda: None)
+        if monitor is None:
+            build = Path(tempfile.mkdtemp(prefix="safety-supervisor-replay-"))
+            monitor = load_monitor(monitor_library(p.spec, build, p.cache, p.key), p.spec)
+        else:
+            monitor.reset()  # every requirement at tick 0, as freshly loaded
+        session = build_session(p.project, monitor, lambda: None)
         try:
             yield session
         finally:
             assert session.cleanup is not None
             session.cleanup()  # the predictions' monitor, when there is one
+            if prepared is not None and monitor.has_reset:
+                p.spare.append(monitor)
     finally:
-        shutil.rmtree(build, ignore_errors=True)
+        if build is not None:
+            shutil.rmtree(build, ignore_errors=True)
 
 
 def monitor_key(spec: MonitorSpec) -> str:

@@ -283,3 +283,63 @@ def _named(pid: int, name: bytes) -> bool:
     except OSError:
         return False
     return argv0.endswith(b"/" + name)
+
+
+def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
+    """``start`` spawns the workers (their imports overlap the parent's compile and
+    listing); ``results`` runs the tasks on those same workers, no second pool, and
+    ``close`` stops workers that no run took."""
+    import multiprocessing
+
+    from supervisor.tools.fleet.engine import LocalEngine
+    from supervisor.tools.fleet.task import BagTask
+
+    cfg = config(tmp_path)
+    bags = [write_bag(tmp_path / f"b{i}", messages(i, 300)) for i in range(4)]
+    engine = LocalEngine(2)
+    engine.start(frozenset())
+    warm = {f.result(timeout=120) for f in engine.warm}  # each a worker's pid
+    seen: set[int] = set()
+    tasks = [BagTask(str(b), "r", str(cfg), "c" * 64) for b in bags]
+    for result in engine.results(tasks, frozenset()):
+        assert result.status == "read", result.reason
+        seen |= {p.pid for p in multiprocessing.active_children()}
+    assert warm <= seen and len(seen) == 2  # the started workers, no other
+    idle = LocalEngine(4)
+    idle.start(frozenset(), 2)  # no more workers than tasks to come
+    assert len(idle.warm) == 2
+    started = {f.result(timeout=120) for f in idle.warm}
+    idle.close()
+    assert not started & {p.pid for p in multiprocessing.active_children()}
+    idle.start(frozenset(), 0)  # nothing to run: nothing started
+    assert not idle.warm and not multiprocessing.active_children()
+
+
+class _Taken(list):  # type: ignore[type-arg]
+    """A task list that counts the tasks an engine has taken from it."""
+
+    taken = 0
+
+    def __iter__(self):  # type: ignore[no-untyped-def]
+        for t in super().__iter__():
+            self.taken += 1
+            yield t
+
+
+def test_the_local_pool_keeps_a_window_of_tasks_in_flight_not_the_archive(tmp_path):
+    """Every task submitted at once made each wait() look at every pending future,
+    a parent cost growing with the square of the bags; a few per worker are in
+    flight, and every task still gives one result."""
+    from supervisor.tools.fleet.engine import WINDOW_PER_JOB, LocalEngine
+    from supervisor.tools.fleet.task import BagTask
+
+    cfg = config(tmp_path)
+    bag = write_bag(tmp_path / "b", messages(1, 200))
+    # one bag under many paths: each path is a task of its own
+    tasks = _Taken(BagTask(str(bag), "r", str(cfg), "c" * 64) for _ in range(30))
+    paths = []
+    for i, result in enumerate(LocalEngine(1).results(tasks, frozenset())):
+        assert result.status == "read", result.reason
+        assert tasks.taken <= WINDOW_PER_JOB + i + 1  # one more taken as each ends
+        paths.append(result.task.bag)
+    assert len(paths) == 30 and tasks.taken == 30

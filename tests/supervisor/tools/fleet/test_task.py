@@ -62,3 +62,21 @@ def test_one_compile_serves_every_bag_and_an_edited_config_is_compiled_again(tmp
     assert _per_requirement(again) == _replayed(cfg, bags[0])
     assert _per_requirement(again)["limit"] < before["limit"]
     assert set(again.violations.column("config_sha256").to_pylist()) == {_sha(cfg)}
+
+
+def test_a_worker_loads_the_monitor_library_once_and_resets_it_for_each_bag(tmp_path):
+    """A new copy of the library per bag (a file copy, a dlopen never undone) cost
+    milliseconds a bag and memory that grew with the bags; the next bag's session
+    resets the one loaded monitor instead, and judges as a fresh replay does."""
+    from monitors.backends import load
+
+    bags = [write_bag(tmp_path / f"b{i}", messages(40 - 10 * i, 3000)) for i in range(3)]
+    cfg = config(tmp_path, limit=2.0)
+    task._prepared.clear()
+    first = run_task(BagTask(str(bags[0]), "r", str(cfg), _sha(cfg)))
+    libraries = len(load._loaded)
+    rest = [run_task(BagTask(str(b), "r", str(cfg), _sha(cfg))) for b in bags[1:]]
+    assert len(load._loaded) == libraries  # no new copy loaded for the later bags
+    for bag, result in zip(bags, [first, *rest], strict=True):
+        assert result.status == "read"
+        assert _per_requirement(result) == _replayed(cfg, bag) != {}
