@@ -81,7 +81,13 @@ def test_an_incident_on_the_page_with_the_real_daemon(tmp_path: Path, robot_node
             ),
             10,
         )
-        assert rows(page)[0] == ["limit", "violated"], rows(page)
+        # The document that says 'holding' and the violation's message reach the page
+        # on two topics, in either order: the violation is shown first once both are in
+        wait_until(
+            "'limit' first, shown violated",
+            lambda: rows(page)[0] == ["limit", "violated"],
+            5,
+        )
         badge = page.inner_text("tr.req[data-requirement='limit'] .state")
         assert badge.startswith("violated ") and badge.endswith(" s ago"), badge
 
