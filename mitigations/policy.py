@@ -21,6 +21,8 @@ Vocabulary:
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -76,6 +78,20 @@ class Forecast:
 
 Effect = Report | Act | ResetMonitor | Note | Forecast
 
+# Earlier than any time a step is given (monotonic or recorded nanoseconds).
+_ALWAYS = -(1 << 63)
+
+
+@dataclass(frozen=True)
+class Armed:
+    """What a requirement's next flagged step does first, at any time from
+    ``from_ns`` on: write its violation record with ``policy_state``, then run
+    ``actions`` (the halt path; docs/reference/log.md#the-halt-path)."""
+
+    from_ns: int
+    policy_state: dict[str, Any]
+    actions: tuple[str, ...]
+
 
 @dataclass
 class RequirementPolicy:
@@ -122,6 +138,30 @@ class RequirementPolicy:
             or self.latched
             or self.reset_due_ns is not None
         )
+
+    def armed(self) -> Armed | None:
+        """What :meth:`on_step` would do first if the next step flagged this
+        requirement, when that does not depend on the step: the first two effects
+        of :meth:`on_step` itself, run on a copy, when they are a :class:`Report`
+        and the violation's :class:`Act`.  None with live state (:attr:`active`),
+        with a debounce, or with ``predict:`` (the margin's trend decides)."""
+        if self.active or self.trend is not None:
+            return None
+        since = _ALWAYS
+        if self.last_act_ns is not None:  # cooling before then (_episode)
+            since = self.last_act_ns + math.ceil(self.config.cooldown_ms * MS)
+        # A shallow copy: with no trend, on_step changes only the copy's own fields.
+        trial = dataclasses.replace(self)
+        first = trial.on_step(True, 0, since, {})[:2]
+        if (
+            len(first) == 2
+            and isinstance(first[0], Report)
+            and first[0].predicted_ms is None
+            and isinstance(first[1], Act)
+            and first[1].stage == "violation"
+        ):
+            return Armed(since, first[0].policy_state, first[1].actions)
+        return None
 
     def state(self) -> dict[str, Any]:
         """The ``policy_state`` of violation records and diagnostics."""

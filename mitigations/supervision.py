@@ -17,6 +17,7 @@ from typing import Any, Protocol
 
 from mitigations.policy import (
     Act,
+    Armed,
     Effect,
     Forecast,
     Note,
@@ -70,6 +71,25 @@ class Supervision:
         self.active: set[int] = set()  # requirements whose policy has live state
         # requirements with ``predict:``: their margins are read after every step
         self.predicting = [i for i, p in enumerate(self.policies) if p.trend is not None]
+        # Per requirement, what its next violation does first when that is known before
+        # the step (RequirementPolicy.armed): kept up to date after each of its effects.
+        self.armed: list[Armed | None] = [p.armed() for p in self.policies]
+
+    def halt_plan(self, violated: Sequence[int], t_ns: int) -> list[tuple[int, Armed]] | None:
+        """The step's violations in :meth:`after_step`'s order with what each does
+        first, when every one is armed and nothing else is visited (no live
+        policy state, no prediction): the core then writes their records and runs
+        their actions before the rest of the step (docs/reference/log.md#the-halt-path).
+        None: the step goes :meth:`after_step`'s way alone."""
+        if self.active or self.predicting:
+            return None
+        plan = []
+        for i in set(violated) | self.active:  # after_step's order (active is empty)
+            armed = self.armed[i]
+            if armed is None or t_ns < armed.from_ns:
+                return None
+            plan.append((i, armed))
+        return plan
 
     def after_step(self, result: Step | None) -> None:
         if result is None:
@@ -124,6 +144,7 @@ class Supervision:
                 self.sink.reset(i, "operator reset: latch released")
             if ok:
                 self.active.discard(i)
+            self.armed[i] = pol.armed()
         if only is None:
             self.runtime.reset_all()
         elif not refused:
@@ -150,7 +171,10 @@ class Supervision:
                 self.sink.note(i, eff, t_ns)
             elif isinstance(eff, Forecast):
                 self.sink.forecast(i, eff, result, t_ns)
-        if self.policies[i].active:
+        pol = self.policies[i]
+        if pol.active:
             self.active.add(i)
+            self.armed[i] = None
         else:
             self.active.discard(i)
+            self.armed[i] = pol.armed()

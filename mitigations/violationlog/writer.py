@@ -144,6 +144,14 @@ def _encoder() -> Callable[[Any], str]:
 
 
 _ENCODE = _encoder()
+
+
+def encode_fragment(value: Any) -> str:
+    """``value`` as a record's field holds it (made once, off the halt's path:
+    :meth:`ViolationLog.violation_row`'s ``policy_state``)."""
+    return _ENCODE(value)
+
+
 # The fields a violation record has before ``recent``, in the writer's order.
 _BEFORE_RECENT = ("requirement", "text", "formula", "tick", "inputs")
 
@@ -475,6 +483,83 @@ class ViolationLog:
             )
         return self._emit("violation", {}, {}, durable=True, body=(template, dynamic))
 
+    def violation_row(
+        self,
+        template: ViolationTemplate,
+        *,
+        row: Row,
+        recent: Sequence[Row],
+        stale: Sequence[str],
+        policy_state: str,
+    ) -> bool | None:
+        """:meth:`violation_from` on the halt's path (docs/reference/log.md#the-halt-path),
+        the same bytes: the tick and the values are those of ``row``, the step's own
+        row of ``recent``, whose JSON is made at its step; ``policy_state`` is
+        already encoded (:func:`encode_fragment`).  None when a row has no plain
+        JSON form: nothing is written, the caller takes :meth:`violation_from`."""
+        text = getattr(row, "json", None)
+        try:
+            parts = ",".join([r.json for r in recent])  # type: ignore[misc]
+        except (AttributeError, TypeError):  # a plain dict, or a row without JSON
+            return None
+        cut = -1 if text is None else text.find(",")  # a row is {"tick": ..., **inputs}
+        if cut < 0:
+            return None
+        assert text is not None
+        state = _ENCODE(stale) if stale else "[]"
+        dynamic = (
+            f'{text[1:cut]},"inputs":{{{text[cut + 1 :]},"recent":[{parts}],'
+            f'"stale":{state},"policy_state":{policy_state}'
+        )
+        return self._violation_now(template, dynamic)
+
+    def _violation_now(self, template: ViolationTemplate, dynamic: str) -> bool:
+        """:meth:`_emit` of a violation from its template on the halt's path: when no
+        record waits to be written before it and the chain's last hash is known
+        (flush() made it), its line is made whole and written here, without the
+        queue; otherwise :meth:`_emit`'s way.  The same bytes either way."""
+        ts = _now()
+        with self._lock:
+            prev = self._prev_hex
+            if self._fd is None or self._queue or self._lost or self._resync or prev is None:
+                return self._emit("violation", {}, {}, True, (template, dynamic), ts)
+            seq = self._seq + 1
+            start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
+            rest = f'","seq":{seq},{template.head},{dynamic}{template.tail}'
+            text = f"{start}{prev}{rest}".encode("ascii")
+            digest = hashlib.sha256(text)
+            digest.update(_SEAL_ZEROS)
+            line = b"".join((text, _SEAL_KEY, digest.hexdigest().encode(), b'"}\n'))
+            body = f"{start}{ZERO_SHA256}{rest}}}".encode("ascii")  # as _render_template's
+            self._seq = seq
+            entry = _Entry(seq, "violation", ts, body, len(start), True)
+            error = self._write(entry, line)
+            if error is None:
+                entry.state = "written"
+                self._unsynced = False
+                if self._sync_each:
+                    if self._durability == "after_publish" and self._on_defer_thread():
+                        self._sync_due = True  # flush() fsyncs it, after the actions are out
+                    else:
+                        self._unsynced = not self._fsync()
+                ok = not self._unsynced
+            else:  # queued for the retrier, as _drain queues a record it cannot write
+                self._queue.append(entry)
+                self._queued += 1
+                self._drain()
+                ok = entry.state == "written" and not self._unsynced
+            if not ok:
+                self._failed += 1
+                self._not_written("violation", entry, None)
+        if self._on_defer_thread():
+            self._deferred.append(("violation", entry, ts, {}))
+        else:
+            self._after_write("violation", entry, ts, {})
+        return ok
+
+    def _on_defer_thread(self) -> bool:
+        return self.defer_thread is not None and threading.get_ident() == self.defer_thread
+
     def mitigation(
         self,
         requirement: str,
@@ -727,12 +812,15 @@ class ViolationLog:
         extra: Mapping[str, Any],
         durable: bool = False,
         body: tuple[ViolationTemplate, str] | None = None,
+        ts: str | None = None,
     ) -> bool:
         """``body``: a violation's template and its dynamic fields' JSON
-        (:meth:`violation_from`), rendered instead of ``fields``."""
+        (:meth:`violation_from`), rendered instead of ``fields``; ``ts``: its time,
+        when taken already."""
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
-        ts = _now()
+        if ts is None:
+            ts = _now()
         entry: _Entry | None = None
         error: str | None = None
         with self._lock:
@@ -936,14 +1024,18 @@ class ViolationLog:
             if done:
                 return
 
-    def _write(self, entry: _Entry) -> str | None:
-        """Write one queued record, chained to the file's last line; the error text or None."""
+    def _write(self, entry: _Entry, line: bytes | None = None) -> str | None:
+        """Write one record, chained to the file's last line; the error text or None.
+        ``line``: the record already chained to the last line written (its prev_sha256
+        filled in and sealed), used unless the file changed meanwhile."""
         assert self._fd is not None
         written = 0
         try:
             if self._resync or os.fstat(self._fd).st_size != self._size:
                 self._load_tail()  # copytruncate, another writer, a failed write
-            line = entry.line(self._prev)
+                line = None
+            if line is None:
+                line = entry.line(self._prev)
             data = b"\n" + line if self._needs_newline else line
             # One write per line; the loop only continues a short write (disk
             # nearly full), still under the lock, so nothing interleaves.

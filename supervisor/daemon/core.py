@@ -20,8 +20,9 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from mitigations.engine import Request
-from mitigations.policy import Forecast, Note
+from mitigations.policy import Armed, Forecast, Note
 from mitigations.supervision import Supervision
+from mitigations.violationlog.writer import encode_fragment
 from supervisor.daemon.runtime import InputEvent, Rows, StepResult
 from supervisor.daemon.session import Session
 
@@ -85,6 +86,13 @@ class Core:
         # The step's violation records for ``published``, handed over once its
         # actions are submitted (_after_step): the halt does not wait for them.
         self._unsent: list[dict[str, Any] | tuple[Any, ...]] = []
+        # The halt path (_halt_first): per requirement, its armed policy's first
+        # effects with their policy state encoded, made off the path; and the
+        # requirements whose record and actions the step's halt path has done.
+        self._encode = _encoder(session, log)
+        self._armed: list[tuple[Armed, str] | None] = []
+        self._early: dict[int, Armed] = {}
+        self._arm()
 
     # ------------------------------------------------------------ driving
 
@@ -206,11 +214,53 @@ class Core:
 
     def _after_step(self, result: StepResult) -> None:
         busy = bool(result.violated or self.supervision.active)
+        if result.violated and self._encode:
+            self._halt_first(result)
         self.supervision.after_step(result)
         if busy or self.supervision.active:
             self._due = 0  # a policy deadline may have moved earlier
+            self._early.clear()
+            self._arm()
         if self._unsent:
             self._send()
+
+    def _halt_first(self, result: StepResult) -> None:
+        """The halt path (docs/reference/log.md#the-halt-path): when every violation
+        of the step is armed (Supervision.halt_plan), write their records and submit
+        their actions now, before the policies run; the policies' own Report and Act
+        then find them done (report, act)."""
+        plan = self.supervision.halt_plan(result.violated, result.t_ns)
+        if plan is None:
+            return
+        rt = self.session.runtime
+        recent = rt.recent
+        stale = rt.stale_inputs()
+        for i, armed in plan:
+            template, encoded = self._templates[i], self._armed[i]
+            if template is None or encoded is None or encoded[0] is not armed:
+                return
+            written = self.log.violation_row(  # type: ignore[attr-defined]
+                template, row=recent[-1], recent=recent, stale=stale, policy_state=encoded[1]
+            )
+            if written is None:  # no plain JSON form: the policies' way
+                return
+            self._early[i] = armed
+            self._submit(Request(self.session.requirements[i].id, armed.actions, result.t_ns))
+
+    def _arm(self) -> None:
+        """Each armed requirement's policy state encoded for the halt path, when it
+        changed (made after a step's actions, not on the next halt's path)."""
+        if not self._encode:
+            return
+        armed = self.supervision.armed
+        if len(self._armed) != len(armed):
+            self._armed = [None] * len(armed)
+        for i, a in enumerate(armed):
+            have = self._armed[i]
+            if a is None:
+                self._armed[i] = None
+            elif have is None or have[0] is not a:
+                self._armed[i] = (a, self._encode(a.policy_state))
 
     def _send(self) -> None:
         """The records report() wrote, to ``published``, in the order written."""
@@ -248,6 +298,7 @@ class Core:
         target = {} if requirement is None else {"requirement": requirement}
         self._mark("operator_reset", t, **target, **extra)
         refused = [f"{ids[i]} ({why})" for i, why in self.supervision.operator_reset(only)]
+        self._arm()
         tick = self.session.runtime.tick  # the next tick is judged afresh
         self.log.reset(
             "*" if requirement is None else requirement,
@@ -269,6 +320,9 @@ class Core:
         self._stale_after_ns = _stale_after_ns(new)
         self._limits = _limits(new, self._stale_after_ns)
         self._templates = _templates(new, self.log)
+        self._encode = _encoder(new, self.log)
+        self._early.clear()
+        self._arm()
         self._due = 0
         if self.now is not None:
             self._mark("reload", self.now, config=new.config.path)
@@ -338,6 +392,21 @@ class Core:
         s = self.session
         rt = s.runtime
         template = self._templates[index]
+        early = self._early.get(index)
+        if early is not None and not predicted and policy_state == early.policy_state:
+            # written by the halt path (_halt_first), before the policies ran
+            self.violations += 1
+            if self._published is not None:
+                stale = rt.stale_inputs()
+                self._unsent.append((template, result, list(rt.recent), stale, policy_state))
+            return
+        if early is not None:  # not what the policy armed: a bug; the record stays whole
+            del self._early[index]
+            self.log.supervisor(
+                "internal_error",
+                where="halt path",
+                error=f"{s.requirements[index].id}: the policy state differs from the armed one",
+            )
         # a violation that followed a prediction carries its lead (predicted_ms), a
         # field the template does not have: it takes violation()'s whole way
         if template is not None and not predicted:
@@ -397,6 +466,9 @@ class Core:
             self.log.prediction_expired(req.id, tick=self.session.runtime.tick, **forecast.detail)
 
     def act(self, index: int, actions: tuple[str, ...], stage: str, t_ns: int) -> None:
+        early = self._early.pop(index, None)
+        if early is not None and stage == "violation" and actions == early.actions:
+            return  # submitted by the halt path (_halt_first)
         req = self.session.requirements[index]
         self._submit(Request(req.id, actions, t_ns, stage))
 
@@ -464,6 +536,14 @@ def _templates(session: Session, log: Log) -> list[Any]:
         )
         out.append(make(req.id, text=req.entry.text, formula=session.formulas[i], **extra))
     return out
+
+
+def _encoder(session: Session, log: Log) -> Callable[[Any], str] | None:
+    """How an armed policy state is encoded for the log's halt path; None when the
+    log has none, or an input is named ``tick`` (a row of ``recent`` then has no
+    tick of its own to take the record's from)."""
+    names = {s.name for s in session.runtime.inputs}
+    return encode_fragment if hasattr(log, "violation_row") and "tick" not in names else None
 
 
 def _stale_after_ns(session: Session) -> int | None:

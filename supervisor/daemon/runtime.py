@@ -189,6 +189,7 @@ class Runtime:
     _pending_since: int | None = None  # synchronized: first new message after the last step
     _next_periodic: int | None = None
     _derived: list[_Input] = field(default_factory=list)  # ages and rates
+    _events: list[_Input] = field(default_factory=list)
     _ready: bool = False
     _bulk: bool = False  # step_rows may take batches (policy, inputs and monitor allow)
     # The monitor of the predicted requirements' margins (Project.prediction_spec),
@@ -209,6 +210,7 @@ class Runtime:
             if inp.spec.event:  # false until its first message: never blocks stepping
                 inp.value, inp.has_value = False, True
         self._derived = [i for i in self._in if i.spec.kind in ("age", "rate")]
+        self._events = [i for i in self._in if i.spec.event]
         self._names = tuple(s.name for s in self.inputs)
         self._plain = tuple(
             s.type if s.kind == "value" and not s.event else None for s in self.inputs
@@ -485,16 +487,18 @@ class Runtime:
         flags = self.monitor.tick(values)
         if self.margin_monitor is not None:
             self.margin_monitor.tick(values)
-        for inp in self._in:
-            inp.fresh = False
-            if inp.spec.event:
-                inp.value = False  # its tick is over
+        if self.policy == "synchronized":  # the one policy that reads freshness
+            for inp in self._in:
+                inp.fresh = False
+        for inp in self._events:
+            inp.value = False  # its tick is over
         self._pending_since = None
         snap = dict(zip(self._names, values, strict=True))
-        result = StepResult(self.tick, t_ns, [i for i, f in enumerate(flags) if f], snap)
+        tick = self.tick
+        result = StepResult(tick, t_ns, [i for i, f in enumerate(flags) if f], snap)
         # encoded now, once: the violation record joins the rows' JSON (writer.Row)
-        self.recent.append(Row.of({"tick": self.tick, **snap}))
-        self.tick += 1
+        self.recent.append(Row.of({"tick": tick, **snap}))
+        self.tick = tick + 1
         return result
 
     @property

@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 
 # The stages in order, each from the previous mark to its own.
 STAGES = (
-    ("step", "the values set, the C monitor stepped, the policies decided"),
+    ("step", "the values set, the C monitor stepped, the halt path planned (log.md)"),
     ("render", "the violation record built, rendered as JSON and hash-chained, written"),
     ("fsync", "the record on disk (os.fsync)"),
     ("to_publish", "from the fsync's end to the halt publish (log bookkeeping, engine)"),
@@ -36,7 +36,7 @@ STAGES = (
 # logging.durability after_publish (the default, docs/reference/log.md#durability):
 # the halt follows the record's write, the fsync comes after it, off the halt's path.
 STAGES_AFTER_PUBLISH = (
-    ("step", "the values set, the C monitor stepped, the policies decided"),
+    ("step", "the values set, the C monitor stepped, the halt path planned (log.md)"),
     ("render", "the violation record built, rendered as JSON, hash-chained and written"),
     ("to_publish", "from the write's end to the halt publish (log bookkeeping, engine)"),
     ("publish", "rclpy publish of the halt"),
@@ -87,6 +87,10 @@ def breakdown(
     # the core writes a violation from its requirement's template (writer.ViolationTemplate)
     log.violation_from = marks.around(  # type: ignore[method-assign]
         log.violation_from, "recorded_start", "recorded_end"
+    )
+    # and on the halt path, from the step's row (docs/reference/log.md#the-halt-path)
+    log.violation_row = marks.around(  # type: ignore[method-assign]
+        log.violation_row, "recorded_start", "recorded_end"
     )
     try:
         writer.os.fsync = marks.around(real_fsync, "fsync_start", "fsync_end")  # type: ignore[attr-defined]

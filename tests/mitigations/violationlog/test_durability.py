@@ -92,21 +92,33 @@ def _calls(trace: Path) -> list[tuple[int, str]]:
     return out
 
 
+# the record as violation() writes it, and from the step's row (the halt path's entry)
+WAYS = {
+    "violation": 'log.violation("R1", text="t", formula="f", tick=7, inputs={"x": 1})',
+    "row": (
+        'r = Row.of({"tick": 7, "x": 1}); '
+        'log.violation_row(log.violation_template("R1", text="t", formula="f"), row=r, '
+        'recent=[r], stale=[], policy_state="{}")'
+    ),
+}
+
+
 @needs_strace
+@pytest.mark.parametrize("way", sorted(WAYS))
 @pytest.mark.parametrize("durability", ["after_publish", "before_action"])
 def test_the_writer_fsyncs_after_the_actions_or_before_them(
-    tmp_path: Path, durability: str
+    tmp_path: Path, durability: str, way: str
 ) -> None:
     """The daemon's loop in miniature: a violation on ``defer_thread``, the action
     (here a marker write), then ``flush()``."""
     path = tmp_path / "v.log"
     child = textwrap.dedent(f"""
         import os, threading
-        from mitigations.violationlog.writer import ViolationLog
+        from mitigations.violationlog.writer import Row, ViolationLog
         log = ViolationLog({str(path)!r}, "sRobot", "00", echo=False,
                            durability={durability!r})
         log.defer_thread = threading.get_ident()
-        log.violation("R1", text="t", formula="f", tick=7, inputs={{"x": 1}})
+        {WAYS[way]}
         os.write(1, b"THE-HALT\\n")
         log.flush()
         os.write(1, b"FLUSHED\\n")

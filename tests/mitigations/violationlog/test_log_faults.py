@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from inproc import cli_main
 
-from mitigations.violationlog.writer import ViolationLog
+from mitigations.violationlog.writer import Row, ViolationLog
 
 CFG = "c0" * 32
 
@@ -67,7 +67,19 @@ def fill(path: Path) -> None:
                 pass
 
 
-def violation(log: ViolationLog, tick: int) -> bool:
+def violation(log: ViolationLog, tick: int, way: str = "violation") -> bool:
+    if way == "row":  # the halt path's entry (docs/reference/log.md#the-halt-path)
+        template = log.violation_template(
+            "state_req103",
+            text="While classifier = 1 sRobot shall always satisfy OpState = 3",
+            formula="H (classifier = 1 -> OpState = 3)",
+        )
+        assert template is not None
+        row = Row.of({"tick": tick, "classifier": 1, "OpState": 2, "pad": "p" * 200})
+        log.flush()  # as the daemon's loop does each turn: the chain's last hash is made
+        written = log.violation_row(template, row=row, recent=[row], stale=[], policy_state="{}")
+        assert written is not None
+        return written
     return log.violation(
         "state_req103",
         text="While classifier = 1 sRobot shall always satisfy OpState = 3",
@@ -88,8 +100,9 @@ def file_records(path: Path) -> list[dict]:
     return out
 
 
+@pytest.mark.parametrize("way", ["violation", "row"])
 def test_full_disk_keeps_records_then_names_exactly_what_was_lost(
-    small_fs: Path, capfd: pytest.CaptureFixture[str]
+    small_fs: Path, capfd: pytest.CaptureFixture[str], way: str
 ) -> None:
     path = small_fs / "v.jsonl"
     log = ViolationLog(path, "sRobot", CFG, retry_buffer=20, retry_interval_s=3600)
@@ -98,7 +111,7 @@ def test_full_disk_keeps_records_then_names_exactly_what_was_lost(
     seqs = {}
     results = []
     for tick in range(100):
-        results.append(violation(log, tick))
+        results.append(violation(log, tick, way))
         seqs[tick] = log.seq
     # Monitoring went on; almost nothing could be written.
     assert results.count(False) >= 95

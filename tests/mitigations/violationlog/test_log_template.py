@@ -187,3 +187,120 @@ def test_a_line_is_sealed_as_seal_line_seals_it(before: bytes, after: bytes, pre
     at = len(before) + 1
     entry = _Entry(1, "violation", "ts", body, at, True)
     assert entry.line(prev) == seal_line(body[:at] + prev.encode() + body[at + 64 :])
+
+
+# The halt path's entry (violation_row): the step's own row gives the tick and the
+# values, the policy state comes encoded.  Inputs are not named ``tick`` there (the
+# core does not take that path then: supervisor/daemon/core.py).
+plain_scalars = st.one_of(
+    st.booleans(),
+    st.integers(min_value=-(2**63), max_value=2**63 - 1),
+    st.floats(allow_nan=False, allow_infinity=False),
+)
+step_rows = st.dictionaries(
+    st.text(max_size=6).filter(lambda k: k != "tick"), plain_scalars, min_size=1, max_size=8
+)
+
+
+@st.composite
+def steps(draw: st.DrawFn) -> dict[str, Any]:
+    tick = draw(st.integers(min_value=0, max_value=2**40))
+    inputs = draw(step_rows)
+    before = draw(st.lists(st.builds(dict, step_rows), max_size=10))
+    recent = [Row.of({"tick": tick - len(before) + k, **r}) for k, r in enumerate(before)]
+    recent.append(Row.of({"tick": tick, **inputs}))
+    return {
+        "tick": tick,
+        "inputs": inputs,
+        "recent": recent,
+        "stale": draw(st.lists(st.text(max_size=6), max_size=3)),
+        "policy_state": draw(st.dictionaries(st.text(max_size=8), plain_scalars, max_size=8)),
+    }
+
+
+def _write_steps(path: Path, req: dict[str, Any], records: list[dict[str, Any]], row: bool) -> None:
+    log = ViolationLog(path, "robot-1", CFG, echo=False)
+    try:
+        template = log.violation_template(req["requirement"], text=req["text"],
+                                          formula=req["formula"])  # fmt: skip
+        assert template is not None
+        for i, r in enumerate(records):
+            if i == 1:
+                log.config_sha256 = "d1" * 32
+            if row:
+                written = log.violation_row(
+                    template,
+                    row=r["recent"][-1],
+                    recent=r["recent"],
+                    stale=r["stale"],
+                    policy_state=writer.encode_fragment(r["policy_state"]),
+                )
+                assert written is True
+            else:
+                log.violation_from(template, **r)
+            log.mitigation(req["requirement"], action="halt", kind="publish", ok=True,
+                           latency_ms=0.1)  # fmt: skip
+            if i == 0:
+                log.flush()  # the chain's last hash made (the loop does it each turn)
+    finally:
+        log.close()
+
+
+@settings(
+    max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(req=fixed, records=st.lists(steps(), min_size=1, max_size=3))
+def test_a_record_from_the_steps_row_is_the_same_bytes(
+    restart_clock: Callable[[], None], req: dict[str, Any], records: list[dict[str, Any]]
+) -> None:
+    with tempfile.TemporaryDirectory() as d:
+        want, got = Path(d) / "from.jsonl", Path(d) / "row.jsonl"
+        restart_clock()
+        _write_steps(want, req, records, row=False)
+        restart_clock()
+        _write_steps(got, req, records, row=True)
+        assert got.read_bytes() == want.read_bytes()
+        assert want.read_bytes().count(b"\n") == 2 * len(records)
+
+
+def test_a_row_without_plain_json_is_refused_and_nothing_is_written(tmp_path: Path) -> None:
+    log = ViolationLog(tmp_path / "v.jsonl", "robot-1", CFG, echo=False)
+    template = log.violation_template("R1", text="t", formula="f")
+    assert template is not None
+    nan = Row.of({"tick": 3, "x": math.nan})
+    plain = [{"tick": 3, "x": 1.0}]
+    assert log.violation_row(template, row=nan, recent=[nan], stale=[], policy_state="{}") is None
+    assert log.violation_row(template, row=plain[0], recent=plain, stale=[],  # type: ignore[arg-type]
+                             policy_state="{}") is None  # fmt: skip
+    log.close()
+    assert (tmp_path / "v.jsonl").read_bytes() == b""
+
+
+def test_a_file_changed_behind_the_writer_is_chained_over(
+    restart_clock: Callable[[], None], tmp_path: Path
+) -> None:
+    """Another writer's line between two records: the row's line is chained to it,
+    as violation_from's is (the line made ahead is not used)."""
+    out = {}
+    for way in ("from", "row"):
+        restart_clock()
+        path = tmp_path / f"{way}.jsonl"
+        log = ViolationLog(path, "robot-1", CFG, echo=False)
+        template = log.violation_template("R1", text="t", formula="f")
+        assert template is not None
+        log.supervisor("start")
+        log.flush()
+        with open(path, "ab") as f:
+            f.write(b'{"someone":"else"}\n')
+        row = Row.of({"tick": 1, "x": 2.5})
+        if way == "row":
+            assert log.violation_row(template, row=row, recent=[row], stale=[],
+                                     policy_state='{"a":1}') is True  # fmt: skip
+        else:
+            log.violation_from(template, tick=1, inputs={"x": 2.5}, recent=[row],
+                               policy_state={"a": 1})  # fmt: skip
+        log.close()
+        out[way] = path.read_bytes()
+    assert out["row"] == out["from"]
+    last = json.loads(out["row"].splitlines()[-1])
+    assert last["prev_sha256"] == writer.sha256_hex(b'{"someone":"else"}\n')
