@@ -76,6 +76,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "rates": DEFAULT_RATES,
         "seconds": 5.0,
         "latency_trials": 1000,
+        "latency_rounds": 3,
         "record_rates": "20000",
         "ui_rates": "20000",
         # Longer than the throughput runs' 5 s: the kill is halfway, and the restarted
@@ -92,6 +93,7 @@ DEFAULTS: dict[str, dict[str, Any]] = {
         "rates": "5000,20000",
         "seconds": 2.0,
         "latency_trials": 100,
+        "latency_rounds": 1,
         "record_rates": "20000",
         "ui_rates": "20000",
         "ui_seconds": 8.0,
@@ -178,6 +180,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="N",
         help="default 1000 (--quick 100)",
+    )
+    p.add_argument(
+        "--latency-rounds",
+        type=_positive(int),
+        default=None,
+        metavar="N",
+        help="the latency trials taken in N rounds of echo then daemon, pooled: the "
+        "machine drifts between runs (default 3, --quick 1)",
     )
     p.add_argument(
         "--record-rates",

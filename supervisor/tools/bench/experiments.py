@@ -88,7 +88,9 @@ def run(args: argparse.Namespace, progress: Callable[[str], None] | None = None)
                 s, plan, args.soak_rate, args.soak_seconds, say, wd_usec=args.watchdog_usec
             )
         if not args.skip_latency:
-            results["latency"] = latency(s, plan, args.latency_trials, say)
+            results["latency"] = latency(
+                s, plan, args.latency_trials, say, rounds=args.latency_rounds
+            )
         if not args.skip_replay:
             # In this process: no ROS, only the session's temp dir.
             min_s = 0.2 if args.quick else 1.0

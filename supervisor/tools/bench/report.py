@@ -749,6 +749,14 @@ def _durability_goals(lat: dict[str, Any]) -> list[str]:
             f"{_f(before['p50'], '.3f')} ms = {_ratio(before['p50'], floor)} the floor "
             "(goal: at most 1.3x)"
         )
+    rounds = lat.get("rounds") or []
+    if len(rounds) > 1:  # each round's own p50s: how far the machine drifted
+        each = "; ".join(
+            f"echo {_f(r['echo_p50'], '.3f')}, after_publish {_f(r['daemon_p50'], '.3f')} "
+            f"({_ratio(r['daemon_p50'], r['echo_p50'])})"
+            for r in rounds
+        )
+        lines.append(f"p50 ms of each of the {len(rounds)} rounds pooled above: {each}")
     return lines
 
 

@@ -109,6 +109,7 @@ def test_quick_defaults_and_explicit_options() -> None:
     quick = resolve(p.parse_args(["--quick", "--seconds", "1"]))
     assert quick.rates == [5000, 20000] and quick.seconds == 1.0
     assert (quick.latency_trials, quick.replay_messages) == (100, 200_000)
+    assert (full.latency_rounds, quick.latency_rounds) == (3, 1)
 
 
 def _results(**parts: Any) -> dict[str, Any]:
@@ -134,6 +135,7 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     out = tmp_path / "out"
     env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
     args = ["--quick", "--rates", "3000", "--seconds", "1", "--latency-trials", "20"]
+    args += ["--latency-rounds", "2"]
     args += ["--replay-messages", "21000", "--record-rates", "5000", "--out", str(out)]
     # the UI and scale figures: test_bench_ui.py and test_bench_scale.py beside this file
     args += ["--skip-ui", "--skip-scale", "--skip-soak"]
@@ -169,7 +171,14 @@ def test_bench_quick_out(tmp_path: Path) -> None:
     on_row = f"{closed['written']:>8} {closed['dropped']:>7} {closed['mb_on_disk']:>6.1f}"
     assert on_row in p.stdout, p.stdout
     assert isinstance(rec["cpu_diff_pct"], float)
-    assert r["latency"]["daemon"]["n"] > 0
+    lat = r["latency"]
+    # the trials in two rounds of echo then daemons, pooled; each round's p50s said
+    assert len(lat["rounds"]) == 2
+    for key in ("echo", "daemon", "daemon_before_action"):
+        assert lat[key]["n"] + lat[key]["missed"] == 20, key
+        assert all(rnd[f"{key}_p50"] > 0 for rnd in lat["rounds"]), key
+    assert lat["daemon"]["n"] > 0
+    assert "p50 ms of each of the 2 rounds pooled above: echo " in p.stdout
     rep = r["replay"]
     assert rep["messages"] == 21000 and len(rep["cases"]) == 6
     assert all(_positive(c["rate"]) for c in rep["cases"])
