@@ -211,6 +211,7 @@ class Core:
         deadline = self.supervision.next_deadline()
         if deadline is not None and deadline <= d:
             self.supervision.on_time(d)
+            self._arm()  # a policy that ended its incident is armed again
 
     def _after_step(self, result: StepResult) -> None:
         busy = bool(result.violated or self.supervision.active)
