@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -67,7 +68,9 @@ def cut_short_messages(path: Path) -> list[tuple[str, int, bytes]]:
         try:
             for _schema, ch, m in NonSeekingReader(f).iter_messages(log_time_order=False):
                 out.append((ch.topic, m.log_time, m.data))
-        except McapError:  # EndOfFile or a record cut in the middle: the end
+        # EndOfFile or a record cut in the middle: the end (the mcap library raises
+        # struct.error for a record cut inside its fixed-size fields)
+        except (McapError, struct.error):
             pass
     return out
 
