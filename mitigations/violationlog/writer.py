@@ -516,41 +516,34 @@ class ViolationLog:
     def _violation_now(self, template: ViolationTemplate, dynamic: str) -> bool:
         """:meth:`_emit` of a violation from its template on the halt's path: when no
         record waits to be written before it and the chain's last hash is known
-        (flush() made it), its line is made whole and written here, without the
-        queue; otherwise :meth:`_emit`'s way.  The same bytes either way."""
+        (flush() made it), its line is made whole here and handed to :meth:`_drain`
+        (the one place that writes, reports, counts and fsyncs); otherwise
+        :meth:`_emit`'s way, outside the lock.  The same bytes either way."""
         ts = _now()
+        entry = None
         with self._lock:
             prev = self._prev_hex
-            if self._fd is None or self._queue or self._lost or self._resync or prev is None:
-                return self._emit("violation", {}, {}, True, (template, dynamic), ts)
-            seq = self._seq + 1
-            start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
-            rest = f'","seq":{seq},{template.head},{dynamic}{template.tail}'
-            text = f"{start}{prev}{rest}".encode("ascii")
-            digest = hashlib.sha256(text)
-            digest.update(_SEAL_ZEROS)
-            line = b"".join((text, _SEAL_KEY, digest.hexdigest().encode(), b'"}\n'))
-            body = f"{start}{ZERO_SHA256}{rest}}}".encode("ascii")  # as _render_template's
-            self._seq = seq
-            entry = _Entry(seq, "violation", ts, body, len(start), True)
-            error = self._write(entry, line)
-            if error is None:
-                entry.state = "written"
-                self._unsynced = False
-                if self._sync_each:
-                    if self._durability == "after_publish" and self._on_defer_thread():
-                        self._sync_due = True  # flush() fsyncs it, after the actions are out
-                    else:
-                        self._unsynced = not self._fsync()
-                ok = not self._unsynced
-            else:  # queued for the retrier, as _drain queues a record it cannot write
+            if not (self._fd is None or self._queue or self._lost or self._resync or prev is None):
+                seq = self._seq + 1
+                start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
+                rest = f'","seq":{seq},{template.head},{dynamic}{template.tail}'
+                text = f"{start}{prev}{rest}".encode("ascii")
+                digest = hashlib.sha256(text)
+                digest.update(_SEAL_ZEROS)
+                line = b"".join((text, _SEAL_KEY, digest.hexdigest().encode(), b'"}\n'))
+                body = f"{start}{ZERO_SHA256}{rest}}}".encode("ascii")  # as _render_template's
+                self._seq = seq
+                entry = _Entry(seq, "violation", ts, body, len(start), True)
                 self._queue.append(entry)
                 self._queued += 1
-                self._drain()
-                ok = entry.state == "written" and not self._unsynced
-            if not ok:
-                self._failed += 1
-                self._not_written("violation", entry, None)
+                self._drain(line)
+                written = entry.state == "written"
+                if not written:
+                    self._failed += 1
+                    self._not_written("violation", entry, None)
+                ok = written and not self._unsynced
+        if entry is None:  # _emit's way, outside the lock (its echo and tee must be)
+            return self._emit("violation", {}, {}, True, (template, dynamic), ts)
         if self._on_defer_thread():
             self._deferred.append(("violation", entry, ts, {}))
         else:
@@ -943,16 +936,18 @@ class ViolationLog:
             f"(seq {seq_ranges(lost)}: {fields['reason']}); a records_lost record says so"
         )
 
-    def _drain(self) -> None:
+    def _drain(self, first_line: bytes | None = None) -> None:
         """Write the queue in order until it is empty or a write fails; then, if
-        records were dropped, queue and write the records_lost record."""
+        records were dropped, queue and write the records_lost record.
+        ``first_line``: the queue's head already chained and sealed (the halt path)."""
         synced = True
         self._unsynced = False
         wrote_durable = False
         while True:
             while self._queue:
                 head = self._queue[0]
-                error = self._write(head)
+                error = self._write(head, first_line)
+                first_line = None
                 if error is not None:
                     self._error = error
                     if not self._outage:

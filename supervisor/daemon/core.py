@@ -402,7 +402,7 @@ class Core:
                 self._unsent.append((template, result, list(rt.recent), stale, policy_state))
             return
         if early is not None:  # not what the policy armed: a bug; the record stays whole
-            del self._early[index]
+            # (its actions were submitted already: act() still finds them done)
             self.log.supervisor(
                 "internal_error",
                 where="halt path",

@@ -122,6 +122,7 @@ def run(project: Any, path: Path, messages: list[tuple[int, str, Any]], halt_pat
             core.operator_reset(t)
         else:
             core.message(name, value, t)
+        log.flush()  # as the daemon's loop does after each message (receive.py)
     core.advance(messages[-1][0] + 200 * MS)
     log.close()
     return acts, len(taken)
