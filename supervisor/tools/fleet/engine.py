@@ -11,6 +11,7 @@ import contextlib
 import itertools
 import logging
 import multiprocessing
+import multiprocessing.forkserver as forkserver
 import os
 import shutil
 import socket
@@ -33,6 +34,8 @@ from supervisor.tools.fleet.task import (
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
 WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
+# imported once by the fork server, so every worker it forks has them
+PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
 
 _done: Collection[str] = ()
 
@@ -59,9 +62,12 @@ def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]
 
 
 class LocalEngine:
-    """``jobs`` worker processes (``spawn``: a worker starts clean, never a fork of a
-    parent that may hold threads).  A worker that dies (killed, out of memory)
-    breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS`` times."""
+    """``jobs`` worker processes, forked by a ``forkserver``: a process started clean
+    (never a fork of this parent, which may hold threads) that imports what a task
+    needs once (``PRELOAD``), so a second worker costs no second import, 0.4 s of
+    CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
+    memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
+    times."""
 
     def __init__(self, jobs: int | None = None) -> None:
         self.jobs = jobs or os.cpu_count() or 1
@@ -85,7 +91,7 @@ class LocalEngine:
         done = frozenset(done)
         pool = self._pool(workers, done)
         self._started = (pool, done)
-        # spawned one per submit (concurrent.futures), each import on a worker of its own
+        # started one per submit (concurrent.futures), each compile on a worker of its own
         self.warm = [pool.submit(_warm, configs) for _ in range(workers)]
 
     def checked(self) -> bool:
@@ -100,17 +106,27 @@ class LocalEngine:
         return True
 
     def close(self) -> None:
-        """The started workers stopped, when ``results`` did not take them."""
+        """The started workers stopped, when ``results`` did not take them, and the
+        fork server with them: no process outlives the run, and its CPU (its
+        workers', which it reaps) is counted in this process's children's."""
         if self._started is not None:
             self._started[0].shutdown(wait=True, cancel_futures=True)
             self._started = None
         self.warm = []
+        # the standard library has no public call for it (multiprocessing.forkserver)
+        stop = getattr(getattr(forkserver, "_forkserver", None), "_stop", None)
+        if stop is not None:
+            stop()
 
     @staticmethod
     def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        context = multiprocessing.get_context("forkserver")
+        # read when the server starts (the first pool): replaces its default,
+        # __main__, which would run this command's module again in the server
+        context.set_forkserver_preload(list(PRELOAD))
         return ProcessPoolExecutor(
             max_workers=jobs,
-            mp_context=multiprocessing.get_context("spawn"),
+            mp_context=context,
             initializer=_init,
             initargs=(done,),
         )

@@ -325,7 +325,7 @@ def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
 
 
 def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
-    """``start`` spawns the workers (their imports overlap the parent's compile and
+    """``start`` starts the workers (their imports overlap the parent's compile and
     listing); ``results`` runs the tasks on those same workers, no second pool, and
     ``close`` stops workers that no run took."""
     import multiprocessing
@@ -338,6 +338,11 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     engine = LocalEngine(2)
     engine.start(frozenset())
     warm = {f.result(timeout=120)[0] for f in engine.warm}  # each a worker's pid
+    # forked by one fork server, which imported the tasks' modules once for both
+    (server,) = {
+        int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1]) for p in warm
+    }
+    assert server != os.getpid()
     seen: set[int] = set()
     tasks = [BagTask(str(b), "r", str(cfg), "c" * 64) for b in bags]
     for result in engine.results(tasks, frozenset()):
@@ -350,6 +355,7 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     started = {f.result(timeout=120)[0] for f in idle.warm}
     idle.close()
     assert not started & {p.pid for p in multiprocessing.active_children()}
+    assert not Path(f"/proc/{server}").exists()  # the server stopped too: nothing outlives a run
     idle.start(frozenset(), 0)  # nothing to run: nothing started
     assert not idle.warm and not multiprocessing.active_children()
 
