@@ -105,16 +105,19 @@ def _children(pid: int) -> dict[int, list[int]]:
 
 
 def _workers(pid: int) -> dict[int, int]:
-    """The run's worker processes (a pool's spawned children, Ray's ``ray::`` task
-    workers) below ``pid``, each with its peak RSS so far in kB (VmHWM)."""
+    """The run's worker processes (a pool's, forked by its fork server; Ray's ``ray::``
+    task workers) below ``pid``, each with its peak RSS so far in kB (VmHWM)."""
     children = _children(pid)
-    todo, out = [pid], {}
+    todo: list[tuple[int, bytes]] = [(pid, b"")]
+    out: dict[int, int] = {}
     while todo:
-        for c in children.get(todo.pop(), []):
-            todo.append(c)
+        parent, parent_cmd = todo.pop()
+        for c in children.get(parent, []):
             try:
                 cmd = Path(f"/proc/{c}/cmdline").read_bytes()
-                if not (cmd.startswith(b"ray::") or b"spawn_main" in cmd):
+                todo.append((c, cmd))
+                pool = b"forkserver" in cmd and b"forkserver" in parent_cmd  # not the server
+                if not (cmd.startswith(b"ray::") or pool):
                     continue
                 status = Path(f"/proc/{c}/status").read_text()
             except OSError:

@@ -138,21 +138,16 @@ def _replay(
     from supervisor.tools.fleet.dataset import Dataset, Writers
     from supervisor.tools.fleet.engine import LocalEngine
     from supervisor.tools.fleet.task import BagResult, BagTask
-    from supervisor.tools.replay.session import loaded
 
     configs = [Path(args.config).absolute()]
     if args.compare:
         configs.append(Path(args.compare).absolute())
     bags = list_archive(args.archives, args.robot_from)
     if isinstance(engine, LocalEngine):
-        # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned)
-        engine.start(done_contents, len(bags) * len(configs))
-    shas = []
-    for c in configs:
-        # compiled here once: a bad config is one error before any bag, and the
-        # workers find its monitor in the start-up cache
-        with loaded(c) as session:
-            shas.append(session.config.sha256)
+        # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned);
+        # each compiles the configs as it starts
+        engine.start(done_contents, len(bags) * len(configs), tuple(map(str, configs)))
+    shas = _config_shas(configs, engine)
     dataset = Dataset(Path(args.output))
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
@@ -194,6 +189,33 @@ def _replay(
         _compare(dataset, shas, {fp for _, fp, _ in where.values()})
     # a damaged bag was judged only up to its damage: as replay, that is not a success
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
+
+
+def _config_shas(configs: list[Path], engine: Any) -> list[str]:
+    """Each config's SHA-256 (its bytes', as ``Config.sha256``), once it is known to
+    compile: a bad config is one error before any bag.  The pool's first worker
+    compiles them for its tasks anyway, so this process does not (0.5 s of its CPU per
+    run, docs/BENCHMARKS.md, "Fleet"); without one (Ray, no bags) they are compiled
+    here, and Ray's workers find their monitors in the start-up cache."""
+    import hashlib
+
+    from supervisor.tools.fleet.engine import LocalEngine
+
+    if isinstance(engine, LocalEngine) and engine.checked():
+        shas = []
+        for c in configs:
+            try:
+                shas.append(hashlib.sha256(c.read_bytes()).hexdigest())
+            except OSError as e:  # taken away since the worker read it
+                raise UserError(f"cannot read: {e.strerror or e}", file=str(c)) from None
+        return shas
+    from supervisor.tools.replay.session import loaded
+
+    out = []
+    for c in configs:
+        with loaded(c) as session:
+            out.append(session.config.sha256)
+    return out
 
 
 def _chain(first: list[Any], rest: Any) -> Any:

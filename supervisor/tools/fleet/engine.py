@@ -11,6 +11,7 @@ import contextlib
 import itertools
 import logging
 import multiprocessing
+import multiprocessing.forkserver as forkserver
 import os
 import shutil
 import socket
@@ -22,10 +23,19 @@ from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
-from supervisor.tools.fleet.task import BagResult, BagTask, _reason, run_task
+from supervisor.tools.fleet.task import (
+    BagResult,
+    BagTask,
+    _reason,
+    compile_config,
+    config_error,
+    run_task,
+)
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
 WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
+# imported once by the fork server, so every worker it forks has them
+PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
 
 _done: Collection[str] = ()
 
@@ -39,30 +49,41 @@ def _run(task: BagTask) -> BagResult:
     return run_task(task, _done)
 
 
-def _warm() -> int:
-    """What every task imports, imported while the parent still compiles the config
-    and lists the archive (``LocalEngine.start``)."""
+ConfigError = tuple[str, str, int | None, int | None, str | None]
+
+
+def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]:
+    """What every task imports, imported, and ``configs`` compiled (their monitors
+    loaded), while the parent lists the archive (``LocalEngine.start``): the worker's
+    pid and each config's error, if any."""
     import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
 
-    return os.getpid()
+    return os.getpid(), [compile_config(c) for c in configs]
 
 
 class LocalEngine:
-    """``jobs`` worker processes (``spawn``: a worker starts clean, never a fork of a
-    parent that may hold threads).  A worker that dies (killed, out of memory)
-    breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS`` times."""
+    """``jobs`` worker processes, forked by a ``forkserver``: a process started clean
+    (never a fork of this parent, which may hold threads) that imports what a task
+    needs once (``PRELOAD``), so a second worker costs no second import, 0.4 s of
+    CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
+    memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
+    times."""
 
     def __init__(self, jobs: int | None = None) -> None:
         self.jobs = jobs or os.cpu_count() or 1
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
-        self.warm: list[Future[int]] = []  # the started workers' imports (their pids)
+        # the started workers' imports and compiles (their pids, the configs' errors)
+        self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
 
-    def start(self, done: Collection[str], tasks: int | None = None) -> None:
+    def start(
+        self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
+    ) -> None:
         """Start the workers now, each importing what a task needs, so that their
         start-up overlaps the parent's (the config compiled): a serial part of every
         run otherwise (docs/BENCHMARKS.md, "Fleet").  ``tasks``: at most that many
-        tasks to come (no more workers than that).  ``results`` with the same
-        ``done`` uses them."""
+        tasks to come (no more workers than that).  ``configs``: compiled by each worker
+        as it starts (``checked`` says whether they compiled).  ``results`` with the
+        same ``done`` uses them."""
         self.close()
         workers = self.jobs if tasks is None else min(self.jobs, tasks)
         if workers < 1:
@@ -70,21 +91,42 @@ class LocalEngine:
         done = frozenset(done)
         pool = self._pool(workers, done)
         self._started = (pool, done)
-        # spawned one per submit (concurrent.futures), each import on a worker of its own
-        self.warm = [pool.submit(_warm) for _ in range(workers)]
+        # started one per submit (concurrent.futures), each compile on a worker of its own
+        self.warm = [pool.submit(_warm, configs) for _ in range(workers)]
+
+    def checked(self) -> bool:
+        """Whether the started workers compiled the configs given to ``start``: the
+        first worker's answer awaited, its first config error raised (``UserError``);
+        False when no worker was started (the caller compiles them)."""
+        if not self.warm:
+            return False
+        for error in self.warm[0].result()[1]:
+            if error is not None:
+                raise config_error(error)
+        return True
 
     def close(self) -> None:
-        """The started workers stopped, when ``results`` did not take them."""
+        """The started workers stopped, when ``results`` did not take them, and the
+        fork server with them: no process outlives the run, and its CPU (its
+        workers', which it reaps) is counted in this process's children's."""
         if self._started is not None:
             self._started[0].shutdown(wait=True, cancel_futures=True)
             self._started = None
         self.warm = []
+        # the standard library has no public call for it (multiprocessing.forkserver)
+        stop = getattr(getattr(forkserver, "_forkserver", None), "_stop", None)
+        if stop is not None:
+            stop()
 
     @staticmethod
     def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        context = multiprocessing.get_context("forkserver")
+        # read when the server starts (the first pool): replaces its default,
+        # __main__, which would run this command's module again in the server
+        context.set_forkserver_preload(list(PRELOAD))
         return ProcessPoolExecutor(
             max_workers=jobs,
-            mp_context=multiprocessing.get_context("spawn"),
+            mp_context=context,
             initializer=_init,
             initargs=(done,),
         )

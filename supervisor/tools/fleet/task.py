@@ -104,6 +104,30 @@ def _compiled(config: str) -> Any:
     return kept[1]
 
 
+def compile_config(config: str) -> tuple[str, str, int | None, int | None, str | None] | None:
+    """The config compiled and its monitor loaded, both kept for this worker's tasks,
+    as a worker starts (engine.py, ``LocalEngine.start``): the parent then compiles
+    nothing (docs/BENCHMARKS.md, "Fleet").  A bad config: its error's parts, as a
+    ``UserError`` does not cross processes whole (its fields are keyword-only)."""
+    from supervisor.tools.replay.session import loaded, prepare
+
+    try:
+        prepared = _compiled(config)
+        if prepared is None:  # unreadable: prepare says why, as in the parent before
+            prepared = prepare(Path(config))
+        with loaded(Path(config), prepared):
+            pass  # the monitor built or found in the cache, then kept for the tasks
+    except UserError as e:
+        return (e.message, e.file, e.line, e.col, e.hint)
+    return None
+
+
+def config_error(parts: tuple[str, str, int | None, int | None, str | None]) -> UserError:
+    """``compile_config``'s error again as the ``UserError`` it was."""
+    message, file, line, col, hint = parts
+    return UserError(message, file=file, line=line, col=col, hint=hint)
+
+
 def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
     """Replay one bag. ``done``: ``CONFIG_SHA256:BAG_SHA256`` of the bags already
     replayed (the same bag under another path is then skipped after hashing, not

@@ -285,8 +285,47 @@ def _named(pid: int, name: bytes) -> bool:
     return argv0.endswith(b"/" + name)
 
 
+COMPILED_HERE = """
+import sys
+from supervisor.cli import main
+try:
+    code = main(sys.argv[1:])
+finally:
+    # the modules that compile a config and load its monitor: the workers' alone
+    here = [m for m in ("supervisor.tools.replay.session", "monitors.backends.load")
+            if m in sys.modules]
+    print("COMPILED HERE" if here else "COMPILED BY THE WORKERS", here)
+"""
+
+
+def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
+    """The parent compiled each config as the workers did, 0.5 s of its CPU per run,
+    a serial part of every run (docs/BENCHMARKS.md, "Fleet"): the pool's workers
+    compile it as they start, the parent waits for the first one's verdict, and a bad
+    config is still one line with its place, before any bag is replayed."""
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    cfg = config(tmp_path)
+    other = config(tmp_path, "other.yaml", limit=2.5)
+    args = [cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--jobs", "2", "--compare", other]
+    run = subprocess.run(
+        [sys.executable, "-c", COMPILED_HERE, "fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[-1] == "COMPILED BY THE WORKERS []", run.stdout
+    assert "2 bags (2 read," in run.stdout
+    # a bad requirement in the compared config: its file and line, nothing written
+    other.write_text(other.read_text().replace("speed <= 2.5", "speed <=> 2.5"))
+    bad = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", "--compare", other, ok=(1,))
+    lines = [line for line in bad.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{other}:"), bad.stderr
+    assert not (tmp_path / "ds2").exists()
+
+
 def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
-    """``start`` spawns the workers (their imports overlap the parent's compile and
+    """``start`` starts the workers (their imports overlap the parent's compile and
     listing); ``results`` runs the tasks on those same workers, no second pool, and
     ``close`` stops workers that no run took."""
     import multiprocessing
@@ -298,7 +337,12 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     bags = [write_bag(tmp_path / f"b{i}", messages(i, 300)) for i in range(4)]
     engine = LocalEngine(2)
     engine.start(frozenset())
-    warm = {f.result(timeout=120) for f in engine.warm}  # each a worker's pid
+    warm = {f.result(timeout=120)[0] for f in engine.warm}  # each a worker's pid
+    # forked by one fork server, which imported the tasks' modules once for both
+    (server,) = {
+        int(Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()[1]) for p in warm
+    }
+    assert server != os.getpid()
     seen: set[int] = set()
     tasks = [BagTask(str(b), "r", str(cfg), "c" * 64) for b in bags]
     for result in engine.results(tasks, frozenset()):
@@ -308,9 +352,10 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     idle = LocalEngine(4)
     idle.start(frozenset(), 2)  # no more workers than tasks to come
     assert len(idle.warm) == 2
-    started = {f.result(timeout=120) for f in idle.warm}
+    started = {f.result(timeout=120)[0] for f in idle.warm}
     idle.close()
     assert not started & {p.pid for p in multiprocessing.active_children()}
+    assert not Path(f"/proc/{server}").exists()  # the server stopped too: nothing outlives a run
     idle.start(frozenset(), 0)  # nothing to run: nothing started
     assert not idle.warm and not multiprocessing.active_children()
 

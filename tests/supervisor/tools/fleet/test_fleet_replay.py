@@ -230,16 +230,17 @@ def test_jobs_is_a_small_positive_number(tmp_path):
 
 
 def _workers(parent: int) -> list[int]:
-    """The pool's worker processes: children of ``parent`` started by spawn."""
-    out = []
+    """The pool's worker processes: children of the fork server that ``parent``
+    started (engine.py, ``LocalEngine``)."""
+    procs: dict[int, tuple[int, bytes]] = {}
     for d in Path("/proc").iterdir():
         try:
             ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            if ppid == parent and b"spawn_main" in (d / "cmdline").read_bytes():
-                out.append(int(d.name))
+            procs[int(d.name)] = (ppid, (d / "cmdline").read_bytes())
         except (OSError, ValueError, IndexError):
             continue  # not a process, or one that has just exited
-    return out
+    servers = {p for p, (pp, cmd) in procs.items() if pp == parent and b"forkserver" in cmd}
+    return [p for p, (pp, _) in procs.items() if pp in servers]
 
 
 def _reading_a_bag(parent: int) -> int | None:
