@@ -17,12 +17,12 @@ from typing import Any
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from projects import project_of
 
 from mitigations.violationlog.testing import MemoryLog
 from monitors.backends.load import compile_spec
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
-from supervisor.pipeline import project_for
 
 MS = 1_000_000
 
@@ -78,11 +78,7 @@ class Calls:
 
 @pytest.fixture(scope="module")
 def project(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    d = tmp_path_factory.mktemp("core")
-    (d / "c.yaml").write_text(textwrap.dedent(CONFIG))
-    p = project_for(d / "c.yaml", ros=False)
-    assert p.ok, p.first_error()
-    return p, d
+    return project_of(tmp_path_factory.mktemp("core"), CONFIG)
 
 
 def new_core(project: Any) -> tuple[Core, Calls]:
@@ -147,10 +143,7 @@ def event_project(tmp_path_factory: pytest.TempPathFactory) -> Any:
         "step: {policy: periodic, period_ms: 10, stale_after_ms: 50}",
         "step: {policy: on_message, stale_after_ms: 50}",
     )
-    (d / "c.yaml").write_text(text)
-    p = project_for(d / "c.yaml", ros=False)
-    assert p.ok, p.first_error()
-    return p, d
+    return project_of(d, text)
 
 
 @settings(max_examples=25, deadline=None)

@@ -10,20 +10,19 @@ from __future__ import annotations
 
 import json
 import random
-import textwrap
 from pathlib import Path
 from typing import Any
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from projects import project_of
 
 import mitigations.violationlog.writer as writer
 from mitigations.violationlog.writer import ViolationLog
 from monitors.backends.load import compile_spec
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
-from supervisor.pipeline import project_for
 
 MS = 1_000_000
 
@@ -72,11 +71,7 @@ class Plain:
 
 @pytest.fixture(scope="module")
 def project(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    d = tmp_path_factory.mktemp("halt")
-    (d / "c.yaml").write_text(textwrap.dedent(CONFIG))
-    p = project_for(d / "c.yaml", ros=False)
-    assert p.ok, p.first_error()
-    return p, d
+    return project_of(tmp_path_factory.mktemp("halt"), CONFIG)
 
 
 def schedule(seed: int, n: int) -> list[tuple[int, str, Any]]:

@@ -4,18 +4,17 @@ the lamp while it is on (the sRobot's "distance >= 3 m while UV on")."""
 
 from __future__ import annotations
 
-import textwrap
 from pathlib import Path
 from typing import Any
 
 import pytest
+from projects import project_of
 
 from mitigations.violationlog.testing import MemoryLog
 from monitors.backends.load import compile_spec
 from monitors.ir.formula import to_fret
 from supervisor.daemon.core import Core
 from supervisor.daemon.session import build_session
-from supervisor.pipeline import project_for
 
 MS = 1_000_000
 PERIOD_MS = 20
@@ -40,11 +39,7 @@ mitigations:
 
 @pytest.fixture(scope="module")
 def project(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    d = tmp_path_factory.mktemp("predict")
-    (d / "c.yaml").write_text(textwrap.dedent(CONFIG))
-    p = project_for(d / "c.yaml", ros=False)
-    assert p.ok, p.first_error()
-    return p, d
+    return project_of(tmp_path_factory.mktemp("predict"), CONFIG)
 
 
 def _run(
