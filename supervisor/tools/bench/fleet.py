@@ -154,6 +154,9 @@ def run_fleet(
     t0 = time.monotonic()
     proc = children.start(argv, env=children.child_env(), stdout=-1, stderr=-1)
     peaks: dict[int, int] = {}
+    # workers alive at once: a pool started for the configs' check and replaced for
+    # the tasks (a resume's finished bags differ) shows more processes over the run
+    most = 0
     killed = False
     # the sampling period; finer when a kill waits for the bags finished: a small
     # archive's second half can take less than 0.1 s
@@ -163,7 +166,9 @@ def run_fleet(
             proc.wait(timeout=period)
             break
         except subprocess.TimeoutExpired:  # still running
-            for pid, kb in _workers(proc.pid).items():
+            alive = _workers(proc.pid)
+            most = max(most, len(alive))
+            for pid, kb in alive.items():
                 peaks[pid] = max(peaks.get(pid, 0), kb)
             if stop_after is not None and _finished(dataset) >= stop_after:
                 os.killpg(proc.pid, signal.SIGKILL)
@@ -185,7 +190,7 @@ def run_fleet(
         "rate": messages / wall if wall > 0 else 0.0,
         "cpu_s": cpu,
         "cores_used": cpu / wall if wall > 0 else 0.0,
-        "workers": len(peaks),
+        "workers": most,
         "peak_worker_mb": max(peaks.values(), default=0) / 1024,
         "load": load,
         "killed": killed,
