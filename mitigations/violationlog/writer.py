@@ -511,47 +511,7 @@ class ViolationLog:
             f'{text[1:cut]},"inputs":{{{text[cut + 1 :]},"recent":[{parts}],'
             f'"stale":{state},"policy_state":{policy_state}'
         )
-        return self._violation_now(template, dynamic)
-
-    def _violation_now(self, template: ViolationTemplate, dynamic: str) -> bool:
-        """:meth:`_emit` of a violation from its template on the halt's path: when no
-        record waits to be written before it and the chain's last hash is known
-        (flush() made it), its line is made whole here and handed to :meth:`_drain`
-        (the one place that writes, reports, counts and fsyncs); otherwise
-        :meth:`_emit`'s way, outside the lock.  The same bytes either way."""
-        ts = _now()
-        entry = None
-        with self._lock:
-            prev = self._prev_hex
-            if not (self._fd is None or self._queue or self._lost or self._resync or prev is None):
-                seq = self._seq + 1
-                start = f'{{"ts":"{ts}","event":"violation",{self._head},"prev_sha256":"'
-                rest = f'","seq":{seq},{template.head},{dynamic}{template.tail}'
-                text = f"{start}{prev}{rest}".encode("ascii")
-                digest = hashlib.sha256(text)
-                digest.update(_SEAL_ZEROS)
-                line = b"".join((text, _SEAL_KEY, digest.hexdigest().encode(), b'"}\n'))
-                body = f"{start}{ZERO_SHA256}{rest}}}".encode("ascii")  # as _render_template's
-                self._seq = seq
-                entry = _Entry(seq, "violation", ts, body, len(start), True)
-                self._queue.append(entry)
-                self._queued += 1
-                self._drain(line)
-                written = entry.state == "written"
-                if not written:
-                    self._failed += 1
-                    self._not_written("violation", entry, None)
-                ok = written and not self._unsynced
-        if entry is None:  # _emit's way, outside the lock (its echo and tee must be)
-            return self._emit("violation", {}, {}, True, (template, dynamic), ts)
-        if self._on_defer_thread():
-            self._deferred.append(("violation", entry, ts, {}))
-        else:
-            self._after_write("violation", entry, ts, {})
-        return ok
-
-    def _on_defer_thread(self) -> bool:
-        return self.defer_thread is not None and threading.get_ident() == self.defer_thread
+        return self._emit("violation", {}, {}, durable=True, body=(template, dynamic))
 
     def mitigation(
         self,
@@ -805,15 +765,12 @@ class ViolationLog:
         extra: Mapping[str, Any],
         durable: bool = False,
         body: tuple[ViolationTemplate, str] | None = None,
-        ts: str | None = None,
     ) -> bool:
         """``body``: a violation's template and its dynamic fields' JSON
-        (:meth:`violation_from`), rendered instead of ``fields``; ``ts``: its time,
-        when taken already."""
+        (:meth:`violation_from`), rendered instead of ``fields``."""
         for k, v in extra.items():
             fields[k + "_" if k in _RESERVED or k in fields else k] = v
-        if ts is None:
-            ts = _now()
+        ts = _now()
         entry: _Entry | None = None
         error: str | None = None
         with self._lock:
@@ -936,18 +893,16 @@ class ViolationLog:
             f"(seq {seq_ranges(lost)}: {fields['reason']}); a records_lost record says so"
         )
 
-    def _drain(self, first_line: bytes | None = None) -> None:
+    def _drain(self) -> None:
         """Write the queue in order until it is empty or a write fails; then, if
-        records were dropped, queue and write the records_lost record.
-        ``first_line``: the queue's head already chained and sealed (the halt path)."""
+        records were dropped, queue and write the records_lost record."""
         synced = True
         self._unsynced = False
         wrote_durable = False
         while True:
             while self._queue:
                 head = self._queue[0]
-                error = self._write(head, first_line)
-                first_line = None
+                error = self._write(head)
                 if error is not None:
                     self._error = error
                     if not self._outage:
@@ -1019,18 +974,14 @@ class ViolationLog:
             if done:
                 return
 
-    def _write(self, entry: _Entry, line: bytes | None = None) -> str | None:
-        """Write one record, chained to the file's last line; the error text or None.
-        ``line``: the record already chained to the last line written (its prev_sha256
-        filled in and sealed), used unless the file changed meanwhile."""
+    def _write(self, entry: _Entry) -> str | None:
+        """Write one queued record, chained to the file's last line; the error text or None."""
         assert self._fd is not None
         written = 0
         try:
             if self._resync or os.fstat(self._fd).st_size != self._size:
                 self._load_tail()  # copytruncate, another writer, a failed write
-                line = None
-            if line is None:
-                line = entry.line(self._prev)
+            line = entry.line(self._prev)
             data = b"\n" + line if self._needs_newline else line
             # One write per line; the loop only continues a short write (disk
             # nearly full), still under the lock, so nothing interleaves.
