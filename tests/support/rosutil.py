@@ -247,6 +247,18 @@ TOPICS: list[tuple[str, str, type]] = [  # trigger (turnoffUVC) last, as the con
 ]
 # Consistent states of the thesis's controller (Tables 7, 8): none violates anything.
 S0 = dict(classifier=0, distance_to_target=50, OpState=0, alert=False, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
+# variant() edit: nobody within 3 m while the UV light is on (turnoffUVC false), predicted
+UV_DISTANCE = (
+    "requirements:\n",
+    "requirements:\n"
+    "  - id: uv_distance\n"
+    "    text: sRobot shall always satisfy classifier = 0 | turnoffUVC | distance_to_target > 3\n"
+    "    on_violation: [record]\n"
+    "    policy: {reset: after_mitigation}\n"
+    "    predict: {horizon_ms: 1500, window_ms: 1000, actions: [slow_down]}\n",
+)
+# a trained worker walking towards the robot, the UV light on (S0 otherwise)
+WALKING = dict(S0, classifier=1, OpState=2, alert=True, slowdown=True)
 S1 = dict(classifier=1, distance_to_target=10, OpState=1, alert=True, slowdown=False, halt=False, turnoffUVC=False)  # fmt: skip
 S3 = dict(classifier=1, distance_to_target=2, OpState=3, alert=False, slowdown=False, halt=True, turnoffUVC=True)  # fmt: skip
 S2 = dict(classifier=2, distance_to_target=10, OpState=2, alert=True, slowdown=True, halt=False, turnoffUVC=False)  # fmt: skip

@@ -14,19 +14,8 @@ import pytest
 pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
-from rosutil import S0, Daemon, Robot, variant  # noqa: E402
+from rosutil import UV_DISTANCE, WALKING, Daemon, Robot, variant  # noqa: E402
 
-# Nobody within 3 m while the UV light is on (turnoffUVC false), predicted.
-UV_DISTANCE = (
-    "requirements:\n",
-    "requirements:\n"
-    "  - id: uv_distance\n"
-    "    text: sRobot shall always satisfy classifier = 0 | turnoffUVC | distance_to_target > 3\n"
-    "    on_violation: [record]\n"
-    "    policy: {reset: after_mitigation}\n"
-    "    predict: {horizon_ms: 1500, window_ms: 1000, actions: [slow_down]}\n",
-)
-WALKING = dict(S0, classifier=1, OpState=2, alert=True, slowdown=True)
 RATE_HZ = 20  # the robot's publishing rate (rosutil.Robot.until's)
 SPEED = 2.0  # m/s: the reading drops a whole metre every half second
 

@@ -24,19 +24,9 @@ from tests.system.test_ui import TOKEN, UiProcess, free_port
 pytestmark = pytest.mark.ros
 pytest.importorskip("rclpy")
 
-from rosutil import S0, Daemon, Robot, variant, wait_until  # noqa: E402
+from rosutil import UV_DISTANCE, WALKING, Daemon, Robot, variant, wait_until  # noqa: E402
 
-UV_DISTANCE = (
-    "requirements:\n",
-    "requirements:\n"
-    "  - id: uv_distance\n"
-    "    text: sRobot shall always satisfy classifier = 0 | turnoffUVC | distance_to_target > 3\n"
-    "    on_violation: [record]\n"
-    "    policy: {reset: after_mitigation}\n"
-    "    predict: {horizon_ms: 1500, window_ms: 1000, actions: [slow_down]}\n",
-)
 MARGINS_ON = ("  trigger: turnoffUVC\n", "  trigger: turnoffUVC\n  margins: true\n")
-WALKING = dict(S0, classifier=1, OpState=2, alert=True, slowdown=True)
 ROW = "tr.req[data-requirement='uv_distance'] .margin"
 
 
