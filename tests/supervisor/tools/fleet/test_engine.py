@@ -50,15 +50,21 @@ print("RAY IMPORTED" if sys.modules.get("ray") is not None else "NO RAY", code)
 """
 
 
-def test_the_cli_and_the_local_engine_never_import_ray(tmp_path):
-    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
-    args = [config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--jobs", "1"]
-    run = subprocess.run(
-        [sys.executable, "-c", NO_RAY, "fleet", "replay", *map(str, args)],
+def probed(probe: str, args: list) -> subprocess.CompletedProcess[str]:
+    """``fleet replay ARGS`` in a Python running ``probe``, the CLI and what it
+    prints about the process at exit (NO_RAY, COMPILED_HERE)."""
+    return subprocess.run(
+        [sys.executable, "-c", probe, "fleet", "replay", *map(str, args)],
         capture_output=True,
         text=True,
         timeout=300,
     )
+
+
+def test_the_cli_and_the_local_engine_never_import_ray(tmp_path):
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    args = [config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--jobs", "1"]
+    run = probed(NO_RAY, args)
     assert run.returncode == 0, run.stderr
     assert run.stdout.splitlines()[-1] == "NO RAY 0", run.stdout
     assert "1 bags (1 read," in run.stdout
@@ -68,13 +74,7 @@ def test_engine_ray_without_ray_is_one_line_with_the_fix(tmp_path):
     write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
     args = [config(tmp_path), tmp_path / "fleet", "-o", tmp_path / "ds", "--engine", "ray"]
     # ray made unimportable in this process only, whether or not it is installed
-    run = subprocess.run(
-        [sys.executable, "-c", "import sys; sys.modules['ray'] = None; " + NO_RAY]
-        + ["fleet", "replay", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    run = probed("import sys; sys.modules['ray'] = None; " + NO_RAY, args)
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "pip install 'safety-supervisor[fleet]'" in lines[0], run.stderr
     assert run.stdout.splitlines()[-1] == "NO RAY 1"
@@ -307,12 +307,7 @@ def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
     cfg = config(tmp_path)
     other = config(tmp_path, "other.yaml", limit=2.5)
     args = [cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--jobs", "2", "--compare", other]
-    run = subprocess.run(
-        [sys.executable, "-c", COMPILED_HERE, "fleet", "replay", *map(str, args)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    run = probed(COMPILED_HERE, args)
     assert run.returncode == 0, run.stderr
     assert run.stdout.splitlines()[-1] == "COMPILED BY THE WORKERS []", run.stdout
     assert "2 bags (2 read," in run.stdout
