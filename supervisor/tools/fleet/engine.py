@@ -1,8 +1,13 @@
 """Engines: what runs the tasks. An engine takes ``BagTask``s and the content hashes
-already done, and yields each ``BagResult`` as it comes, in any order; the caller
-writes it (dataset.py).  ``LocalEngine`` is a process pool on this machine;
-``RayEngine`` runs the same ``run_task`` as Ray tasks, on a cluster or on a local one it
-starts (``ray`` is imported only there: the base install has no Ray).
+already done, and yields each ``BagResult`` as it comes, in any order.
+``LocalEngine`` is a process pool on this machine; given the dataset
+(``writes_to``), each worker writes its bag's files itself (``Dataset.write``) and
+yields the result only once they are durable, without its Arrow table, so the
+parent writes nothing and the pool's processes are the run's only busy ones
+(docs/BENCHMARKS.md, "Fleet").  ``RayEngine`` runs the same ``run_task`` as Ray
+tasks, on a cluster or on a local one it starts (``ray`` is imported only there:
+the base install has no Ray); its results come back as Arrow tables for the caller
+to write (``dataset.Writers``).
 """
 
 from __future__ import annotations
@@ -19,10 +24,12 @@ import tempfile
 from collections.abc import Collection, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
+from supervisor.tools.fleet.dataset import Dataset
 from supervisor.tools.fleet.task import (
     BagResult,
     BagTask,
@@ -38,15 +45,29 @@ WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one 
 PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
 
 _done: Collection[str] = ()
+_dataset: Dataset | None = None  # this worker writes its bags' files there
 
 
-def _init(done: Collection[str]) -> None:
-    global _done
+def _init(done: Collection[str], writes_to: Path | None = None) -> None:
+    global _done, _dataset
     _done = done
+    _dataset = Dataset(writes_to, make=False) if writes_to is not None else None
+
+
+class WriteFailed(Exception):
+    """A worker's ``Dataset.write`` error (message, file): a ``UserError`` does not
+    cross processes whole (its fields are keyword-only)."""
 
 
 def _run(task: BagTask) -> BagResult:
-    return run_task(task, _done)
+    result = run_task(task, _done)
+    if _dataset is None:
+        return result
+    try:  # the files durable before the result is sent: done means written
+        _dataset.write(result, task.robot, task.fingerprint)
+    except UserError as e:
+        raise WriteFailed(e.message, e.file) from None
+    return result.without_table()
 
 
 ConfigError = tuple[str, str, int | None, int | None, str | None]
@@ -67,10 +88,14 @@ class LocalEngine:
     needs once (``PRELOAD``), so a second worker costs no second import, 0.4 s of
     CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
     memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
-    times."""
+    times; killed between a bag's violations and its row, it left the bag unfinished
+    (no row), and the retry writes the same files again (dataset.py)."""
 
-    def __init__(self, jobs: int | None = None) -> None:
+    def __init__(self, jobs: int | None = None, writes_to: Path | None = None) -> None:
+        """``writes_to``: the dataset the workers write each bag's files to (the
+        results then come without their tables); None: the caller writes them."""
         self.jobs = jobs or os.cpu_count() or 1
+        self.writes_to = writes_to
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
         # the started workers' imports and compiles (their pids, the configs' errors)
         self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
@@ -84,7 +109,7 @@ class LocalEngine:
         tasks to come (no more workers than that).  ``configs``: compiled by each worker
         as it starts (``checked`` says whether they compiled).  ``results`` with the
         same ``done`` uses them."""
-        self.close()
+        self._stop_started()  # the fork server kept: serve() may have started it
         workers = self.jobs if tasks is None else min(self.jobs, tasks)
         if workers < 1:
             return
@@ -109,26 +134,38 @@ class LocalEngine:
         """The started workers stopped, when ``results`` did not take them, and the
         fork server with them: no process outlives the run, and its CPU (its
         workers', which it reaps) is counted in this process's children's."""
-        if self._started is not None:
-            self._started[0].shutdown(wait=True, cancel_futures=True)
-            self._started = None
-        self.warm = []
+        self._stop_started()
         # the standard library has no public call for it (multiprocessing.forkserver)
         stop = getattr(getattr(forkserver, "_forkserver", None), "_stop", None)
         if stop is not None:
             stop()
 
+    def _stop_started(self) -> None:
+        if self._started is not None:
+            self._started[0].shutdown(wait=True, cancel_futures=True)
+            self._started = None
+        self.warm = []
+
     @staticmethod
-    def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+    def serve() -> multiprocessing.context.BaseContext:
+        """The fork server started now, if it is not running: called first, its
+        interpreter and imports (``PRELOAD``, 0.4-0.7 s) run beside this process's own
+        start-up and listing rather than after them, a serial part of every run
+        (docs/BENCHMARKS.md, "Fleet").  The pools started later fork from it."""
         context = multiprocessing.get_context("forkserver")
-        # read when the server starts (the first pool): replaces its default,
-        # __main__, which would run this command's module again in the server
+        # read when the server starts: replaces its default, __main__, which would
+        # run this command's module again in the server
         context.set_forkserver_preload(list(PRELOAD))
+        forkserver.ensure_running()
+        return context
+
+    def _pool(self, jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        context = self.serve()
         return ProcessPoolExecutor(
             max_workers=jobs,
             mp_context=context,
             initializer=_init,
-            initargs=(done,),
+            initargs=(done, self.writes_to),
         )
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
@@ -180,6 +217,8 @@ class LocalEngine:
                                 yield BagResult(
                                     task, "failed", f"its worker process died {n} times"
                                 )
+                        except WriteFailed as e:  # a full disk stops the run, as in the parent
+                            raise UserError(e.args[0], file=e.args[1]) from None
                         except Exception as e:  # noqa: BLE001 - one bag's bug is its row
                             left -= 1
                             yield BagResult(
