@@ -95,6 +95,18 @@ def _jobs(text: str) -> int:
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
+    if not (args.fleet_command == "replay" and args.engine == "local"):
+        return _fleet(args)
+    from supervisor.tools.fleet import server
+
+    server.serve()  # first: its imports beside this process's (server.py)
+    try:
+        return _fleet(args)
+    finally:
+        server.stop()  # whatever stopped the run: nothing outlives it
+
+
+def _fleet(args: argparse.Namespace) -> int:
     try:
         import pyarrow  # noqa: F401 - only to say what is missing, once
     except ImportError:
@@ -115,8 +127,6 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
     if args.engine == "ray":
         import_ray()  # missing: one line with the fix, before any config is compiled
-    else:
-        LocalEngine.serve()  # its imports beside this process's (engine.py)
     # made first: an unreachable cluster is said before anything is compiled or read
     engine = (
         RayEngine(args.jobs, args.address)

@@ -15,8 +15,6 @@ from __future__ import annotations
 import contextlib
 import itertools
 import logging
-import multiprocessing
-import multiprocessing.forkserver as forkserver
 import os
 import shutil
 import socket
@@ -29,6 +27,7 @@ from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
+from supervisor.tools.fleet import server
 from supervisor.tools.fleet.dataset import Dataset
 from supervisor.tools.fleet.task import (
     BagResult,
@@ -41,8 +40,6 @@ from supervisor.tools.fleet.task import (
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
 WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
-# imported once by the fork server, so every worker it forks has them
-PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
 
 _done: Collection[str] = ()
 _dataset: Dataset | None = None  # this worker writes its bags' files there
@@ -85,7 +82,7 @@ def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]
 class LocalEngine:
     """``jobs`` worker processes, forked by a ``forkserver``: a process started clean
     (never a fork of this parent, which may hold threads) that imports what a task
-    needs once (``PRELOAD``), so a second worker costs no second import, 0.4 s of
+    needs once (server.py), so a second worker costs no second import, 0.4 s of
     CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
     memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
     times; killed between a bag's violations and its row, it left the bag unfinished
@@ -135,10 +132,7 @@ class LocalEngine:
         fork server with them: no process outlives the run, and its CPU (its
         workers', which it reaps) is counted in this process's children's."""
         self._stop_started()
-        # the standard library has no public call for it (multiprocessing.forkserver)
-        stop = getattr(getattr(forkserver, "_forkserver", None), "_stop", None)
-        if stop is not None:
-            stop()
+        server.stop()
 
     def _stop_started(self) -> None:
         if self._started is not None:
@@ -146,21 +140,8 @@ class LocalEngine:
             self._started = None
         self.warm = []
 
-    @staticmethod
-    def serve() -> multiprocessing.context.BaseContext:
-        """The fork server started now, if it is not running: called first, its
-        interpreter and imports (``PRELOAD``, 0.4-0.7 s) run beside this process's own
-        start-up and listing rather than after them, a serial part of every run
-        (docs/BENCHMARKS.md, "Fleet").  The pools started later fork from it."""
-        context = multiprocessing.get_context("forkserver")
-        # read when the server starts: replaces its default, __main__, which would
-        # run this command's module again in the server
-        context.set_forkserver_preload(list(PRELOAD))
-        forkserver.ensure_running()
-        return context
-
     def _pool(self, jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
-        context = self.serve()
+        context = server.serve()
         return ProcessPoolExecutor(
             max_workers=jobs,
             mp_context=context,
