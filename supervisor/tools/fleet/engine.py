@@ -20,7 +20,13 @@ import shutil
 import socket
 import tempfile
 from collections.abc import Collection, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
@@ -39,16 +45,29 @@ from supervisor.tools.fleet.task import (
 )
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
-WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
+WINDOW_PER_JOB = 4  # calls in flight per worker: the next one is queued as one ends
+# bags per call when the workers write: each bag's files written on a thread while
+# the next is replayed; fewer near the end, so that no worker is left with a long call
+BATCH = 8
 
 _done: Collection[str] = ()
 _dataset: Dataset | None = None  # this worker writes its bags' files there
+_writer: ThreadPoolExecutor | None = None  # ... on this one thread, in order
 
 
 def _init(done: Collection[str], writes_to: Path | None = None) -> None:
-    global _done, _dataset
+    global _done, _dataset, _writer
     _done = done
-    _dataset = Dataset(writes_to, make=False) if writes_to is not None else None
+    if writes_to is not None:
+        _dataset = Dataset(writes_to, make=False)
+        _writer = ThreadPoolExecutor(1, thread_name_prefix="fleet-write")
+
+
+def _one(task: BagTask) -> BagResult:
+    try:
+        return run_task(task, _done)
+    except Exception as e:  # noqa: BLE001 - one bag's bug is its row, not its batch's
+        return BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
 
 
 class WriteFailed(Exception):
@@ -56,15 +75,26 @@ class WriteFailed(Exception):
     cross processes whole (its fields are keyword-only)."""
 
 
-def _run(task: BagTask) -> BagResult:
-    result = run_task(task, _done)
-    if _dataset is None:
-        return result
-    try:  # the files durable before the result is sent: done means written
-        _dataset.write(result, task.robot, task.fingerprint)
-    except UserError as e:
-        raise WriteFailed(e.message, e.file) from None
-    return result.without_table()
+def _run(tasks: list[BagTask]) -> list[BagResult]:
+    """``tasks`` one after the other.  Given the dataset, each bag's files are written
+    on this worker's writer thread while the next bag is replayed (each file's fsync
+    is a wait, milliseconds on a busy disk: docs/BENCHMARKS.md, "Fleet"), and the
+    results are returned, without their tables, once every file is durable: done
+    means written."""
+    if _dataset is None or _writer is None:
+        return [_one(t) for t in tasks]
+    writes = []
+    for t in tasks:
+        result = _one(t)
+        writes.append((_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result))
+    out = []
+    for future, result in writes:
+        try:
+            future.result()
+        except UserError as e:
+            raise WriteFailed(e.message, e.file) from None
+        out.append(result.without_table())
+    return out
 
 
 ConfigError = tuple[str, str, int | None, int | None, str | None]
@@ -149,6 +179,14 @@ class LocalEngine:
             initargs=(done, self.writes_to),
         )
 
+    def _batch(self, left: int, running: dict[Any, list[Any]]) -> int:
+        """Bags in the next call: one when the parent writes; else up to ``BATCH``,
+        fewer as the bags not yet sent run out, so the last calls are short."""
+        if self.writes_to is None:
+            return 1
+        unsent = left - sum(len(b) for b in running.values())
+        return max(1, min(BATCH, unsent // (WINDOW_PER_JOB * self.jobs)))
+
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
         # (task, attempt), taken as the window has room: each wait() installs a waiter
         # on every future it is given, so the whole archive in flight cost the parent
@@ -170,41 +208,47 @@ class LocalEngine:
             # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
             # started are dropped, not run to the end of the archive
             try:
-                running: dict[Future[BagResult], tuple[BagTask, int]] = {}
+                running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
                 while True:
                     while not broken and len(running) < window:
-                        nxt = next(todo, None)
-                        if nxt is None:
+                        batch = list(itertools.islice(todo, self._batch(left, running)))
+                        if not batch:
                             break
                         try:
-                            running[pool.submit(_run, nxt[0])] = nxt
-                        except BrokenProcessPool:  # a worker died: the next pool runs it
+                            running[pool.submit(_run, [t for t, _ in batch])] = batch
+                        except BrokenProcessPool:  # a worker died: the next pool runs them
                             broken = True
-                            retry.append(nxt)
+                            retry.extend(batch)
                     if not running:
                         break
                     finished, _ = wait(running, return_when=FIRST_COMPLETED)
                     for f in finished:
-                        task, n = running.pop(f)
+                        batch = running.pop(f)
                         try:
-                            yield f.result()
-                            left -= 1
+                            results = f.result()
                         except BrokenProcessPool:
                             broken = True
-                            if n < ATTEMPTS:
-                                retry.append((task, n + 1))
-                            else:
-                                left -= 1
-                                yield BagResult(
-                                    task, "failed", f"its worker process died {n} times"
-                                )
+                            for task, n in batch:
+                                if n < ATTEMPTS:
+                                    retry.append((task, n + 1))
+                                else:
+                                    left -= 1
+                                    yield BagResult(
+                                        task, "failed", f"its worker process died {n} times"
+                                    )
+                            continue
                         except WriteFailed as e:  # a full disk stops the run, as in the parent
                             raise UserError(e.args[0], file=e.args[1]) from None
                         except Exception as e:  # noqa: BLE001 - one bag's bug is its row
+                            results = [
+                                BagResult(
+                                    task, "failed", f"internal error: {type(e).__name__}: {e}"
+                                )
+                                for task, _ in batch
+                            ]
+                        for result in results:
                             left -= 1
-                            yield BagResult(
-                                task, "failed", f"internal error: {type(e).__name__}: {e}"
-                            )
+                            yield result
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
             # the next pool: the tasks its worker's death took down, then those not started
