@@ -248,8 +248,8 @@ def split(config: Path, bags: list[Path], where: Path) -> dict[str, Any]:
     """Where one task's CPU goes, bag after bag in this process (the config compiled
     once, as a worker has it): hashing the bag's bytes (reading), reading and
     decoding its messages into columns, the rest of the task (the session, stepping
-    the monitor, the violations' Arrow table), and the parent's write of the result
-    into the dataset.  CPU time (``time.process_time``), not wall: on a loaded
+    the monitor, the violations' Arrow table), and the write of the result into the
+    dataset (a pool's worker's, Ray's parent's).  CPU time (``time.process_time``), not wall: on a loaded
     machine the wall time is the other processes' as much as ours; the writes' fsync
     waits are not CPU and are left out."""
     from monitors.errors import UserError
@@ -439,7 +439,7 @@ def format_results(out: dict[str, Any]) -> str:
         ("hash", "reading (the bag's bytes hashed)"),
         ("read_decode", "reading and decoding into columns"),
         ("step", "stepping (session, monitor, violations table)"),
-        ("write", "writing (the parent's Parquet files, fsynced)"),
+        ("write", "writing (the bag's Parquet files, fsynced)"),
         ("task", "whole task in the worker"),
     ):
         cells = " | ".join(f"{out[k]['ns_per_message'][part]:.0f}" for k, _ in names)

@@ -95,6 +95,18 @@ def _jobs(text: str) -> int:
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
+    if not (args.fleet_command == "replay" and args.engine == "local"):
+        return _fleet(args)
+    from supervisor.tools.fleet import server
+
+    server.serve()  # first: its imports beside this process's (server.py)
+    try:
+        return _fleet(args)
+    finally:
+        server.stop()  # whatever stopped the run: nothing outlives it
+
+
+def _fleet(args: argparse.Namespace) -> int:
     try:
         import pyarrow  # noqa: F401 - only to say what is missing, once
     except ImportError:
@@ -116,7 +128,12 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     if args.engine == "ray":
         import_ray()  # missing: one line with the fix, before any config is compiled
     # made first: an unreachable cluster is said before anything is compiled or read
-    engine = RayEngine(args.jobs, args.address) if args.engine == "ray" else LocalEngine(args.jobs)
+    engine = (
+        RayEngine(args.jobs, args.address)
+        if args.engine == "ray"
+        # the pool's workers write their bags' files: the parent only coordinates
+        else LocalEngine(args.jobs, Path(args.output))
+    )
     namespace = checked_namespace(args.namespace, "fleet replay")
     # what an earlier run finished, read (nothing made yet) before the workers start:
     # they take it at their start, while this process compiles the config
@@ -158,7 +175,7 @@ def _replay(
             if (sha, bag.fingerprint) in done.fingerprints:
                 already += 1
                 continue
-            task = BagTask(bag.path, bag.robot or "", str(c), sha, namespace)
+            task = BagTask(bag.path, bag.robot or "", str(c), sha, namespace, bag.fingerprint)
             if bag.robot is None:
                 failed_first.append(BagResult(task, "failed", bag.robot_error or ""))
             else:
@@ -178,6 +195,9 @@ def _replay(
                     progress.draw()
 
             for result in _chain(failed_first, results):
+                if result.written is not None:  # its worker wrote its files (LocalEngine)
+                    count([result])
+                    continue
                 robot, fp, _size = where[result.task.bag]
                 count(writers.put(result, robot, fp))
             count(writers.drain())

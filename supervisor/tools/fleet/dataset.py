@@ -1,9 +1,14 @@
-"""The result dataset, written by the parent alone, one bag's files at a time:
+"""The result dataset, one bag's files at a time, by ``Dataset.write``:
 
 ```
 DATASET/violations/robot=R/date=D/K.parquet   one row per violation (task.VIOLATIONS)
 DATASET/bags/K.parquet                        the bag's row (BAGS)
 ```
+
+Who writes: with the local engine, the worker that replayed the bag, before it
+reports the bag done (engine.py, ``LocalEngine``), so the parent only coordinates;
+with Ray, the parent, as the results come back as Arrow tables (``Writers``).  The
+same files in the same order either way (docs/BENCHMARKS.md, "Fleet").
 
 ``K`` is a hash of the config's SHA-256 and the bag's fingerprint (archive.py), so a
 bag replayed again with the same config overwrites its own files, never adds rows.
@@ -98,7 +103,7 @@ class Dataset:
     def write(self, result: BagResult, robot: str, fingerprint: str) -> None:
         """One bag's violations, then its row."""
         task = result.task
-        key = hashlib.sha256(f"{task.config_sha256}\0{fingerprint}".encode()).hexdigest()[:32]
+        key = self.key(task.config_sha256, fingerprint)
         v = result.violations
         for date in sorted(set(v.column("date").to_pylist())):
             part = v.filter(pc.equal(v["date"], date)).drop_columns(["date"])
@@ -117,6 +122,11 @@ class Dataset:
             "finished_ts": time.time_ns(),
         }
         _write(self.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
+
+    @staticmethod
+    def key(config_sha256: str, fingerprint: str) -> str:
+        """``K``, the name of a bag's files under one config."""
+        return hashlib.sha256(f"{config_sha256}\0{fingerprint}".encode()).hexdigest()[:32]
 
     def violations(self) -> pa.Table:
         """The whole violations dataset, its partitions as columns."""

@@ -1,8 +1,13 @@
 """Engines: what runs the tasks. An engine takes ``BagTask``s and the content hashes
-already done, and yields each ``BagResult`` as it comes, in any order; the caller
-writes it (dataset.py).  ``LocalEngine`` is a process pool on this machine;
-``RayEngine`` runs the same ``run_task`` as Ray tasks, on a cluster or on a local one it
-starts (``ray`` is imported only there: the base install has no Ray).
+already done, and yields each ``BagResult`` as it comes, in any order.
+``LocalEngine`` is a process pool on this machine; given the dataset
+(``writes_to``), each worker writes its bag's files itself (``Dataset.write``) and
+yields the result only once they are durable, without its Arrow table, so the
+parent writes nothing and the pool's processes are the run's only busy ones
+(docs/BENCHMARKS.md, "Fleet").  ``RayEngine`` runs the same ``run_task`` as Ray
+tasks, on a cluster or on a local one it starts (``ray`` is imported only there:
+the base install has no Ray); its results come back as Arrow tables for the caller
+to write (``dataset.Writers``).
 """
 
 from __future__ import annotations
@@ -10,19 +15,26 @@ from __future__ import annotations
 import contextlib
 import itertools
 import logging
-import multiprocessing
-import multiprocessing.forkserver as forkserver
 import os
 import shutil
 import socket
 import tempfile
 from collections.abc import Collection, Iterator
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import (
+    FIRST_COMPLETED,
+    Future,
+    ProcessPoolExecutor,
+    ThreadPoolExecutor,
+    wait,
+)
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
+from supervisor.tools.fleet import server
+from supervisor.tools.fleet.dataset import Dataset
 from supervisor.tools.fleet.task import (
     BagResult,
     BagTask,
@@ -33,20 +45,56 @@ from supervisor.tools.fleet.task import (
 )
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
-WINDOW_PER_JOB = 4  # tasks in flight per worker: the next one is queued as one ends
-# imported once by the fork server, so every worker it forks has them
-PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
+WINDOW_PER_JOB = 4  # calls in flight per worker: the next one is queued as one ends
+# bags per call when the workers write: each bag's files written on a thread while
+# the next is replayed; fewer near the end, so that no worker is left with a long call
+BATCH = 8
 
 _done: Collection[str] = ()
+_dataset: Dataset | None = None  # this worker writes its bags' files there
+_writer: ThreadPoolExecutor | None = None  # ... on this one thread, in order
 
 
-def _init(done: Collection[str]) -> None:
-    global _done
+def _init(done: Collection[str], writes_to: Path | None = None) -> None:
+    global _done, _dataset, _writer
     _done = done
+    if writes_to is not None:
+        _dataset = Dataset(writes_to, make=False)
+        _writer = ThreadPoolExecutor(1, thread_name_prefix="fleet-write")
 
 
-def _run(task: BagTask) -> BagResult:
-    return run_task(task, _done)
+def _one(task: BagTask) -> BagResult:
+    try:
+        return run_task(task, _done)
+    except Exception as e:  # noqa: BLE001 - one bag's bug is its row, not its batch's
+        return BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
+
+
+class WriteFailed(Exception):
+    """A worker's ``Dataset.write`` error (message, file): a ``UserError`` does not
+    cross processes whole (its fields are keyword-only)."""
+
+
+def _run(tasks: list[BagTask]) -> list[BagResult]:
+    """``tasks`` one after the other.  Given the dataset, each bag's files are written
+    on this worker's writer thread while the next bag is replayed (each file's fsync
+    is a wait, milliseconds on a busy disk: docs/BENCHMARKS.md, "Fleet"), and the
+    results are returned, without their tables, once every file is durable: done
+    means written."""
+    if _dataset is None or _writer is None:
+        return [_one(t) for t in tasks]
+    writes = []
+    for t in tasks:
+        result = _one(t)
+        writes.append((_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result))
+    out = []
+    for future, result in writes:
+        try:
+            future.result()
+        except UserError as e:
+            raise WriteFailed(e.message, e.file) from None
+        out.append(result.without_table())
+    return out
 
 
 ConfigError = tuple[str, str, int | None, int | None, str | None]
@@ -64,13 +112,17 @@ def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]
 class LocalEngine:
     """``jobs`` worker processes, forked by a ``forkserver``: a process started clean
     (never a fork of this parent, which may hold threads) that imports what a task
-    needs once (``PRELOAD``), so a second worker costs no second import, 0.4 s of
+    needs once (server.py), so a second worker costs no second import, 0.4 s of
     CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
     memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
-    times."""
+    times; killed between a bag's violations and its row, it left the bag unfinished
+    (no row), and the retry writes the same files again (dataset.py)."""
 
-    def __init__(self, jobs: int | None = None) -> None:
+    def __init__(self, jobs: int | None = None, writes_to: Path | None = None) -> None:
+        """``writes_to``: the dataset the workers write each bag's files to (the
+        results then come without their tables); None: the caller writes them."""
         self.jobs = jobs or os.cpu_count() or 1
+        self.writes_to = writes_to
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
         # the started workers' imports and compiles (their pids, the configs' errors)
         self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
@@ -84,7 +136,7 @@ class LocalEngine:
         tasks to come (no more workers than that).  ``configs``: compiled by each worker
         as it starts (``checked`` says whether they compiled).  ``results`` with the
         same ``done`` uses them."""
-        self.close()
+        self._stop_started()  # the fork server kept: serve() may have started it
         workers = self.jobs if tasks is None else min(self.jobs, tasks)
         if workers < 1:
             return
@@ -109,27 +161,31 @@ class LocalEngine:
         """The started workers stopped, when ``results`` did not take them, and the
         fork server with them: no process outlives the run, and its CPU (its
         workers', which it reaps) is counted in this process's children's."""
+        self._stop_started()
+        server.stop()
+
+    def _stop_started(self) -> None:
         if self._started is not None:
             self._started[0].shutdown(wait=True, cancel_futures=True)
             self._started = None
         self.warm = []
-        # the standard library has no public call for it (multiprocessing.forkserver)
-        stop = getattr(getattr(forkserver, "_forkserver", None), "_stop", None)
-        if stop is not None:
-            stop()
 
-    @staticmethod
-    def _pool(jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
-        context = multiprocessing.get_context("forkserver")
-        # read when the server starts (the first pool): replaces its default,
-        # __main__, which would run this command's module again in the server
-        context.set_forkserver_preload(list(PRELOAD))
+    def _pool(self, jobs: int, done: frozenset[str]) -> ProcessPoolExecutor:
+        context = server.serve()
         return ProcessPoolExecutor(
             max_workers=jobs,
             mp_context=context,
             initializer=_init,
-            initargs=(done,),
+            initargs=(done, self.writes_to),
         )
+
+    def _batch(self, left: int, running: dict[Any, list[Any]]) -> int:
+        """Bags in the next call: one when the parent writes; else up to ``BATCH``,
+        fewer as the bags not yet sent run out, so the last calls are short."""
+        if self.writes_to is None:
+            return 1
+        unsent = left - sum(len(b) for b in running.values())
+        return max(1, min(BATCH, unsent // (WINDOW_PER_JOB * self.jobs)))
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
         # (task, attempt), taken as the window has room: each wait() installs a waiter
@@ -152,39 +208,47 @@ class LocalEngine:
             # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
             # started are dropped, not run to the end of the archive
             try:
-                running: dict[Future[BagResult], tuple[BagTask, int]] = {}
+                running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
                 while True:
                     while not broken and len(running) < window:
-                        nxt = next(todo, None)
-                        if nxt is None:
+                        batch = list(itertools.islice(todo, self._batch(left, running)))
+                        if not batch:
                             break
                         try:
-                            running[pool.submit(_run, nxt[0])] = nxt
-                        except BrokenProcessPool:  # a worker died: the next pool runs it
+                            running[pool.submit(_run, [t for t, _ in batch])] = batch
+                        except BrokenProcessPool:  # a worker died: the next pool runs them
                             broken = True
-                            retry.append(nxt)
+                            retry.extend(batch)
                     if not running:
                         break
                     finished, _ = wait(running, return_when=FIRST_COMPLETED)
                     for f in finished:
-                        task, n = running.pop(f)
+                        batch = running.pop(f)
                         try:
-                            yield f.result()
-                            left -= 1
+                            results = f.result()
                         except BrokenProcessPool:
                             broken = True
-                            if n < ATTEMPTS:
-                                retry.append((task, n + 1))
-                            else:
-                                left -= 1
-                                yield BagResult(
-                                    task, "failed", f"its worker process died {n} times"
-                                )
+                            for task, n in batch:
+                                if n < ATTEMPTS:
+                                    retry.append((task, n + 1))
+                                else:
+                                    left -= 1
+                                    yield BagResult(
+                                        task, "failed", f"its worker process died {n} times"
+                                    )
+                            continue
+                        except WriteFailed as e:  # a full disk stops the run, as in the parent
+                            raise UserError(e.args[0], file=e.args[1]) from None
                         except Exception as e:  # noqa: BLE001 - one bag's bug is its row
+                            results = [
+                                BagResult(
+                                    task, "failed", f"internal error: {type(e).__name__}: {e}"
+                                )
+                                for task, _ in batch
+                            ]
+                        for result in results:
                             left -= 1
-                            yield BagResult(
-                                task, "failed", f"internal error: {type(e).__name__}: {e}"
-                            )
+                            yield result
             finally:
                 pool.shutdown(wait=True, cancel_futures=True)
             # the next pool: the tasks its worker's death took down, then those not started

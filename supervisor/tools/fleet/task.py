@@ -1,6 +1,7 @@
 """One bag, one task: the bag replayed by ``replay``'s own core and readers
 (supervisor/tools/replay/session.py, ``run_one``), its violations returned as an Arrow
-table for the parent to write.
+table, which the local engine's worker writes itself and Ray's parent writes
+(dataset.py, engine.py).
 
 ``run_task`` is the whole interface an engine needs: a picklable ``BagTask`` in, a
 picklable ``BagResult`` out, no shared state, no file written.  It never raises for
@@ -53,6 +54,7 @@ class BagTask:
     config: str
     config_sha256: str
     namespace: str | None = None
+    fingerprint: str = ""  # the bag's (archive.py): its files' key when a worker writes them
 
 
 @dataclass
@@ -68,6 +70,22 @@ class BagResult:
     messages: int = 0
     seconds: float = 0.0
     violations: pa.Table = field(default_factory=VIOLATIONS.empty_table)
+    # set once a worker has written the bag's files itself (engine.py, LocalEngine):
+    # ``violations`` is then left out of the result, and this is how many rows it had
+    written: int | None = None
+
+    def without_table(self) -> BagResult:
+        """This result, once its files are durable, as the parent needs it: its
+        violations counted, not sent back (docs/BENCHMARKS.md, "Fleet")."""
+        return BagResult(
+            self.task,
+            self.status,
+            self.reason,
+            self.bag_sha256,
+            self.messages,
+            self.seconds,
+            written=self.violations.num_rows,
+        )
 
 
 class _Records(DiscardingLog):

@@ -8,6 +8,7 @@ and sets SAFETY_SUPERVISOR_REQUIRE_RAY=1, which fails such a skip: tests/conftes
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
 import re
@@ -383,3 +384,87 @@ def test_the_local_pool_keeps_a_window_of_tasks_in_flight_not_the_archive(tmp_pa
         assert tasks.taken <= WINDOW_PER_JOB + i + 1  # one more taken as each ends
         paths.append(result.task.bag)
     assert len(paths) == 30 and tasks.taken == 30
+
+
+MKDIRS = {83, 258}  # x86_64: mkdir, mkdirat
+
+
+def _held_in_mkdir(root: int) -> int | None:
+    """A thread below ``root`` held by strace at the entry of a mkdir: with ``-P``,
+    only that of the dataset's bags directory, made for the first bag's row."""
+    for task in Path("/proc").glob("[0-9]*/task/[0-9]*"):
+        try:
+            stat = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            number = (task / "syscall").read_text().split()[0]
+        except (OSError, IndexError):
+            continue  # exited meanwhile
+        if stat[0] == "t" and number.isdigit() and int(number) in MKDIRS:
+            if _below(int(task.parent.parent.name), root):
+                return int(task.name)
+    return None
+
+
+def _below(pid: int, root: int) -> bool:
+    while pid > 1:
+        if pid == root:
+            return True
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (OSError, IndexError, ValueError):
+            return False
+    return False
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
+def test_a_worker_killed_between_a_bags_violations_and_its_row_leaves_it_to_the_rerun(
+    tmp_path,
+):
+    # The pool's worker writes its bag's files (engine.py): strace holds it as it
+    # makes the bags directory for the bag's row (a fresh dataset's first), its
+    # violations already durable, and the worker is killed there (SIGKILL), the run
+    # with it.  (strace's -P matches a rename by its first path, a random name.)
+    from rosutil import wait_until
+
+    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.dataset import Dataset
+
+    root = tmp_path / "fleet"
+    write_bag(root / "robot-a" / "b1", messages(21, 20000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    (bag,) = list_archive([str(root)], None)
+    key = Dataset.key(hashlib.sha256(cfg.read_bytes()).hexdigest(), bag.fingerprint)
+    row = killed / "bags" / f"{key}.parquet"
+    hold = "mkdir,mkdirat"
+    proc = subprocess.Popen(
+        ["strace", "-f", "-qq", "-o", "/dev/null", "-P", str(row.parent), "-e", f"trace={hold}",
+         "-e", f"inject={hold}:delay_enter=300000000",
+         sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True,
+    )  # fmt: skip
+    try:
+        held = wait_until(
+            "a thread held before the bag's row", lambda: _held_in_mkdir(proc.pid), 120
+        )
+        server = int(Path(f"/proc/{held}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        assert b"forkserver" in Path(f"/proc/{server}/cmdline").read_bytes(), (
+            "the row is committed by a pool worker, not by the command"
+        )
+        assert list(killed.glob(f"violations/robot=robot-a/date=*/{key}.parquet"))
+        assert not row.exists()
+        os.kill(held, signal.SIGKILL)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert not row.exists()
+    run = fleet(cfg, root, "-o", killed, "--jobs", "1", ok=(0,))
+    assert "1 bags (1 read, 0 skipped, 0 damaged, 0 failed), 0 done before" in run.stdout
+    per_bag = "SELECT requirement, count(*), count(DISTINCT tick) FROM {} GROUP BY ALL ORDER BY ALL"
+    want = query(per_bag.format(VIOLATIONS.format(clean)))
+    assert want and query(per_bag.format(VIOLATIONS.format(killed))) == want
+    assert all(n == distinct for _, n, distinct in want)
+    assert query(f"SELECT status, count(*) FROM {BAGS.format(killed)} GROUP BY ALL") == [
+        ("read", 1)
+    ]
