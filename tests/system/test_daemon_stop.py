@@ -119,7 +119,9 @@ def test_stop_loop_under_flood_no_crash_no_ghost(
         d = Daemon(tmp_path / f"cycle{i}", config)
         try:
             d.wait_notify("READY=1", timeout=60)
-            wait_until("the daemon's node in the graph", lambda: _daemons(robot_node) == 1, 30)
+            # Its name listed (a predecessor's name can stay listed after its
+            # participant left: _writers); its endpoints are what say it is the one.
+            wait_until("the daemon's node in the graph", lambda: _daemons(robot_node) >= 1, 30)
             wait_until("the daemon's heartbeat writer", lambda: _writers(robot_node) == 1, 30)
             _receiving(d)
             stops.append(_stop(d))
