@@ -86,14 +86,17 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
     writes = []
     for t in tasks:
         result = _one(t)
-        writes.append((_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result))
+        # the table stays with its write alone: a call does not hold all its bags' tables
+        writes.append(
+            (_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result.without_table())
+        )
     out = []
-    for future, result in writes:
+    for future, slim in writes:
         try:
             future.result()
         except UserError as e:
             raise WriteFailed(e.message, e.file) from None
-        out.append(result.without_table())
+        out.append(slim)
     return out
 
 
