@@ -16,6 +16,7 @@ import contextlib
 import ctypes
 import itertools
 import logging
+import multiprocessing.forkserver as forkserver
 import os
 import shutil
 import signal
@@ -39,6 +40,7 @@ from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet import server
 from supervisor.tools.fleet.dataset import Dataset
+from supervisor.tools.fleet.stopping import uninterrupted
 from supervisor.tools.fleet.task import (
     BagResult,
     BagTask,
@@ -111,10 +113,19 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def _die_with_server() -> None:
-    """This worker killed (SIGKILL) when its parent, the fork server, exits: the server
-    exits with the command however the command ends (its pipe closes), so no worker
-    outlives it, not even when a second Ctrl-C cuts the command's shutdown short.
-    Linux only; elsewhere the worker ends at its next read of the pool's queue."""
+    """This worker killed (SIGKILL) when its parent, the fork server, exits, and the
+    server left free to exit when the command does: no worker outlives the command,
+    however it ends (a second Ctrl-C, a kill).  The server exits once every copy of
+    the command's end of its liveness pipe is closed, and the standard library gives
+    each worker one (multiprocessing/forkserver.py): kept, a live worker kept the
+    server, and the command's stop waiting for it, alive.  PR_SET_PDEATHSIG is Linux
+    only; elsewhere a worker ends at its next read of the pool's queue."""
+    server_state = getattr(forkserver, "_forkserver", None)
+    alive = getattr(server_state, "_forkserver_alive_fd", None)
+    if isinstance(alive, int):
+        with contextlib.suppress(OSError):
+            os.close(alive)
+        server_state._forkserver_alive_fd = None  # type: ignore[union-attr]
     with contextlib.suppress(OSError, AttributeError):
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
 
@@ -155,6 +166,7 @@ class LocalEngine:
         self.writes_to = writes_to
         self.batch, self.window = batch, window
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
+        self._live: ProcessPoolExecutor | None = None  # the pool ``results`` runs on
         # the started workers' imports and compiles (their pids, the configs' errors)
         self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
 
@@ -192,8 +204,13 @@ class LocalEngine:
         """The started workers stopped, when ``results`` did not take them, and the
         fork server with them: no process outlives the run, and its CPU (its
         workers', which it reaps) is counted in this process's children's."""
-        self._stop_started()
-        server.stop()
+        with uninterrupted():
+            self._stop_started()
+            if self._live is not None:  # a run whose own stop was cut short (Ctrl-C)
+                _halt(self._live, {})
+                self._live.shutdown(wait=True, cancel_futures=True)
+                self._live = None
+            server.stop()
 
     def _stop_started(self) -> None:
         if self._started is not None:
@@ -238,6 +255,7 @@ class LocalEngine:
                 pool, started = started[0], None
             else:
                 pool = self._pool(min(self.jobs, left), frozenset(done))
+            self._live = pool
             window = self.window * self.jobs
             broken: list[list[tuple[BagTask, int]]] = []  # the calls the pool's break took
             running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
@@ -279,9 +297,11 @@ class LocalEngine:
                             yield result
                 whole = True
             finally:
-                if not whole:  # closed early (an error, Ctrl-C): stop now (``_halt``)
-                    _halt(pool, running)
-                pool.shutdown(wait=True, cancel_futures=True)
+                with uninterrupted():  # a second Ctrl-C cannot leave workers behind
+                    if not whole:  # closed early (an error, Ctrl-C): stop now (``_halt``)
+                        _halt(pool, running)
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    self._live = None
             # The pool's workers are all gone now (a break terminates them all): a row
             # a worker committed before is final, and a bag without one is charged an
             # attempt, whichever worker died, as concurrent.futures does not say which.

@@ -8,6 +8,7 @@ and sets SAFETY_SUPERVISOR_REQUIRE_RAY=1, which fails such a skip: tests/conftes
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -639,3 +640,68 @@ def test_the_local_pool_with_the_parent_writing_gives_the_workers_dataset(tmp_pa
     assert want and query(ROWS.format(VIOLATIONS.format(by_parent))) == want
     want_bags = query(BAG_ROWS.format(BAGS.format(by_workers)))
     assert len(want_bags) == 7 and query(BAG_ROWS.format(BAGS.format(by_parent))) == want_bags
+
+
+def _group(pgid: int) -> list[int]:
+    """The live processes of process group ``pgid``."""
+    out = []
+    for d in Path("/proc").glob("[0-9]*"):
+        try:
+            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if stat[0] != "Z" and int(stat[2]) == pgid:
+            out.append(int(d.name))
+    return out
+
+
+def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
+    # Ctrl-C (SIGINT to the command) mid-run: the pool's workers are stopped at once,
+    # not left to finish the calls they hold (8 bags each); a second Ctrl-C during
+    # the shutdown leaves no worker and no fork server behind; a rerun finishes the
+    # rest, each bag once.
+    from rosutil import wait_until
+
+    from tests.supervisor.tools.fleet.test_fleet_replay import _workers
+
+    root = tmp_path / "fleet"
+    first = write_bag(root / "robot-a" / "b00", messages(7, 20000))
+    for i in range(1, CALLS_OF_8):  # copies: each path a task of its own
+        shutil.copytree(first, root / "robot-a" / f"b{i:02d}")
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    rows = ds / "bags"
+    try:
+        workers = wait_until(
+            "the first bag committed",
+            lambda: rows.is_dir() and any(rows.glob("*.parquet")) and _workers(proc.pid),
+            120,
+        )
+        at_stop = len(list(rows.glob("*.parquet")))
+        os.kill(proc.pid, signal.SIGINT)
+        wait_until(
+            "the workers stopped",
+            lambda: not any(Path(f"/proc/{w}").exists() for w in workers),
+            60,
+        )
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        wait_until("no process of the command's left", lambda: not _group(proc.pid), 30)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    # at most the bag whose row was being written as the signal came
+    assert len(list(rows.glob("*.parquet"))) <= at_stop + 1
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert f"{CALLS_OF_8} bags" not in run.stdout and "0 failed" in run.stdout, run.stdout
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (
+        CALLS_OF_8,
+        CALLS_OF_8,
+    )
