@@ -4,7 +4,8 @@ already done, and yields each ``BagResult`` as it comes, in any order.
 (``writes_to``), each worker writes its bag's files itself (``Dataset.write``) and
 yields the result only once they are durable, without its Arrow table, so the
 parent writes nothing and the pool's processes are the run's only busy ones
-(docs/BENCHMARKS.md, "Fleet").  ``RayEngine`` runs the same ``run_task`` as Ray
+(docs/BENCHMARKS.md, "Fleet"); a dead worker's committed bags stay done, the rest
+are retried one a call (``LocalEngine``).  ``RayEngine`` runs the same ``run_task`` as Ray
 tasks, on a cluster or on a local one it starts (``ray`` is imported only there:
 the base install has no Ray); its results come back as Arrow tables for the caller
 to write (``dataset.Writers``).
@@ -87,7 +88,7 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
     on this worker's writer thread while the next bag is replayed (each file's fsync
     is a wait, milliseconds on a busy disk: docs/BENCHMARKS.md, "Fleet"), and the
     results are returned, without their tables, once every file is durable: done
-    means written."""
+    means written.  A write error stops the call before its next bag."""
     if _dataset is None or _writer is None:
         return [_one(t) for t in tasks]
     writes: list[tuple[Future[None], BagResult]] = []
@@ -147,9 +148,17 @@ class LocalEngine:
     (never a fork of this parent, which may hold threads) that imports what a task
     needs once (server.py), so a second worker costs no second import, 0.4 s of
     CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
-    memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
-    times; killed between a bag's violations and its row, it left the bag unfinished
-    (no row), and the retry writes the same files again (dataset.py)."""
+    memory) breaks the pool, and every call in flight with it: a bag whose row a worker
+    committed in this run is done (read back, ``Dataset.row``), never retried nor
+    written over; each other bag goes to a new pool, in a call of its own, at most
+    ``ATTEMPTS`` times.  concurrent.futures does not say which worker died, so every
+    uncommitted bag in flight is charged an attempt; no two bags on their last attempt
+    are in flight together, so a bag that kills its worker fails alone.  Killed between
+    a bag's violations and its row, a worker left the bag unfinished (no row), and the
+    retry writes the same files again (dataset.py).  Stopped early (an error, Ctrl-C),
+    the pool's queued calls are cancelled and its workers killed, not left to finish
+    their calls; each worker also dies with the fork server, which exits with this
+    process, so none outlives the command (``_die_with_server``)."""
 
     def __init__(
         self,
