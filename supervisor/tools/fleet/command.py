@@ -98,12 +98,14 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     if not (args.fleet_command == "replay" and args.engine == "local"):
         return _fleet(args)
     from supervisor.tools.fleet import server
+    from supervisor.tools.fleet.stopping import uninterrupted
 
     server.serve()  # first: its imports beside this process's (server.py)
     try:
         return _fleet(args)
     finally:
-        server.stop()  # whatever stopped the run: nothing outlives it
+        with uninterrupted():
+            server.stop()  # whatever stopped the run: nothing outlives it
 
 
 def _fleet(args: argparse.Namespace) -> int:

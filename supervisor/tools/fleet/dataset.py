@@ -123,6 +123,23 @@ class Dataset:
         }
         _write(self.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
 
+    def row(self, config_sha256: str, fingerprint: str) -> dict[str, Any] | None:
+        """This bag's row under this config (``BAGS``' columns, ``finished_ts`` in ns
+        since the epoch), or None: the bag is not finished.  A row is written whole or
+        not at all (``_write``)."""
+        path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
+        try:
+            table = pq.read_table(path, schema=BAGS)
+            at = table.schema.get_field_index("finished_ts")
+            rows = table.set_column(at, "finished_ts", table["finished_ts"].cast(pa.int64()))
+        except FileNotFoundError:
+            return None
+        except (pa.ArrowException, OSError) as e:
+            raise UserError(
+                f"not a fleet dataset's bag row ({printable(str(e))})", file=str(path)
+            ) from None
+        return rows.to_pylist()[0] if rows.num_rows == 1 else None
+
     @staticmethod
     def key(config_sha256: str, fingerprint: str) -> str:
         """``K``, the name of a bag's files under one config."""

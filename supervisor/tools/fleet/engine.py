@@ -4,7 +4,8 @@ already done, and yields each ``BagResult`` as it comes, in any order.
 (``writes_to``), each worker writes its bag's files itself (``Dataset.write``) and
 yields the result only once they are durable, without its Arrow table, so the
 parent writes nothing and the pool's processes are the run's only busy ones
-(docs/BENCHMARKS.md, "Fleet").  ``RayEngine`` runs the same ``run_task`` as Ray
+(docs/BENCHMARKS.md, "Fleet"); a dead worker's committed bags stay done, the rest
+are retried one a call (``LocalEngine``).  ``RayEngine`` runs the same ``run_task`` as Ray
 tasks, on a cluster or on a local one it starts (``ray`` is imported only there:
 the base install has no Ray); its results come back as Arrow tables for the caller
 to write (``dataset.Writers``).
@@ -13,12 +14,17 @@ to write (``dataset.Writers``).
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import itertools
 import logging
+import multiprocessing.forkserver as forkserver
 import os
 import shutil
+import signal
 import socket
 import tempfile
+import time
+from collections import deque
 from collections.abc import Collection, Iterator
 from concurrent.futures import (
     FIRST_COMPLETED,
@@ -35,6 +41,7 @@ from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet import server
 from supervisor.tools.fleet.dataset import Dataset
+from supervisor.tools.fleet.stopping import uninterrupted
 from supervisor.tools.fleet.task import (
     BagResult,
     BagTask,
@@ -57,6 +64,7 @@ _writer: ThreadPoolExecutor | None = None  # ... on this one thread, in order
 
 def _init(done: Collection[str], writes_to: Path | None = None) -> None:
     global _done, _dataset, _writer
+    _die_with_server()
     _done = done
     if writes_to is not None:
         _dataset = Dataset(writes_to, make=False)
@@ -80,11 +88,13 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
     on this worker's writer thread while the next bag is replayed (each file's fsync
     is a wait, milliseconds on a busy disk: docs/BENCHMARKS.md, "Fleet"), and the
     results are returned, without their tables, once every file is durable: done
-    means written."""
+    means written.  A write error stops the call before its next bag."""
     if _dataset is None or _writer is None:
         return [_one(t) for t in tasks]
-    writes = []
+    writes: list[tuple[Future[None], BagResult]] = []
     for t in tasks:
+        if any(f.done() and f.exception() is not None for f, _ in writes):
+            break  # a write failed (a full disk): the run stops, the rest is not replayed
         result = _one(t)
         # the table stays with its write alone: a call does not hold all its bags' tables
         writes.append(
@@ -98,6 +108,27 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
             raise WriteFailed(e.message, e.file) from None
         out.append(slim)
     return out
+
+
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _die_with_server() -> None:
+    """This worker killed (SIGKILL) when its parent, the fork server, exits, and the
+    server left free to exit when the command does: no worker outlives the command,
+    however it ends (a second Ctrl-C, a kill).  The server exits once every copy of
+    the command's end of its liveness pipe is closed, and the standard library gives
+    each worker one (multiprocessing/forkserver.py): kept, a live worker kept the
+    server, and the command's stop waiting for it, alive.  PR_SET_PDEATHSIG is Linux
+    only; elsewhere a worker ends at its next read of the pool's queue."""
+    server_state = getattr(forkserver, "_forkserver", None)
+    alive = getattr(server_state, "_forkserver_alive_fd", None)
+    if isinstance(alive, int):
+        with contextlib.suppress(OSError):
+            os.close(alive)
+        server_state._forkserver_alive_fd = None  # type: ignore[union-attr]
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
 
 
 ConfigError = tuple[str, str, int | None, int | None, str | None]
@@ -117,16 +148,34 @@ class LocalEngine:
     (never a fork of this parent, which may hold threads) that imports what a task
     needs once (server.py), so a second worker costs no second import, 0.4 s of
     CPU each (docs/BENCHMARKS.md, "Fleet").  A worker that dies (killed, out of
-    memory) breaks the pool: its tasks go to a new pool, each at most ``ATTEMPTS``
-    times; killed between a bag's violations and its row, it left the bag unfinished
-    (no row), and the retry writes the same files again (dataset.py)."""
+    memory) breaks the pool, and every call in flight with it: a bag whose row a worker
+    committed in this run is done (read back, ``Dataset.row``), never retried nor
+    written over; each other bag goes to a new pool, in a call of its own, at most
+    ``ATTEMPTS`` times.  concurrent.futures does not say which worker died, so every
+    uncommitted bag in flight is charged an attempt; no two bags on their last attempt
+    are in flight together, so a bag that kills its worker fails alone.  Killed between
+    a bag's violations and its row, a worker left the bag unfinished (no row), and the
+    retry writes the same files again (dataset.py).  Stopped early (an error, Ctrl-C),
+    the pool's queued calls are cancelled and its workers killed, not left to finish
+    their calls; each worker also dies with the fork server, which exits with this
+    process, so none outlives the command (``_die_with_server``)."""
 
-    def __init__(self, jobs: int | None = None, writes_to: Path | None = None) -> None:
+    def __init__(
+        self,
+        jobs: int | None = None,
+        writes_to: Path | None = None,
+        *,
+        batch: int = BATCH,
+        window: int = WINDOW_PER_JOB,
+    ) -> None:
         """``writes_to``: the dataset the workers write each bag's files to (the
-        results then come without their tables); None: the caller writes them."""
+        results then come without their tables); None: the caller writes them.
+        ``batch``: bags a call at most; ``window``: calls in flight per worker."""
         self.jobs = jobs or os.cpu_count() or 1
         self.writes_to = writes_to
+        self.batch, self.window = batch, window
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
+        self._live: ProcessPoolExecutor | None = None  # the pool ``results`` runs on
         # the started workers' imports and compiles (their pids, the configs' errors)
         self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
 
@@ -164,8 +213,13 @@ class LocalEngine:
         """The started workers stopped, when ``results`` did not take them, and the
         fork server with them: no process outlives the run, and its CPU (its
         workers', which it reaps) is counted in this process's children's."""
-        self._stop_started()
-        server.stop()
+        with uninterrupted():
+            self._stop_started()
+            if self._live is not None:  # a run whose own stop was cut short (Ctrl-C)
+                _halt(self._live, {})
+                self._live.shutdown(wait=True, cancel_futures=True)
+                self._live = None
+            server.stop()
 
     def _stop_started(self) -> None:
         if self._started is not None:
@@ -183,45 +237,48 @@ class LocalEngine:
         )
 
     def _batch(self, left: int, running: dict[Any, list[Any]]) -> int:
-        """Bags in the next call: one when the parent writes; else up to ``BATCH``,
+        """Bags in the next call: one when the parent writes; else up to ``batch``,
         fewer as the bags not yet sent run out, so the last calls are short."""
         if self.writes_to is None:
             return 1
         unsent = left - sum(len(b) for b in running.values())
-        return max(1, min(BATCH, unsent // (WINDOW_PER_JOB * self.jobs)))
+        return max(1, min(self.batch, unsent // (self.window * self.jobs)))
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
-        # (task, attempt), taken as the window has room: each wait() installs a waiter
-        # on every future it is given, so the whole archive in flight cost the parent
+        # fresh tasks, taken as the window has room: each wait() installs a waiter on
+        # every future it is given, so the whole archive in flight cost the parent
         # time growing with the square of the bags
-        todo: Iterator[tuple[BagTask, int]] = ((t, 1) for t in tasks)
+        todo: Iterator[BagTask] = iter(tasks)
+        # (task, attempt) of the bags a dead worker's call took down: one bag a call
+        retry: deque[tuple[BagTask, int]] = deque()
+        # a bag's row committed by a worker since then is this run's (``_committed``)
+        since = time.time_ns()
+        written = Dataset(self.writes_to, make=False) if self.writes_to is not None else None
         started, self._started = self._started, None
         if started is not None and (not tasks or started[1] != frozenset(done)):
             started[0].shutdown(wait=True, cancel_futures=True)
             started = None
         left = len(tasks)
         while left:
-            retry: list[tuple[BagTask, int]] = []
             if started is not None:
                 pool, started = started[0], None
             else:
                 pool = self._pool(min(self.jobs, left), frozenset(done))
-            window = WINDOW_PER_JOB * self.jobs
-            broken = False
-            # closed early (the caller stopped on an error, or Ctrl-C): the tasks not
-            # started are dropped, not run to the end of the archive
+            self._live = pool
+            window = self.window * self.jobs
+            broken: list[list[tuple[BagTask, int]]] = []  # the calls the pool's break took
+            running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
+            whole = False
             try:
-                running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
                 while True:
                     while not broken and len(running) < window:
-                        batch = list(itertools.islice(todo, self._batch(left, running)))
+                        batch = self._next(todo, retry, left, running)
                         if not batch:
                             break
                         try:
                             running[pool.submit(_run, [t for t, _ in batch])] = batch
                         except BrokenProcessPool:  # a worker died: the next pool runs them
-                            broken = True
-                            retry.extend(batch)
+                            broken.append(batch)
                     if not running:
                         break
                     finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -230,32 +287,97 @@ class LocalEngine:
                         try:
                             results = f.result()
                         except BrokenProcessPool:
-                            broken = True
-                            for task, n in batch:
-                                if n < ATTEMPTS:
-                                    retry.append((task, n + 1))
-                                else:
-                                    left -= 1
-                                    yield BagResult(
-                                        task, "failed", f"its worker process died {n} times"
-                                    )
+                            broken.append(batch)  # judged once the pool's workers are gone
                             continue
                         except WriteFailed as e:  # a full disk stops the run, as in the parent
                             raise UserError(e.args[0], file=e.args[1]) from None
                         except Exception as e:  # noqa: BLE001 - one bag's bug is its row
-                            results = [
-                                BagResult(
-                                    task, "failed", f"internal error: {type(e).__name__}: {e}"
-                                )
-                                for task, _ in batch
-                            ]
+                            # the call's worker is done with it: its committed rows stand
+                            results = []
+                            for task, n in batch:
+                                if (r := _committed(written, task, since)) is not None:
+                                    results.append(r)
+                                elif len(batch) > 1 and n < ATTEMPTS:
+                                    retry.append((task, n + 1))  # alone: its own error
+                                else:
+                                    results.append(_internal(task, e))
                         for result in results:
                             left -= 1
                             yield result
+                whole = True
             finally:
-                pool.shutdown(wait=True, cancel_futures=True)
-            # the next pool: the tasks its worker's death took down, then those not started
-            todo = itertools.chain(retry, todo)
+                with uninterrupted():  # a second Ctrl-C cannot leave workers behind
+                    if not whole:  # closed early (an error, Ctrl-C): stop now (``_halt``)
+                        _halt(pool, running)
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    self._live = None
+            # The pool's workers are all gone now (a break terminates them all): a row
+            # a worker committed before is final, and a bag without one is charged an
+            # attempt, whichever worker died, as concurrent.futures does not say which.
+            for batch in broken:
+                for task, n in batch:
+                    if (r := _committed(written, task, since)) is not None:
+                        left -= 1
+                        yield r
+                    elif n < ATTEMPTS:
+                        retry.append((task, n + 1))
+                    else:
+                        left -= 1
+                        yield BagResult(task, "failed", f"its worker process died {n} times")
+
+    def _next(
+        self,
+        todo: Iterator[BagTask],
+        retry: deque[tuple[BagTask, int]],
+        left: int,
+        running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]],
+    ) -> list[tuple[BagTask, int]]:
+        """The next call's bags: a retried bag alone, and while a bag on its last
+        attempt is in flight no other such bag, so that a bag that kills its worker
+        fails alone, not the bags retried beside it; else fresh bags (``_batch``)."""
+        if retry:
+            last = retry[0][1] >= ATTEMPTS
+            if not last or not any(b[0][1] >= ATTEMPTS for b in running.values()):
+                return [retry.popleft()]
+        return [(t, 1) for t in itertools.islice(todo, self._batch(left, running))]
+
+
+def _committed(written: Dataset | None, task: BagTask, since: int) -> BagResult | None:
+    """The bag's row as the worker committed it in this run (its ``finished_ts`` at or
+    after ``since``), as a result the caller counts and does not write again: a row of
+    an earlier run (failed, so replayed again) is not this run's."""
+    if written is None:
+        return None
+    row = written.row(task.config_sha256, task.fingerprint)
+    if row is None or row["finished_ts"] is None or row["finished_ts"] < since:
+        return None
+    return BagResult(
+        task,
+        row["status"],
+        row["reason"] or "",
+        row["bag_sha256"] or "",
+        row["messages"] or 0,
+        row["seconds"] or 0.0,
+        written=row["violations"] or 0,
+    )
+
+
+def _internal(task: BagTask, e: Exception) -> BagResult:
+    return BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
+
+
+def _halt(pool: ProcessPoolExecutor, running: dict[Future[list[BagResult]], Any]) -> None:
+    """Stop a pool now: the calls not started cancelled, and its workers killed rather
+    than left to finish the calls they hold (up to ``batch`` bags each).  A killed
+    worker leaves no partial file (supervisor/files.py): a bag without its row is not
+    finished, and the next run replays it.  Python 3.11's pool cannot terminate its
+    workers (``terminate_workers`` is 3.14's), so they are taken from its process list."""
+    for f in running:
+        f.cancel()
+    processes = getattr(pool, "_processes", None)
+    for process in list(processes.values()) if isinstance(processes, dict) else []:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            process.kill()
 
 
 RAY_MISSING = "pip install 'safety-supervisor[fleet]'"

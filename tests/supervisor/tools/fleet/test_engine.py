@@ -8,6 +8,7 @@ and sets SAFETY_SUPERVISOR_REQUIRE_RAY=1, which fails such a skip: tests/conftes
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -468,3 +469,239 @@ def test_a_worker_killed_between_a_bags_violations_and_its_row_leaves_it_to_the_
     assert query(f"SELECT status, count(*) FROM {BAGS.format(killed)} GROUP BY ALL") == [
         ("read", 1)
     ]
+
+
+# Calls of several bags (engine.py, ``LocalEngine``): --jobs 1 makes a call of 8 bags
+# once 32 are left to send, so 40 tiny bags run in calls of 8, then shorter ones.
+CALLS_OF_8 = 40
+
+
+def _tiny_fleet(root: Path) -> list[Path]:
+    """``CALLS_OF_8`` tiny bags b00.. of one robot, in the order the engine sends them;
+    b03 alone recorded a day later, so that its violations alone make their
+    partition's directory (``date=1970-01-02``)."""
+    day = 86_400 * 10**9
+    return [
+        write_bag(
+            root / "robot-a" / f"b{i:02d}",
+            [(t + day, topic, v) for t, topic, v in messages(103, 1500)]
+            if i == 3
+            else messages(100 + i, 120),
+        )
+        for i in range(CALLS_OF_8)
+    ]
+
+
+def _stopped(root: int, other_than: int = 0) -> int | None:
+    """A process below ``root`` stopped whole (strace's injected SIGSTOP: every
+    thread stopped, one at a mkdir), not one thread at a syscall strace looks at."""
+    for d in Path("/proc").glob("[0-9]*"):
+        pid = int(d.name)
+        if pid == other_than or not _below(pid, root):
+            continue
+        try:
+            threads = list((d / "task").iterdir())
+            states = [(t / "stat").read_text().rsplit(")", 1)[1].split()[0] for t in threads]
+            calls = [(t / "syscall").read_text().split()[0] for t in threads]
+        except (OSError, IndexError):
+            continue  # exited meanwhile
+        if all(s == "t" for s in states) and any(c.isdigit() and int(c) in MKDIRS for c in calls):
+            return pid
+    return None
+
+
+def _rows(ds: Path, cfg: Path, root: Path) -> dict[str, Path]:
+    """Each bag's row file in ``ds`` (bag name -> path), whether written or not."""
+    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.dataset import Dataset
+
+    sha = hashlib.sha256(cfg.read_bytes()).hexdigest()
+    return {
+        Path(b.path).name: ds / "bags" / f"{Dataset.key(sha, b.fingerprint)}.parquet"
+        for b in list_archive([str(root)], None)
+    }
+
+
+def _finished(row: Path) -> object:
+    return query(f"SELECT finished_ts FROM read_parquet('{row}')")[0][0]
+
+
+def _strace(*args: str) -> list[str]:
+    return ["strace", "-f", "-qq", "-o", "/dev/null", *args]
+
+
+PER_BAG = (
+    "SELECT bag, requirement, count(*), count(DISTINCT tick) FROM {} GROUP BY ALL ORDER BY ALL"
+)
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
+def test_a_worker_killed_mid_call_keeps_the_bags_it_committed_and_retries_the_rest(tmp_path):
+    # strace stops (SIGSTOP) the worker as its writer thread makes the directory of
+    # b03's violations, the 4th bag of the first call: b00 to b02 are committed (one
+    # writer thread, in order), b03 to b07 not; the worker is SIGKILLed there.  The
+    # retry's worker is stopped there too (strace counts per process), and let go
+    # (SIGCONT).  The committed bags count once, as read, and are not written again;
+    # the rest of the call is retried.
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    _tiny_fleet(root)
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    rows = _rows(killed, cfg, root)
+    b03_violations = killed / "violations" / "robot=robot-a" / "date=1970-01-02"
+    proc = subprocess.Popen(
+        _strace("-P", str(b03_violations), "-e", "trace=mkdir,mkdirat",
+                "-e", "inject=mkdir,mkdirat:signal=STOP:when=1",
+                sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root),
+                "-o", str(killed), "--jobs", "1", "--quiet"),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        committed = ["b00", "b01", "b02"]
+        worker = wait_until("the worker stopped at b03", lambda: _stopped(proc.pid), 120)
+        assert all(rows[b].exists() for b in committed)
+        before = {b: _finished(rows[b]) for b in committed}
+        assert not any(rows[f"b{i:02d}"].exists() for i in range(3, CALLS_OF_8))
+        os.kill(worker, signal.SIGKILL)
+        retry = wait_until("the retry at b03", lambda: _stopped(proc.pid, worker), 120)
+        os.kill(retry, signal.SIGCONT)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert "Traceback" not in err, err
+    assert f"{CALLS_OF_8} bags ({CALLS_OF_8} read, 0 skipped, 0 damaged, 0 failed)" in out, out
+    assert {b: _finished(rows[b]) for b in committed} == before  # not written again
+    want = query(PER_BAG.format(VIOLATIONS.format(clean)))
+    assert any(bag.endswith("b03") for bag, *_ in want)
+    assert query(PER_BAG.format(VIOLATIONS.format(killed))) == want
+    assert all(n == distinct for _, _, n, distinct in want)
+    assert query(
+        f"SELECT status, count(*), count(DISTINCT bag) FROM {BAGS.format(killed)} GROUP BY ALL"
+    ) == [("read", CALLS_OF_8, CALLS_OF_8)]
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
+def test_a_bag_that_kills_its_worker_each_time_fails_alone(tmp_path):
+    # strace SIGKILLs whichever process opens b03's file: its worker dies on every
+    # attempt.  b03 ends failed after ATTEMPTS deaths; every other bag, of its call or
+    # of the calls in flight beside it, ends read.
+    from supervisor.tools.fleet.engine import ATTEMPTS
+
+    root = tmp_path / "fleet"
+    bags = _tiny_fleet(root)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    (poison,) = bags[3].glob("*.mcap")
+    run = subprocess.run(
+        _strace("-P", str(poison), "-e", "trace=openat", "-e", "inject=openat:signal=KILL",
+                sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root),
+                "-o", str(ds), "--jobs", "1", "--quiet"),
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 1 and "Traceback" not in run.stderr, run.stderr
+    n = CALLS_OF_8
+    assert f"{n} bags ({n - 1} read, 0 skipped, 0 damaged, 1 failed)" in run.stdout, run.stdout
+    assert query(f"SELECT bag, reason FROM {BAGS.format(ds)} WHERE status <> 'read'") == [
+        (str(bags[3]), f"its worker process died {ATTEMPTS} times")
+    ]
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (n, n)
+
+
+def test_the_local_pool_with_the_parent_writing_gives_the_workers_dataset(tmp_path):
+    """``LocalEngine(writes_to=None)``: results come back with their tables and the
+    parent writes them (``Writers``, as for Ray); the same rows as the workers write."""
+    import argparse
+
+    from supervisor.tools.fleet import server
+    from supervisor.tools.fleet.command import _replay
+    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.engine import LocalEngine
+
+    archive(tmp_path)  # both formats, a compressed bag, a damaged one, a broken one
+    cfg = config(tmp_path)
+    by_workers, by_parent = tmp_path / "workers", tmp_path / "parent"
+    fleet(cfg, tmp_path / "fleet", "-o", by_workers, "--jobs", "2")
+    args = argparse.Namespace(
+        config=str(cfg), compare=None, archives=[str(tmp_path / "fleet")], robot_from=None,
+        output=str(by_parent), quiet=True,
+    )  # fmt: skip
+    engine = LocalEngine(2, writes_to=None)
+    try:
+        code = _replay(args, engine, None, Dataset(by_parent, make=False).done(), set())
+    finally:
+        engine.close()
+        server.stop()
+    assert code == 1  # the damaged and the broken bag, as the workers' run says
+    want = query(ROWS.format(VIOLATIONS.format(by_workers)))
+    assert want and query(ROWS.format(VIOLATIONS.format(by_parent))) == want
+    want_bags = query(BAG_ROWS.format(BAGS.format(by_workers)))
+    assert len(want_bags) == 7 and query(BAG_ROWS.format(BAGS.format(by_parent))) == want_bags
+
+
+def _group(pgid: int) -> list[int]:
+    """The live processes of process group ``pgid``."""
+    out = []
+    for d in Path("/proc").glob("[0-9]*"):
+        try:
+            stat = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if stat[0] != "Z" and int(stat[2]) == pgid:
+            out.append(int(d.name))
+    return out
+
+
+def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
+    # Ctrl-C (SIGINT to the command) mid-run: the pool's workers are stopped at once,
+    # not left to finish the calls they hold (8 bags each); a second Ctrl-C during
+    # the shutdown leaves no worker and no fork server behind; a rerun finishes the
+    # rest, each bag once.
+    from rosutil import wait_until
+
+    from tests.supervisor.tools.fleet.test_fleet_replay import _workers
+
+    root = tmp_path / "fleet"
+    first = write_bag(root / "robot-a" / "b00", messages(7, 20000))
+    for i in range(1, CALLS_OF_8):  # copies: each path a task of its own
+        shutil.copytree(first, root / "robot-a" / f"b{i:02d}")
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    rows = ds / "bags"
+    try:
+        workers = wait_until(
+            "the first bag committed",
+            lambda: rows.is_dir() and any(rows.glob("*.parquet")) and _workers(proc.pid),
+            120,
+        )
+        at_stop = len(list(rows.glob("*.parquet")))
+        os.kill(proc.pid, signal.SIGINT)
+        wait_until(
+            "the workers stopped",
+            lambda: not any(Path(f"/proc/{w}").exists() for w in workers),
+            60,
+        )
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        wait_until("no process of the command's left", lambda: not _group(proc.pid), 30)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    # at most the bag whose row was being written as the signal came
+    assert len(list(rows.glob("*.parquet"))) <= at_stop + 1
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert f"{CALLS_OF_8} bags" not in run.stdout and "0 failed" in run.stdout, run.stdout
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (
+        CALLS_OF_8,
+        CALLS_OF_8,
+    )
