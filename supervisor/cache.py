@@ -10,7 +10,10 @@ that ``replay`` keeps its monitors in the user's ``$XDG_CACHE_HOME/safety-superv
 An item is ``<key>/<name>`` with a ``<name>.sha256`` beside it.  Both are written
 to a temporary file, fsynced and renamed, the digest last, so a start killed
 half-way leaves at most an item without its digest, which is never taken for
-good.  An item is used only when the directory, the entry and the files are
+good.  A writer holds the item's lock file (``<name>.lock``) exclusively over both
+writes and a reader shares it while it checks the digest, so two processes building
+one item at once (their bytes may differ: gcc in two build directories) never make a
+reader take the pair for damaged.  An item is used only when the directory, the entry and the files are
 ours (owned by this user, not writable by group or others, no symbolic links)
 and the digest matches; anything else is a miss, and damaged items of ours are
 removed so the next build replaces them.
@@ -40,6 +43,7 @@ import stat
 import sys
 import time
 import weakref
+from collections.abc import Iterator
 from pathlib import Path
 
 from supervisor.files import remove_whole, write_atomic
@@ -53,6 +57,8 @@ KEEP = 8
 GRACE_S = 600.0
 # An entry being deleted: renamed to this prefix first (a name no key matches).
 _PRUNED = ".pruned-"
+# beside an item: its digest, and the lock its writers and checkers take
+_SIDES = (".sha256", ".lock")
 
 
 def _warn(text: str) -> None:
@@ -78,6 +84,26 @@ def _close_all(held: dict[str, int]) -> None:
         with contextlib.suppress(OSError):
             os.close(fd)  # releases its shared lock
     held.clear()
+
+
+@contextlib.contextmanager
+def _locked(item: Path, how: int) -> Iterator[None]:
+    """The item's lock file (made on first use, never a symbolic link) held ``how``;
+    a checker of a cache it cannot write (read-only media) reads without it."""
+    try:
+        fd = os.open(
+            item.with_name(item.name + ".lock"), os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600
+        )
+    except OSError as e:
+        if how != fcntl.LOCK_SH or e.errno not in (errno.EROFS, errno.EACCES):
+            raise
+        yield  # nobody can put into it either
+        return
+    try:
+        fcntl.flock(fd, how)
+        yield
+    finally:
+        os.close(fd)
 
 
 def _digest(path: Path) -> str:
@@ -142,7 +168,7 @@ class Cache:
         return cls(root)
 
     def _entry(self, key: str, name: str) -> Path:
-        if not _KEY.fullmatch(key) or not _NAME.fullmatch(name) or name.endswith(".sha256"):
+        if not _KEY.fullmatch(key) or not _NAME.fullmatch(name) or name.endswith(_SIDES):
             raise ValueError(f"bad cache item {key}/{name}")
         return self.root / key / name
 
@@ -150,17 +176,22 @@ class Cache:
         """The item's path when it is complete, intact and ours; else None (a
         damaged item of ours is removed)."""
         path = self._entry(key, name)
-        sidecar = path.with_name(name + ".sha256")
         try:
             if not self._hold(key):
                 _warn(f"{path.parent} is not this user's own; not used")
                 return None
-            st, st_sum = path.lstat(), sidecar.lstat()
+            with _locked(path, fcntl.LOCK_SH):
+                return self._checked(path)
         except FileNotFoundError:
             return None
         except OSError as e:
             _warn(f"{path}: {e.strerror}; not used")
             return None
+
+    def _checked(self, path: Path) -> Path | None:
+        """``get`` under the item's lock: no ``put`` is between its item and digest."""
+        sidecar = path.with_name(path.name + ".sha256")
+        st, st_sum = path.lstat(), sidecar.lstat()
         if not (_ours(st, stat.S_IFREG) and _ours(st_sum, stat.S_IFREG)):
             _warn(f"{path} is not this user's own; not used")
             return None
@@ -197,10 +228,13 @@ class Cache:
             if not self._hold(key):
                 _warn(f"{path.parent} is not this user's own; not stored")
                 return None
-            write_atomic(path, data)
-            write_atomic(
-                path.with_name(name + ".sha256"), hashlib.sha256(data).hexdigest().encode()
-            )
+            # two builders of one item may differ in bytes (gcc in two build
+            # directories): each writes its item and digest as one, under the lock
+            with _locked(path, fcntl.LOCK_EX):
+                write_atomic(path, data)
+                write_atomic(
+                    path.with_name(name + ".sha256"), hashlib.sha256(data).hexdigest().encode()
+                )
         except OSError as e:
             _warn(f"{path}: {e.strerror}; not stored")
             return None

@@ -450,3 +450,56 @@ def test_a_reader_never_loses_an_entry_to_a_concurrent_pruner(tmp_path: Path) ->
         assert p.returncode == 0 and "Traceback" not in err, err
         role, count = out.split()
         assert int(count) >= 30, out  # the race was run: entries read and pruned
+
+
+PUTTER = """
+import hashlib, sys, time
+from pathlib import Path
+from supervisor import cache
+root, key, role, stop = Path(sys.argv[1]), sys.argv[2], sys.argv[3], Path(sys.argv[4])
+# Two builders of one key whose bytes differ, as two gcc runs in two build directories
+data = {"a": b"monitor a " * 20_000, "b": b"monitor b " * 20_000}
+wants = {hashlib.sha256(d).hexdigest() for d in data.values()}
+count, end = 0, time.monotonic() + 120
+while time.monotonic() < end:
+    if role in data and stop.exists() or role == "reader" and count >= 300:
+        break
+    c = cache.Cache(root)
+    if role == "reader":
+        p = c.get(key, "item")
+        if p is not None:
+            assert hashlib.sha256(p.read_bytes()).hexdigest() in wants
+            count += 1
+    else:
+        c.put(key, "item", data[role])
+    c.close()
+print(role, count, flush=True)
+"""
+
+
+def test_two_builders_of_one_entry_never_make_a_reader_call_it_damaged(tmp_path: Path) -> None:
+    """Two processes building the same entry at once (two ``fleet replay`` workers
+    compiling one config into a cold cache) whose bytes differ: a reader between one's
+    item and its digest would see the other's digest.  It sees either whole item,
+    never a "damaged" one that it then removes from under both."""
+    root = tmp_path / "cache"
+    root.mkdir(mode=0o700)
+    stop = tmp_path / "stop"
+    key = hashlib.sha256(b"two builders").hexdigest()
+
+    def putter(role: str) -> subprocess.Popen[str]:
+        argv = [sys.executable, "-c", PUTTER, str(root), key, role, str(stop)]
+        return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    builders = [putter("a"), putter("b")]
+    readers = [putter("reader"), putter("reader")]
+    try:
+        outs = [p.communicate(timeout=180) for p in readers]
+    finally:
+        stop.touch()
+        built = [p.communicate(timeout=60) for p in builders]
+    for p, (out, err) in zip(builders + readers, built + outs, strict=True):
+        assert p.returncode == 0 and "Traceback" not in err, err
+        assert "damaged" not in err, err
+    for out, _ in outs:
+        assert int(out.split()[1]) >= 300, out
