@@ -110,8 +110,9 @@ def test_check_from_the_cache_loads_none_of_them(tmp_path: Path) -> None:
 def test_a_fleet_worker_loads_no_action_backend(tmp_path: Path) -> None:
     """A ``fleet replay`` worker's whole path: the fork server's imports, the config
     compiled as the worker starts, one bag replayed.  A replay runs no action, so an
-    SSH mitigation in the config costs no paramiko (0.08 s of every worker's start:
-    docs/BENCHMARKS.md, "Fleet")."""
+    SSH mitigation in the config costs no paramiko (0.08 s of every worker's start),
+    and a replay writes no log, so no structlog either (0.07 s of the fork server's
+    imports: docs/BENCHMARKS.md, "Fleet")."""
     from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
 
     cfg = config(tmp_path)
@@ -134,5 +135,12 @@ def test_a_fleet_worker_loads_no_action_backend(tmp_path: Path) -> None:
         "assert r.status == 'read' and r.violations.num_rows > 0, (r.status, r.reason)\n"
     )
     # numpy is pyarrow's own import, which the dataset needs
-    names = (*(n for n in HEAVY if n != "numpy"), "rclpy", "cryptography", "nacl", "invoke")
+    names = (
+        *(n for n in HEAVY if n != "numpy"),
+        "rclpy",
+        "cryptography",
+        "nacl",
+        "invoke",
+        "structlog",
+    )
     assert loaded(code, {"STATE_DIRECTORY": str(state)}, names=names) == []
