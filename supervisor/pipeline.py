@@ -332,10 +332,13 @@ def _drop_unused(cfg: Config, used: set[str], errors: list[UserError], warnings:
             )
 
 
-def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError], list[str]]:
+def check_mitigations(
+    cfg: Config, *, ros: bool = True, dry_run: bool = False
+) -> tuple[list[UserError], list[str]]:
     """Publish actions: message type and value (errors).  SSH actions: key and
     known_hosts files (warnings: a robot config is often checked on a laptop
-    that does not hold the robot's key)."""
+    that does not hold the robot's key); ``dry_run`` (replay, which runs no action):
+    not looked at, and paramiko not imported (docs/BENCHMARKS.md, "Fleet")."""
     errors: list[UserError] = []
     warnings: list[str] = []
     for m in cfg.mitigations.values():
@@ -360,7 +363,7 @@ def check_mitigations(cfg: Config, *, ros: bool = True) -> tuple[list[UserError]
                     f"also input '{name}'{trigger}: the supervisor reads its own command as the "
                     "robot's state; prefer a command topic the robot echoes on its own topic"
                 )
-        if isinstance(s, SshSettings):
+        if isinstance(s, SshSettings) and not dry_run:
             from mitigations.actions.ssh import preflight  # paramiko: only for ssh mitigations
 
             for problem in preflight(s):
@@ -393,13 +396,15 @@ def check_memory(cfg: Config, reqs: list[CompiledRequirement]) -> list[UserError
     return [e for rid, e in found if rid is None]
 
 
-def build_project(cfg: Config, *, ros: bool = True) -> Project:
+def build_project(cfg: Config, *, ros: bool = True, dry_run: bool = False) -> Project:
+    """The config's requirements compiled and checked.  ``dry_run``: for a replay,
+    whose actions never run (``check_mitigations``)."""
     env = _env(cfg)
     reqs = [compile_requirement(e, cfg, env) for e in cfg.requirements]
     errors = check_memory(cfg, reqs)
     v_errors, warnings = check_variables(cfg, reqs, ros=ros)
     errors += v_errors
-    m_errors, m_warnings = check_mitigations(cfg, ros=ros)
+    m_errors, m_warnings = check_mitigations(cfg, ros=ros, dry_run=dry_run)
     reset_warning = reset_service_warning(cfg.ros, cfg.path)
     if reset_warning:
         m_warnings.append(reset_warning)

@@ -412,3 +412,63 @@ def parse_record(line: bytes) -> dict[str, Any]:
     rec_ts = check_record(rec)
     rec["_ts"] = rec_ts
     return rec
+
+
+# The records' encoder, and the rows it encodes ahead of the halt's path: here, not in
+# the writer, so that the daemon's core and replay use them without structlog
+# (docs/BENCHMARKS.md, "Fleet").
+def unencodable(value: Any) -> Any:
+    """The encoder's ``default``: anything JSON has no form for is refused."""
+    raise TypeError(type(value).__name__)
+
+
+# The chain of _processors(safe=False) in one call, for the records on the halt's
+# path (docs/reference/log.md#durability; writer.py): the same dict in the same key order
+# through the encoder JSONRenderer builds from the same settings, so the bytes are
+# the chain's (tests/mitigations/violationlog/test_log_render.py compares them).
+def _encoder() -> Callable[[Any], str]:
+    """``json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=unencodable).encode``,
+    with the C encoder that ``encode`` makes on every call (json/encoder.py) made
+    once.  Without a check for circular containers: a record has none, and one
+    would still fail (RecursionError), reported as a record not rendered."""
+    make = getattr(json.encoder, "c_make_encoder", None)
+    if make is None:  # a Python without _json: the encoder's own path
+        return json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=unencodable).encode
+    chunks = make(
+        None, unencodable, json.encoder.encode_basestring_ascii, None, ":", ",", False, False, False
+    )
+
+    def encode(o: Any) -> str:
+        return "".join(chunks(o, 0))
+
+    return encode
+
+
+ENCODE = _encoder()
+
+
+def encode_fragment(value: Any) -> str:
+    """``value`` as a record's field holds it (made once, off the halt's path:
+    :meth:`ViolationLog.violation_row`'s ``policy_state``)."""
+    return ENCODE(value)
+
+
+class Row(dict[str, Any]):
+    """One tick of a violation record's ``recent``, with its JSON as ``ENCODE``
+    renders it inside the record, made (:meth:`of`) when the tick is stepped: the
+    record on the halt's path then joins these instead of encoding every tick again
+    (docs/reference/log.md#durability).  ``json`` is None (or unset) when the row
+    has no plain JSON form (NaN, infinities, other types): the record goes the safe
+    way.  A row is not changed once made (its ``json`` would no longer be its bytes)."""
+
+    __slots__ = ("json",)
+    json: str | None
+
+    @classmethod
+    def of(cls, row: Mapping[str, Any]) -> Row:
+        r = cls(row)
+        try:
+            r.json = ENCODE(r)
+        except (ValueError, TypeError):
+            r.json = None
+        return r

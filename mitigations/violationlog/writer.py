@@ -60,11 +60,15 @@ from mitigations.violationlog.format import (
     HEADER,
     RETRY_BUFFER,
     ZERO_SHA256,
+    Row,
     describe,
+    encode_fragment,  # noqa: F401 - the writer's name for it too (its tests, its docs)
     json_safe,
     seal_line,
     sha256_hex,
 )
+from mitigations.violationlog.format import ENCODE as _ENCODE
+from mitigations.violationlog.format import unencodable as _no
 from mitigations.violationlog.journal import JournalSender, priority, record_fields, socket_path
 from monitors.errors import UserError
 
@@ -117,64 +121,8 @@ def _processors(*, safe: bool) -> list[Any]:
     ]
 
 
-def _no(value: Any) -> Any:
-    raise TypeError(type(value).__name__)
-
-
-# The chain of _processors(safe=False) in one call, for the records on the halt's
-# path (docs/reference/log.md#durability): the same dict in the same key order
-# through the encoder JSONRenderer builds from the same settings, so the bytes are
-# the chain's (tests/mitigations/violationlog/test_log_render.py compares them).
-def _encoder() -> Callable[[Any], str]:
-    """``json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode``,
-    with the C encoder that ``encode`` makes on every call (json/encoder.py) made
-    once.  Without a check for circular containers: a record has none, and one
-    would still fail (RecursionError), reported as a record not rendered."""
-    make = getattr(json.encoder, "c_make_encoder", None)
-    if make is None:  # a Python without _json: the encoder's own path
-        return json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_no).encode
-    chunks = make(
-        None, _no, json.encoder.encode_basestring_ascii, None, ":", ",", False, False, False
-    )
-
-    def encode(o: Any) -> str:
-        return "".join(chunks(o, 0))
-
-    return encode
-
-
-_ENCODE = _encoder()
-
-
-def encode_fragment(value: Any) -> str:
-    """``value`` as a record's field holds it (made once, off the halt's path:
-    :meth:`ViolationLog.violation_row`'s ``policy_state``)."""
-    return _ENCODE(value)
-
-
 # The fields a violation record has before ``recent``, in the writer's order.
 _BEFORE_RECENT = ("requirement", "text", "formula", "tick", "inputs")
-
-
-class Row(dict[str, Any]):
-    """One tick of a violation record's ``recent``, with its JSON as ``_ENCODE``
-    renders it inside the record, made (:meth:`of`) when the tick is stepped: the
-    record on the halt's path then joins these instead of encoding every tick again
-    (docs/reference/log.md#durability).  ``json`` is None (or unset) when the row
-    has no plain JSON form (NaN, infinities, other types): the record goes the safe
-    way.  A row is not changed once made (its ``json`` would no longer be its bytes)."""
-
-    __slots__ = ("json",)
-    json: str | None
-
-    @classmethod
-    def of(cls, row: Mapping[str, Any]) -> Row:
-        r = cls(row)
-        try:
-            r.json = _ENCODE(r)
-        except (ValueError, TypeError):
-            r.json = None
-        return r
 
 
 def _fragments(recent: Sequence[Mapping[str, Any]]) -> list[str] | None:

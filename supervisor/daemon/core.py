@@ -22,7 +22,7 @@ from typing import Any, Protocol
 from mitigations.engine import Request
 from mitigations.policy import Armed, Forecast, Note
 from mitigations.supervision import Supervision
-from mitigations.violationlog.writer import encode_fragment
+from mitigations.violationlog.format import encode_fragment
 from supervisor.daemon.runtime import InputEvent, Rows, StepResult
 from supervisor.daemon.session import Session
 

@@ -31,7 +31,7 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, cast, runtime_checkable
 
-from mitigations.violationlog.writer import Row
+from mitigations.violationlog.format import Row
 
 INT64_MIN, INT64_MAX = -(1 << 63), (1 << 63) - 1
 # A stamp later than its receipt by more than this is said (input_future_stamp):

@@ -105,3 +105,42 @@ def test_check_from_the_cache_loads_none_of_them(tmp_path: Path) -> None:
     first = loaded(code, env)
     assert "z3" in first  # the cold check analyses: the probe sees z3 when it is there
     assert loaded(code, env) == []
+
+
+def test_a_fleet_worker_loads_no_action_backend(tmp_path: Path) -> None:
+    """A ``fleet replay`` worker's whole path: the fork server's imports, the config
+    compiled as the worker starts, one bag replayed.  A replay runs no action, so an
+    SSH mitigation in the config costs no paramiko (0.08 s of every worker's start),
+    and a replay writes no log, so no structlog either (0.07 s of the fork server's
+    imports: docs/BENCHMARKS.md, "Fleet")."""
+    from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+    cfg = config(tmp_path)
+    text = cfg.read_text().replace("on_violation: [note]", "on_violation: [note, power_off]", 1)
+    cfg.write_text(
+        text
+        + "  power_off: {ssh: {host: robot-pc.local, user: robot, key: /nonexistent/key,\n"
+        + "        known_hosts: /nonexistent/known_hosts, command: poweroff}}\n"
+    )
+    bag = write_bag(tmp_path / "b1", messages(1, 2000))
+    state = tmp_path / "state"
+    state.mkdir()
+    code = (
+        "import importlib\n"
+        "from supervisor.tools.fleet import server\n"
+        "for m in server.PRELOAD: importlib.import_module(m)\n"
+        "from supervisor.tools.fleet.task import BagTask, compile_config, run_task\n"
+        f"assert compile_config({str(cfg)!r}) is None\n"
+        f"r = run_task(BagTask({str(bag)!r}, 'r', {str(cfg)!r}, 'c'))\n"
+        "assert r.status == 'read' and r.violations.num_rows > 0, (r.status, r.reason)\n"
+    )
+    # numpy is pyarrow's own import, which the dataset needs
+    names = (
+        *(n for n in HEAVY if n != "numpy"),
+        "rclpy",
+        "cryptography",
+        "nacl",
+        "invoke",
+        "structlog",
+    )
+    assert loaded(code, {"STATE_DIRECTORY": str(state)}, names=names) == []

@@ -13,8 +13,9 @@ import multiprocessing
 import multiprocessing.forkserver as forkserver
 from multiprocessing.context import BaseContext
 
-# imported once by the fork server, so every worker it forks has them
-PRELOAD = ("supervisor.tools.fleet.engine", "supervisor.tools.replay.session")
+# imported once by the fork server, so every worker it forks has them, and what a
+# worker's first config and bag would build, built (warm.py)
+PRELOAD = ("supervisor.tools.fleet.warm",)
 
 
 def serve() -> BaseContext:

@@ -48,7 +48,8 @@ def prepare(config: Path) -> Prepared:
     if cache is not None:
         # the requirement parsers' tables too: most of a cold parse (formula.py)
         use_parser_cache(cache.root)
-    project = build_project(load_config(config), ros=False)
+    # dry_run: a replay's actions never run, their hosts' keys are not its business
+    project = build_project(load_config(config), ros=False, dry_run=True)
     err = project.first_error()
     if err is not None:
         raise err
