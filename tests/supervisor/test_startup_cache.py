@@ -498,7 +498,7 @@ def test_two_builders_of_one_entry_never_make_a_reader_call_it_damaged(tmp_path:
     finally:
         stop.touch()
         built = [p.communicate(timeout=60) for p in builders]
-    for p, (out, err) in zip(builders + readers, built + outs, strict=True):
+    for p, (_out, err) in zip(builders + readers, built + outs, strict=True):
         assert p.returncode == 0 and "Traceback" not in err, err
         assert "damaged" not in err, err
     for out, _ in outs:
