@@ -278,6 +278,57 @@ def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_pa
         os.kill(raylet, 0)
 
 
+def _ray_worker_reading(cli: int, bag: str) -> int | None:
+    """A Ray worker of the command's own local cluster with a file of ``bag`` open."""
+    for pid in _descendants(cli):
+        try:
+            if not Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::"):
+                continue
+            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
+        except OSError:
+            continue
+        if any(f.startswith(bag + "/") for f in fds):
+            return pid
+    return None
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_ray_worker_killed_in_the_middle_of_a_task_of_several_bags_reruns_them_once(tmp_path):
+    """A Ray task runs several bags (engine.RAY_BATCH): killed after its first bag, the
+    task is retried whole, and each of its bags is written once, none lost."""
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
+    for i, bag in enumerate(bags):
+        write_bag(bag, messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    # one CPU: the tasks run one at a time, in order; 12 bags in a window of 4 tasks
+    # make the first task b00-b02, so a worker reading b01 has finished b00 in it
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1", "--engine", "ray"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
+    )  # fmt: skip
+    try:
+        victim = wait_until(
+            "a Ray worker reading b01", lambda: _ray_worker_reading(proc.pid, str(bags[1])), 120
+        )
+        os.kill(victim, signal.SIGKILL)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "12 bags (12 read, 0 skipped, 0 damaged, 0 failed)" in out, out
+    want = query(ROWS.format(VIOLATIONS.format(clean)))
+    assert want and query(ROWS.format(VIOLATIONS.format(killed))) == want
+    assert query(BAG_ROWS.format(BAGS.format(killed))) == query(BAG_ROWS.format(BAGS.format(clean)))
+
+
 def _named(pid: int, name: bytes) -> bool:
     try:
         argv0 = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]
