@@ -296,15 +296,76 @@ class RayEngine:
         self.address = address
         if address is not None:
             _reachable(address)
+        self._ray: Any = None  # the module, once this engine is on a cluster
+        self._owns = False  # ... one it joined or started: left by close()
+        self._temp: str | None = None  # a local cluster's sockets and logs
+        # the started workers' compiles of the configs (ObjectRefs of ``_warm``)
+        self.warm: list[Any] = []
+
+    def start(
+        self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
+    ) -> None:
+        """Join (or start) the cluster now, and have a worker per CPU (at most one per
+        task) compile ``configs`` (``_warm``): the workers start while this process
+        lists the archive, and this process compiles nothing, as with
+        ``LocalEngine.start`` (docs/BENCHMARKS.md, "Fleet").  ``checked`` gives the
+        first worker's verdict."""
+        if tasks == 0 or not configs:
+            return
+        ray = self._connect()
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        warm = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_warm)
+        self.warm = [warm.remote(configs) for _ in range(min(cpus, tasks or cpus))]
+
+    def checked(self) -> bool:
+        """Whether a started worker compiled the configs given to ``start``, its first
+        config error raised (``UserError``); False when none was started or its worker
+        died (the caller compiles them)."""
+        if not self.warm:
+            return False
+        ray = self._ray
+        try:
+            errors = ray.get(self.warm[0])[1]
+        except ray.exceptions.RayError:
+            return False
+        for error in errors:
+            if error is not None:
+                raise config_error(error)
+        return True
+
+    def close(self) -> None:
+        """The cluster left (stopped, when this engine started it) and its temporary
+        directory removed: also when ``results`` never ran (a bad config)."""
+        self.warm = []
+        if self._ray is not None and self._owns:
+            self._ray.shutdown()
+        self._ray, self._owns = None, False
+        if self._temp is not None:
+            shutil.rmtree(self._temp, ignore_errors=True)
+            self._temp = None
+
+    def _connect(self) -> Any:
+        """``ray``, on the cluster this engine joined or started (once)."""
+        if self._ray is not None:
+            return self._ray
+        ray = import_ray()
+        if not ray.is_initialized():  # a cluster this engine joins or starts
+            if not self.address:
+                self._temp = tempfile.mkdtemp(prefix="ss-fleet-ray-")
+            try:
+                self._init(ray, self._temp)
+            except BaseException:
+                self.close()
+                raise
+            self._owns = True
+        self._ray = ray
+        return ray
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
-        ray = import_ray()
-        started = not ray.is_initialized()  # a cluster this engine joins or starts
-        temp = tempfile.mkdtemp(prefix="ss-fleet-ray-") if started and not self.address else None
         running: dict[Any, list[BagTask]] = {}
+        ray = self._ray or import_ray()  # for the finally's cancel
         try:
-            if started:
-                self._init(ray, temp)
+            ray = self._connect()
             if not tasks:
                 return
             remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_run_ray)
@@ -338,10 +399,7 @@ class RayEngine:
             for ref in running:
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
-            if started:
-                ray.shutdown()
-            if temp is not None:
-                shutil.rmtree(temp, ignore_errors=True)
+            self.close()
 
     def _init(self, ray: Any, temp: str | None) -> None:
         quiet = {"logging_level": logging.ERROR, "log_to_driver": False}

@@ -371,6 +371,36 @@ def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
     assert not (tmp_path / "ds2").exists()
 
 
+@needs_ray
+@pytest.mark.slow
+def test_on_a_ray_cluster_the_parent_leaves_the_configs_compile_to_its_workers(
+    tmp_path, ray_cluster
+):
+    """As with the pool: the parent compiled each config before joining the cluster, a
+    serial part of every run (docs/BENCHMARKS.md, "Fleet"); the cluster's workers now
+    compile it as they start, and a bad config is still one line with its place."""
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    cfg = config(tmp_path)
+    other = config(tmp_path, "other.yaml", limit=2.5)
+    args = [cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", other, "--engine",
+            "ray", "--address", ray_cluster]  # fmt: skip
+    run = subprocess.run(
+        [sys.executable, "-c", COMPILED_HERE, "fleet", "replay", *map(str, args)],
+        capture_output=True, text=True, timeout=300, env=RAY_ENV,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[-1] == "COMPILED BY THE WORKERS []", run.stdout
+    assert "2 bags (2 read," in run.stdout
+    other.write_text(other.read_text().replace("speed <= 2.5", "speed <=> 2.5"))
+    bad = fleet_ray(
+        cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", "--compare", other, "--address",
+        ray_cluster, ok=(1,),
+    )  # fmt: skip
+    lines = [line for line in bad.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{other}:"), bad.stderr
+    assert not (tmp_path / "ds2").exists()
+
+
 def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     """``start`` starts the workers (their imports overlap the parent's compile and
     listing); ``results`` runs the tasks on those same workers, no second pool, and
