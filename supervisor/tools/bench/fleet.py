@@ -17,6 +17,7 @@ Prints numbers with their goals beside them and asserts nothing.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import shutil
@@ -104,27 +105,40 @@ def _children(pid: int) -> dict[int, list[int]]:
     return out
 
 
-def _workers(pid: int) -> dict[int, int]:
+def _workers(pid: int, cluster: int | None = None) -> dict[int, int]:
     """The run's worker processes (a pool's, forked by its fork server; Ray's ``ray::``
-    task workers) below ``pid``, each with its peak RSS so far in kB (VmHWM)."""
+    task workers) below ``pid``, or in the session of the running ``cluster`` (its
+    head's pid), each with its peak RSS so far in kB (VmHWM)."""
     children = _children(pid)
     todo: list[tuple[int, bytes]] = [(pid, b"")]
-    out: dict[int, int] = {}
+    found: list[tuple[int, bytes, bytes]] = []  # pid, command line, its parent's
     while todo:
         parent, parent_cmd = todo.pop()
         for c in children.get(parent, []):
             try:
                 cmd = Path(f"/proc/{c}/cmdline").read_bytes()
-                todo.append((c, cmd))
-                pool = b"forkserver" in cmd and b"forkserver" in parent_cmd  # not the server
-                if not (cmd.startswith(b"ray::") or pool):
-                    continue
-                status = Path(f"/proc/{c}/status").read_text()
             except OSError:
                 continue
-            for line in status.splitlines():
-                if line.startswith("VmHWM:"):
-                    out[c] = int(line.split()[1])
+            todo.append((c, cmd))
+            found.append((c, cmd, parent_cmd))
+    if cluster is not None:
+        for c in _session(cluster):
+            with contextlib.suppress(OSError):
+                found.append((c, Path(f"/proc/{c}/cmdline").read_bytes(), b""))
+    out: dict[int, int] = {}
+    for c, cmd, parent_cmd in found:
+        pool = b"forkserver" in cmd and b"forkserver" in parent_cmd  # not the server
+        # a Ray node's agents (ray::DashboardAgent, ray::RuntimeEnvAgent) run no task
+        ray = cmd.startswith(b"ray::") and b"Agent" not in cmd.split(b"\0")[0]
+        if not (ray or pool):
+            continue
+        try:
+            status = Path(f"/proc/{c}/status").read_text()
+        except OSError:
+            continue
+        for line in status.splitlines():
+            if line.startswith("VmHWM:"):
+                out[c] = int(line.split()[1])
     return out
 
 
@@ -135,24 +149,170 @@ def _children_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def _session_cpu(sid: int) -> dict[int, float]:
+    """The CPU seconds of each process of session ``sid`` so far: a running cluster's,
+    which are not this process's children's.  Sampled through a run, each process's
+    last figure counted: a raylet does not add the workers it reaps to its own."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for pid in _session(sid, zombies=True):  # an exited worker's CPU until it is reaped
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            out[pid] = sum(int(f) for f in fields[11:13]) / tick  # utime stime
+    return out
+
+
 def _load() -> float:
     return float(Path("/proc/loadavg").read_text().split()[0])
 
 
+# Ray's own files of the bench's cluster, not in ~/.ray (a token) or /tmp/ray
+RAY_ENV = {"RAY_AUTH_MODE": "disabled", "RAY_USAGE_STATS_ENABLED": "0"}
+CLUSTER_CPUS = 2
+CLUSTER_WAIT_S = 120.0
+RAY_SELF = "--jobs 2 --engine ray"  # the runs' labels: a local cluster the command starts
+RAY_JOINS = (
+    RAY_SELF + " --address (a running cluster)"
+)  # ... or the bench's Cluster  # a head that has not said its address by then is not starting
+
+
+class Cluster:
+    """A local Ray cluster of ``CLUSTER_CPUS`` CPUs as a site runs one, started once
+    (``ray start --head --block`` in a temporary directory of its own) for
+    ``fleet replay --engine ray --address`` to join: the run is then timed without the
+    cluster's start and stop, which are timed here (``start_s``, ``stop_s``).  A
+    context manager: the cluster is stopped on the way out whatever happened, and its
+    processes waited for (``left``: those that had to be killed)."""
+
+    def __init__(self) -> None:
+        self.address = ""
+        self.start_s = self.stop_s = 0.0
+        self.left = 0
+        self.head: subprocess.Popen[bytes] | None = None
+        self.temp = ""
+
+    def __enter__(self) -> Cluster:
+        import re
+        import threading
+
+        from supervisor import children
+
+        # short: Ray's Unix socket paths sit under it (108 bytes at most)
+        self.temp = tempfile.mkdtemp(prefix="ss-bench-ray-")
+        ray = Path(sys.executable).with_name("ray")
+        argv = [str(ray), "start", "--head", "--block", "--num-cpus", str(CLUSTER_CPUS),
+                "--port", str(_free_port()), "--include-dashboard", "false",
+                "--disable-usage-stats", "--temp-dir", self.temp]  # fmt: skip
+        t0 = time.monotonic()
+        # in a session of its own, stopped with this process even if it is killed
+        # (children.start); its head prints its address once the cluster is up
+        self.head = children.start(
+            argv, env={**children.child_env(), **RAY_ENV}, stdout=subprocess.PIPE, stderr=-2
+        )
+        found = threading.Event()
+        said: list[str] = []
+
+        def read(out: Any) -> None:  # the head's output read to its end: it never blocks
+            for raw in out:
+                line = raw.decode(errors="replace")
+                said.append(line)
+                if not found.is_set() and (m := re.search(r"ray start --address='([^']+)'", line)):
+                    self.address = m.group(1)
+                    found.set()
+            found.set()  # ended without an address
+
+        threading.Thread(target=read, args=(self.head.stdout,), daemon=True).start()
+        try:
+            found.wait(CLUSTER_WAIT_S)
+            if not self.address:
+                raise RuntimeError("ray start --head did not start: " + "".join(said[-5:]))
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
+        self.start_s = time.monotonic() - t0
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.head is None:
+            return
+        sid = self.head.pid  # its own session (children.start)
+        t0 = time.monotonic()
+        # the head alone: it drains the node and stops the processes it started (its
+        # whole group at once stops the GCS first, and the head waits 30 s for it)
+        with contextlib.suppress(ProcessLookupError):
+            self.head.send_signal(signal.SIGTERM)
+        try:
+            self.head.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            pass
+        deadline = time.monotonic() + 10
+        while _session(sid) and time.monotonic() < deadline:
+            time.sleep(0.02)  # polled: the session's last processes have no parent here
+        self.stop_s = time.monotonic() - t0
+        rest = _session(sid)
+        self.left = len(rest)
+        for pid in rest:  # what did not stop with its head is killed
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        self.head.wait()
+        self.head = None
+        shutil.rmtree(self.temp, ignore_errors=True)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _session(sid: int, *, zombies: bool = False) -> list[int]:
+    """The live processes of session ``sid`` (``zombies``: and the exited ones not yet
+    waited for)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue  # exited meanwhile
+        if int(fields[3]) == sid and (zombies or fields[0] != "Z"):
+            out.append(int(d.name))
+    return out
+
+
 def run_fleet(
-    config: Path, archive: Path, dataset: Path, args: list[str], *, stop_after: int | None = None
+    config: Path,
+    archive: Path,
+    dataset: Path,
+    args: list[str],
+    *,
+    stop_after: int | None = None,
+    cluster: Cluster | None = None,
 ) -> dict[str, Any]:
     """``fleet replay`` as a child, its workers' peak RSS sampled every 0.1 s.
     ``stop_after``: killed (SIGKILL, the whole process group) once that many bags are
-    finished in the dataset."""
+    finished in the dataset.  ``cluster``: the running cluster the run joins
+    (``--address`` is added): its workers and CPU are counted too."""
     from supervisor import children
 
     argv = [sys.executable, "-m", "supervisor", "fleet", "replay", str(config), str(archive)]
+    label = " ".join(args)
+    head = None
+    if cluster is not None and cluster.head is not None:
+        head = cluster.head.pid
+        args = [*args, "--address", cluster.address]
+        label += " --address (a running cluster)"
     argv += ["-o", str(dataset), *args]
     load = _load()
     cpu0 = _children_cpu()
+    cluster_cpu0 = _session_cpu(head) if head else {}
+    cluster_cpu = dict(cluster_cpu0)
     t0 = time.monotonic()
-    proc = children.start(argv, env=children.child_env(), stdout=-1, stderr=-1)
+    env = {**children.child_env(), **RAY_ENV}
+    proc = children.start(argv, env=env, stdout=-1, stderr=-1)
     peaks: dict[int, int] = {}
     # workers alive at once: a pool started for the configs' check and replaced for
     # the tasks (a resume's finished bags differ) shows more processes over the run
@@ -161,30 +321,42 @@ def run_fleet(
     # the sampling period; finer when a kill waits for the bags finished: a small
     # archive's second half can take less than 0.1 s
     period = 0.1 if stop_after is None else 0.005
-    while True:
-        try:
-            proc.wait(timeout=period)
-            break
-        except subprocess.TimeoutExpired:  # still running
-            alive = _workers(proc.pid)
-            most = max(most, len(alive))
-            for pid, kb in alive.items():
-                peaks[pid] = max(peaks.get(pid, 0), kb)
-            if stop_after is not None and _finished(dataset) >= stop_after:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
-                killed = True
+    try:
+        while True:
+            try:
+                proc.wait(timeout=period)
                 break
+            except subprocess.TimeoutExpired:  # still running
+                alive = _workers(proc.pid, head)
+                if head:
+                    cluster_cpu.update(_session_cpu(head))
+                most = max(most, len(alive))
+                for pid, kb in alive.items():
+                    peaks[pid] = max(peaks.get(pid, 0), kb)
+                if stop_after is not None and _finished(dataset) >= stop_after:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                    killed = True
+                    break
+    finally:  # the bench stopped (Ctrl-C): the run with it, before its cluster
+        if proc.poll() is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
     wall = time.monotonic() - t0
     # the CPU of the run's processes that have been waited for: the command and its
-    # pool (Ray's raylet waits its own workers; its daemons are counted too)
+    # pool (Ray's raylet waits its own workers; its daemons are counted too), and a
+    # running cluster's (each of its processes' last figure sampled)
+    if head:
+        cluster_cpu.update(_session_cpu(head))
     cpu = _children_cpu() - cpu0
+    cpu += sum(c - cluster_cpu0.get(pid, 0.0) for pid, c in cluster_cpu.items())
     out = proc.stdout.read().decode() if proc.stdout else ""
     err = proc.stderr.read().decode() if proc.stderr else ""
     summary = next((ln for ln in out.splitlines() if ln.startswith("fleet replay:")), "")
     messages = _number(summary, r"([\d,]+) messages in")
     return {
-        "args": " ".join(args),
+        "args": label,
         "wall_s": wall,
         "messages": messages,
         "rate": messages / wall if wall > 0 else 0.0,
@@ -319,7 +491,15 @@ def parser() -> argparse.ArgumentParser:
         default=1_000_000,
         help="messages of the large bags timed part by part (default 1000000)",
     )
-    p.add_argument("--skip-ray", action="store_true", help="leave out the Ray run")
+    p.add_argument(
+        "--skip-ray", action="store_true", help="leave out the Ray runs (and the cluster)"
+    )
+    p.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="the timed runs this many times, interleaved (default 1)",
+    )
     p.add_argument(
         "--split-only", action="store_true", help="only the part-by-part times of one task"
     )
@@ -332,6 +512,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     if not (1 <= args.bags <= 100_000 and 1 <= args.robots <= args.bags):
         parser().error("--bags from 1 to 100000, --robots from 1 to --bags")
+    if not 1 <= args.rounds <= 100:
+        parser().error("--rounds from 1 to 100")
     config = Path(args.config) if args.config else data.example("srobot.yaml")
 
     def say(text: str) -> None:
@@ -340,6 +522,9 @@ def main(argv: list[str] | None = None) -> int:
     tmp = Path(tempfile.mkdtemp(prefix="fleet-bench-", dir=args.tmp))
     try:
         out = _bench(config, tmp, args, say)
+    except KeyboardInterrupt:  # its runs and its cluster stopped on the way out
+        say("fleet: interrupted")
+        return 130
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     print(format_results(out))
@@ -360,12 +545,31 @@ def _bench(config: Path, tmp: Path, args: argparse.Namespace, say: Callable[[str
         run_fleet(config, archive, tmp / "warm", ["--jobs", "1"])
         shutil.rmtree(tmp / "warm", ignore_errors=True)
     runs = [] if args.split_only else [["--jobs", "1"], ["--jobs", "2"]]
-    if not args.skip_ray and not args.split_only:
-        runs.append(["--jobs", "2", "--engine", "ray"])
+    ray = not args.skip_ray and not args.split_only
+    if ray:
+        runs.append(["--jobs", "2", "--engine", "ray"])  # its own local cluster
     out["runs"] = []
-    for i, extra in enumerate(runs):
-        say(f"fleet: fleet replay {' '.join(extra)}")
-        out["runs"].append(run_fleet(config, archive, tmp / f"ds{i}", extra))
+    with contextlib.ExitStack() as stack:
+        cluster = None
+        if ray:
+            # started once, as a site's cluster is, and stopped whatever happens
+            say(f"fleet: ray start --head --num-cpus {CLUSTER_CPUS}")
+            cluster = stack.enter_context(Cluster())
+            head = cluster.head.pid if cluster.head else 0
+            out["cluster"] = {"address": cluster.address, "start_s": cluster.start_s, "pid": head}
+        kinds: list[tuple[list[str], Cluster | None]] = [(r, None) for r in runs]
+        if cluster is not None:
+            kinds.append((["--jobs", "2", "--engine", "ray"], cluster))
+        for n in range(args.rounds):  # interleaved: a slower minute slows every kind
+            for extra, joins in kinds:
+                say(
+                    f"fleet: round {n + 1}: fleet replay {' '.join(extra)}"
+                    + " --address" * bool(joins)
+                )
+                r = run_fleet(config, archive, tmp / f"ds{len(out['runs'])}", extra, cluster=joins)
+                out["runs"].append({**r, "round": n + 1})
+    if cluster is not None:
+        out["cluster"].update(stop_s=cluster.stop_s, left=cluster.left)
     if not args.split_only:
         say("fleet: --jobs 2 killed halfway, then resumed")
         out["resume"] = resume_after_kill(config, archive, tmp / "ds-resume", args.bags)
@@ -390,30 +594,43 @@ def format_results(out: dict[str, Any]) -> str:
         f"zstd-compressed, {k['damaged']} damaged), written in {out['generate_s']:.0f} s; "
         f"{out['cpus']} CPUs",
         "",
-        "| run | wall s | messages/s | CPU s | cores used | workers | peak RSS per worker "
-        "| load (1 min) |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        "| round | run | wall s | messages/s | CPU s | cores used | workers "
+        "| peak RSS per worker | load (1 min) |",
+        "|---:|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in out["runs"]:
         lines.append(
-            f"| {r['args']} | {r['wall_s']:.1f} | {r['rate']:,.0f} | {r['cpu_s']:.1f} | "
-            f"{r['cores_used']:.2f} | {r['workers']} | {r['peak_worker_mb']:.0f} MB | "
-            f"{r['load']:.2f} |"
+            f"| {r.get('round', 1)} | {r['args']} | {r['wall_s']:.1f} | {r['rate']:,.0f} | "
+            f"{r['cpu_s']:.1f} | {r['cores_used']:.2f} | {r['workers']} | "
+            f"{r['peak_worker_mb']:.0f} MB | {r['load']:.2f} |"
         )
-    by = {r["args"]: r for r in out["runs"]}
-    one, two = by.get("--jobs 1"), by.get("--jobs 2")
-    ray = by.get("--jobs 2 --engine ray")
     lines.append("")
-    if one and two:
+    cluster = out.get("cluster")
+    if cluster is not None:
         lines.append(
-            f"speed-up from --jobs 1 to 2: {one['wall_s'] / two['wall_s']:.2f}x "
-            f"(goal >= {GOALS['speedup']}x)"
+            f"the running cluster (ray start --head --num-cpus {CLUSTER_CPUS}): started in "
+            f"{cluster['start_s']:.1f} s, stopped in {cluster.get('stop_s', 0.0):.1f} s, "
+            f"{cluster.get('left', 0)} of its processes killed after its head had stopped"
         )
-    if two and ray:
-        lines.append(
-            f"Ray against the pool: {ray['wall_s'] / two['wall_s'] - 1:+.0%} wall time "
-            f"(goal within {GOALS['ray_within']:.0%})"
-        )
+    for n in sorted({r.get("round", 1) for r in out["runs"]}):
+        by = {r["args"]: r for r in out["runs"] if r.get("round", 1) == n}
+        one, two = by.get("--jobs 1"), by.get("--jobs 2")
+        said = f"round {n}: " if len(out["runs"]) > len(by) else ""
+        if one and two:
+            lines.append(
+                f"{said}speed-up from --jobs 1 to 2: {one['wall_s'] / two['wall_s']:.2f}x "
+                f"(goal >= {GOALS['speedup']}x)"
+            )
+        for label, args in (
+            ("Ray against the pool, the run starting its own cluster", RAY_SELF),
+            ("Ray against the pool, on the running cluster", RAY_JOINS),
+        ):
+            ray = by.get(args)
+            if two and ray:
+                lines.append(
+                    f"{said}{label}: {ray['wall_s'] / two['wall_s'] - 1:+.0%} wall time "
+                    f"(goal within {GOALS['ray_within']:.0%})"
+                )
     peak = max((r["peak_worker_mb"] for r in out["runs"]), default=0)
     lines.append(f"largest worker: {peak:.0f} MB (goal <= {GOALS['worker_mb']} MB)")
     res = out.get("resume")

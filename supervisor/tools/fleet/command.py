@@ -146,8 +146,7 @@ def _fleet(args: argparse.Namespace) -> int:
     try:
         return _replay(args, engine, namespace, done, done_contents)
     finally:
-        if isinstance(engine, LocalEngine):
-            engine.close()  # started, and not taken by a run stopped by an error
+        engine.close()  # started, and not taken by a run stopped by an error
 
 
 def _replay(
@@ -155,17 +154,15 @@ def _replay(
 ) -> int:
     from supervisor.tools.fleet.archive import list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers
-    from supervisor.tools.fleet.engine import LocalEngine
     from supervisor.tools.fleet.task import BagResult, BagTask
 
     configs = [Path(args.config).absolute()]
     if args.compare:
         configs.append(Path(args.compare).absolute())
     bags = list_archive(args.archives, args.robot_from)
-    if isinstance(engine, LocalEngine):
-        # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned);
-        # each compiles the configs as it starts
-        engine.start(done_contents, len(bags) * len(configs), tuple(map(str, configs)))
+    # no more workers than the tasks can be (a few bags, --jobs 16: not 16 spawned);
+    # each compiles the configs as it starts (either engine)
+    engine.start(done_contents, len(bags) * len(configs), tuple(map(str, configs)))
     shas = _config_shas(configs, engine)
     dataset = Dataset(Path(args.output))
     tasks: list[BagTask] = []
@@ -217,13 +214,11 @@ def _config_shas(configs: list[Path], engine: Any) -> list[str]:
     """Each config's SHA-256 (its bytes', as ``Config.sha256``), once it is known to
     compile: a bad config is one error before any bag.  The pool's first worker
     compiles them for its tasks anyway, so this process does not (0.5 s of its CPU per
-    run, docs/BENCHMARKS.md, "Fleet"); without one (Ray, no bags) they are compiled
-    here, and Ray's workers find their monitors in the start-up cache."""
+    run, docs/BENCHMARKS.md, "Fleet"); so does Ray's first worker.  Without one (no
+    bags, or its worker died) they are compiled here."""
     import hashlib
 
-    from supervisor.tools.fleet.engine import LocalEngine
-
-    if isinstance(engine, LocalEngine) and engine.checked():
+    if engine.checked():
         shas = []
         for c in configs:
             try:

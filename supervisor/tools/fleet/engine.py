@@ -384,10 +384,25 @@ RAY_MISSING = "pip install 'safety-supervisor[fleet]'"
 REACH_S = 10.0  # a cluster's head that has not answered by then is not there
 
 
-def _run_ray(task: BagTask, done: Collection[str]) -> BagResult:
-    """A Ray task: ``run_task`` in a Ray worker (a module-level function, so workers
-    import it by name rather than unpickling its code)."""
-    return run_task(task, done)
+RAY_BATCH = 16  # bags per Ray task at most: Ray's own cost is per task, milliseconds
+RAY_WINDOW_PER_CPU = 4  # Ray tasks in flight per CPU of the cluster
+
+
+def _run_ray(tasks: list[BagTask], done: Collection[str]) -> list[BagResult]:
+    """A Ray task: ``run_task`` on each of a few bags in a Ray worker, a result each (a
+    module-level function, so workers import it by name rather than unpickling its
+    code).  Several bags a task, as the pool's calls: each Ray task costs its worker
+    and this process milliseconds of their CPU, as much as a small bag's replay
+    (docs/BENCHMARKS.md, "Fleet")."""
+    out = []
+    for task in tasks:
+        try:
+            out.append(run_task(task, done))
+        except Exception as e:  # noqa: BLE001 - one bag's bug is its row, not its batch's
+            out.append(
+                BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
+            )
+    return out
 
 
 class RayEngine:
@@ -403,15 +418,76 @@ class RayEngine:
         self.address = address
         if address is not None:
             _reachable(address)
+        self._ray: Any = None  # the module, once this engine is on a cluster
+        self._owns = False  # ... one it joined or started: left by close()
+        self._temp: str | None = None  # a local cluster's sockets and logs
+        # the started workers' compiles of the configs (ObjectRefs of ``_warm``)
+        self.warm: list[Any] = []
+
+    def start(
+        self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
+    ) -> None:
+        """Join (or start) the cluster now, and have a worker per CPU (at most one per
+        task) compile ``configs`` (``_warm``): the workers start while this process
+        lists the archive, and this process compiles nothing, as with
+        ``LocalEngine.start`` (docs/BENCHMARKS.md, "Fleet").  ``checked`` gives the
+        first worker's verdict."""
+        if tasks == 0 or not configs:
+            return
+        ray = self._connect()
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        warm = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_warm)
+        self.warm = [warm.remote(configs) for _ in range(min(cpus, tasks or cpus))]
+
+    def checked(self) -> bool:
+        """Whether a started worker compiled the configs given to ``start``, its first
+        config error raised (``UserError``); False when none was started or its worker
+        died (the caller compiles them)."""
+        if not self.warm:
+            return False
+        ray = self._ray
+        try:
+            errors = ray.get(self.warm[0])[1]
+        except ray.exceptions.RayError:
+            return False
+        for error in errors:
+            if error is not None:
+                raise config_error(error)
+        return True
+
+    def close(self) -> None:
+        """The cluster left (stopped, when this engine started it) and its temporary
+        directory removed: also when ``results`` never ran (a bad config)."""
+        self.warm = []
+        if self._ray is not None and self._owns:
+            self._ray.shutdown()
+        self._ray, self._owns = None, False
+        if self._temp is not None:
+            shutil.rmtree(self._temp, ignore_errors=True)
+            self._temp = None
+
+    def _connect(self) -> Any:
+        """``ray``, on the cluster this engine joined or started (once)."""
+        if self._ray is not None:
+            return self._ray
+        ray = import_ray()
+        if not ray.is_initialized():  # a cluster this engine joins or starts
+            if not self.address:
+                self._temp = tempfile.mkdtemp(prefix="ss-fleet-ray-")
+            try:
+                self._init(ray, self._temp)
+            except BaseException:
+                self.close()
+                raise
+            self._owns = True
+        self._ray = ray
+        return ray
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]:
-        ray = import_ray()
-        started = not ray.is_initialized()  # a cluster this engine joins or starts
-        temp = tempfile.mkdtemp(prefix="ss-fleet-ray-") if started and not self.address else None
-        running: dict[Any, BagTask] = {}
+        running: dict[Any, list[BagTask]] = {}
+        ray = self._ray or import_ray()  # for the finally's cancel
         try:
-            if started:
-                self._init(ray, temp)
+            ray = self._connect()
             if not tasks:
                 return
             remote = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_run_ray)
@@ -419,26 +495,33 @@ class RayEngine:
             # A window of tasks in flight, a few per CPU, not the whole archive: each
             # ray.wait looks at every pending task, and the results waiting for this
             # process stay few.
-            window = max(4, 4 * int(ray.cluster_resources().get("CPU", 1)))
+            cpus = int(ray.cluster_resources().get("CPU", 1))
+            window = max(4, RAY_WINDOW_PER_CPU * cpus)
             todo = iter(tasks)
-            for t in itertools.islice(todo, window):
-                running[remote.remote(t, done_ref)] = t
+            unsent = len(tasks)
+
+            def send() -> None:
+                nonlocal unsent
+                # fewer bags a task as the unsent run out: no worker left with a long one
+                batch = list(itertools.islice(todo, max(1, min(RAY_BATCH, unsent // window))))
+                unsent -= len(batch)
+                running[remote.remote(batch, done_ref)] = batch
+
+            while unsent and len(running) < window:
+                send()
             while running:
                 ready, _ = ray.wait(list(running), num_returns=1)
                 for ref in ready:
-                    task = running.pop(ref)
-                    for t in itertools.islice(todo, 1):
-                        running[remote.remote(t, done_ref)] = t
-                    yield _ray_result(ray, ref, task)
+                    batch = running.pop(ref)
+                    if unsent:
+                        send()
+                    yield from _ray_results(ray, ref, batch)
         finally:
             # closed early (an error, Ctrl-C): the tasks not finished are cancelled
             for ref in running:
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
-            if started:
-                ray.shutdown()
-            if temp is not None:
-                shutil.rmtree(temp, ignore_errors=True)
+            self.close()
 
     def _init(self, ray: Any, temp: str | None) -> None:
         quiet = {"logging_level": logging.ERROR, "log_to_driver": False}
@@ -487,17 +570,19 @@ def _reachable(address: str) -> None:
         ) from None
 
 
-def _ray_result(ray: Any, ref: Any, task: BagTask) -> BagResult:
+def _ray_results(ray: Any, ref: Any, batch: list[BagTask]) -> list[BagResult]:
+    """A Ray task's results, or each of its bags failed with the reason: its worker
+    died on every attempt (Ray retried the whole task; nothing of it was written),
+    or a node was lost."""
     try:
-        result: BagResult = ray.get(ref)
-        return result
+        results: list[BagResult] = ray.get(ref)
+        return results
     except ray.exceptions.WorkerCrashedError:
-        return BagResult(task, "failed", f"its worker process died {ATTEMPTS} times")
-    except ray.exceptions.RayError as e:  # one bag's bug or a node lost is its row
+        return [BagResult(t, "failed", f"its worker process died {ATTEMPTS} times") for t in batch]
+    except ray.exceptions.RayError as e:
         cause = getattr(e, "cause", None) or e
-        return BagResult(
-            task, "failed", _reason(f"internal error: {type(cause).__name__}: {cause}")
-        )
+        why = _reason(f"internal error: {type(cause).__name__}: {cause}")
+        return [BagResult(t, "failed", why) for t in batch]
 
 
 def import_ray() -> Any:

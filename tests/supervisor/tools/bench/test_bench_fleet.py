@@ -5,10 +5,14 @@ asserted here."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
+import os
+import signal
 import subprocess
 import sys
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -48,3 +52,99 @@ def test_a_small_fleet_bench_measures_each_run_and_resumes_without_reading_again
         assert all(_positive(v) for v in got[part]["ns_per_message"].values()), got[part]
     assert "goal >= 1.8x" in run.stdout and "goal <= 300 MB" in run.stdout
     assert not list(tmp_path.glob("fleet-bench-*"))  # its archive removed at the end
+
+
+needs_ray = pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None,
+    reason="ray is not installed (pip install 'safety-supervisor[fleet]')",
+)
+BENCH = [sys.executable, "-m", "supervisor.tools.bench.fleet", "--bags", "12", "--robots", "2",
+         "--messages", "1000", "--split-messages", "2000"]  # fmt: skip
+
+
+def _stat(pid: int | str) -> list[str]:
+    return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+
+
+def _session(sid: int) -> list[int]:
+    """The processes of session ``sid`` still running (a zombie has stopped)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        try:
+            fields = _stat(d.name)
+        except (OSError, IndexError):
+            continue  # not a process, or one that has just exited
+        if int(fields[3]) == sid and fields[0] != "Z":
+            out.append(int(d.name))
+    return out
+
+
+def _bench(*args: str) -> subprocess.Popen[str]:
+    """The bench in a session of its own: what it starts and leaves running is found
+    there (its cluster's head starts a session of its own, named in its JSON)."""
+    return subprocess.Popen(
+        [*BENCH, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True,
+    )  # fmt: skip
+
+
+@needs_ray
+@pytest.mark.slow
+def test_the_bench_times_ray_on_a_running_cluster_apart_from_its_start_and_stop(tmp_path):
+    out = tmp_path / "fleet.json"
+    bench = _bench("--tmp", str(tmp_path), "--json", str(out))
+    stdout, stderr = bench.communicate(timeout=600)
+    assert bench.returncode == 0 and "Traceback" not in stderr, stderr
+    got = json.loads(out.read_text())
+    assert [r["args"] for r in got["runs"]] == [
+        "--jobs 1", "--jobs 2", "--jobs 2 --engine ray",
+        "--jobs 2 --engine ray --address (a running cluster)",
+    ]  # fmt: skip
+    for r in got["runs"]:
+        assert "12 bags (12 read, 0 skipped, 0 damaged, 0 failed)" in r["summary"], r
+        assert all(_positive(r[k]) for k in ("wall_s", "rate", "cpu_s", "peak_worker_mb")), r
+    assert got["runs"][-1]["workers"] == 2  # the cluster's task workers, not its agents
+    cluster = got["cluster"]
+    assert _positive(cluster["start_s"]) and _positive(cluster["stop_s"])
+    assert cluster["left"] == 0  # every process of the cluster stopped with its head
+    assert f"started in {cluster['start_s']:.1f} s, stopped in" in stdout
+    assert "Ray against the pool, on the running cluster:" in stdout
+    # nothing outlives the bench: neither its cluster nor its runs
+    assert not _session(cluster["pid"]) and not _session(bench.pid)
+    assert not list(tmp_path.glob("fleet-bench-*"))
+
+
+def _joining(bench: int) -> int | None:
+    """The running cluster's head (``ray start --head``, a child of the bench) once a
+    ``fleet replay --address`` run is on it."""
+    heads, joins = [], False
+    for d in Path("/proc").iterdir():
+        try:
+            fields, cmd = _stat(d.name), (d / "cmdline").read_bytes().split(b"\0")
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) != bench:
+            continue
+        joins |= b"--address" in cmd and b"replay" in cmd
+        if b"--head" in cmd:
+            heads.append(int(d.name))
+    return heads[0] if joins and heads else None
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_bench_interrupted_during_the_run_on_its_cluster_leaves_no_process(tmp_path):
+    from rosutil import wait_until
+
+    bench = _bench("--tmp", str(tmp_path), "--messages", "40000")
+    try:
+        head = wait_until("the run on the bench's cluster", lambda: _joining(bench.pid), 300)
+        os.kill(bench.pid, signal.SIGINT)  # Ctrl-C: the bench alone (its runs have sessions)
+        _, stderr = bench.communicate(timeout=120)
+    finally:
+        bench.kill()
+        bench.wait()
+    assert bench.returncode == 130 and "Traceback" not in stderr, stderr
+    assert "fleet: interrupted" in stderr
+    assert not _session(head) and not _session(bench.pid)
+    assert not list(tmp_path.glob("fleet-bench-*"))

@@ -279,6 +279,57 @@ def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_pa
         os.kill(raylet, 0)
 
 
+def _ray_worker_reading(cli: int, bag: str) -> int | None:
+    """A Ray worker of the command's own local cluster with a file of ``bag`` open."""
+    for pid in _descendants(cli):
+        try:
+            if not Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::"):
+                continue
+            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
+        except OSError:
+            continue
+        if any(f.startswith(bag + "/") for f in fds):
+            return pid
+    return None
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_ray_worker_killed_in_the_middle_of_a_task_of_several_bags_reruns_them_once(tmp_path):
+    """A Ray task runs several bags (engine.RAY_BATCH): killed after its first bag, the
+    task is retried whole, and each of its bags is written once, none lost."""
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
+    for i, bag in enumerate(bags):
+        write_bag(bag, messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    clean, killed = tmp_path / "clean", tmp_path / "killed"
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    # one CPU: the tasks run one at a time, in order; 12 bags in a window of 4 tasks
+    # make the first task b00-b02, so a worker reading b01 has finished b00 in it
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(killed), "--jobs", "1", "--engine", "ray"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
+    )  # fmt: skip
+    try:
+        victim = wait_until(
+            "a Ray worker reading b01", lambda: _ray_worker_reading(proc.pid, str(bags[1])), 120
+        )
+        os.kill(victim, signal.SIGKILL)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 0 and "Traceback" not in err, err
+    assert "12 bags (12 read, 0 skipped, 0 damaged, 0 failed)" in out, out
+    want = query(ROWS.format(VIOLATIONS.format(clean)))
+    assert want and query(ROWS.format(VIOLATIONS.format(killed))) == want
+    assert query(BAG_ROWS.format(BAGS.format(killed))) == query(BAG_ROWS.format(BAGS.format(clean)))
+
+
 def _named(pid: int, name: bytes) -> bool:
     try:
         argv0 = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0]
@@ -316,6 +367,36 @@ def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
     # a bad requirement in the compared config: its file and line, nothing written
     other.write_text(other.read_text().replace("speed <= 2.5", "speed <=> 2.5"))
     bad = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", "--compare", other, ok=(1,))
+    lines = [line for line in bad.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"{other}:"), bad.stderr
+    assert not (tmp_path / "ds2").exists()
+
+
+@needs_ray
+@pytest.mark.slow
+def test_on_a_ray_cluster_the_parent_leaves_the_configs_compile_to_its_workers(
+    tmp_path, ray_cluster
+):
+    """As with the pool: the parent compiled each config before joining the cluster, a
+    serial part of every run (docs/BENCHMARKS.md, "Fleet"); the cluster's workers now
+    compile it as they start, and a bad config is still one line with its place."""
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 300))
+    cfg = config(tmp_path)
+    other = config(tmp_path, "other.yaml", limit=2.5)
+    args = [cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", other, "--engine",
+            "ray", "--address", ray_cluster]  # fmt: skip
+    run = subprocess.run(
+        [sys.executable, "-c", COMPILED_HERE, "fleet", "replay", *map(str, args)],
+        capture_output=True, text=True, timeout=300, env=RAY_ENV,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines()[-1] == "COMPILED BY THE WORKERS []", run.stdout
+    assert "2 bags (2 read," in run.stdout
+    other.write_text(other.read_text().replace("speed <= 2.5", "speed <=> 2.5"))
+    bad = fleet_ray(
+        cfg, tmp_path / "fleet", "-o", tmp_path / "ds2", "--compare", other, "--address",
+        ray_cluster, ok=(1,),
+    )  # fmt: skip
     lines = [line for line in bad.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"{other}:"), bad.stderr
     assert not (tmp_path / "ds2").exists()
