@@ -71,11 +71,12 @@ def _init(done: Collection[str], writes_to: Path | None = None) -> None:
         _writer = ThreadPoolExecutor(1, thread_name_prefix="fleet-write")
 
 
-def _one(task: BagTask) -> BagResult:
+def _one(task: BagTask, done: Collection[str]) -> BagResult:
+    """One bag of a call, in either engine's worker: its bug is its row, not its call's."""
     try:
-        return run_task(task, _done)
+        return run_task(task, done)
     except Exception as e:  # noqa: BLE001 - one bag's bug is its row, not its batch's
-        return BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
+        return _internal(task, e)
 
 
 class WriteFailed(Exception):
@@ -90,12 +91,12 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
     results are returned, without their tables, once every file is durable: done
     means written.  A write error stops the call before its next bag."""
     if _dataset is None or _writer is None:
-        return [_one(t) for t in tasks]
+        return [_one(t, _done) for t in tasks]
     writes: list[tuple[Future[None], BagResult]] = []
     for t in tasks:
         if any(f.done() and f.exception() is not None for f, _ in writes):
             break  # a write failed (a full disk): the run stops, the rest is not replayed
-        result = _one(t)
+        result = _one(t, _done)
         # the table stays with its write alone: a call does not hold all its bags' tables
         writes.append(
             (_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result.without_table())
@@ -394,15 +395,7 @@ def _run_ray(tasks: list[BagTask], done: Collection[str]) -> list[BagResult]:
     code).  Several bags a task, as the pool's calls: each Ray task costs its worker
     and this process milliseconds of their CPU, as much as a small bag's replay
     (docs/BENCHMARKS.md, "Fleet")."""
-    out = []
-    for task in tasks:
-        try:
-            out.append(run_task(task, done))
-        except Exception as e:  # noqa: BLE001 - one bag's bug is its row, not its batch's
-            out.append(
-                BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
-            )
-    return out
+    return [_one(task, done) for task in tasks]
 
 
 class RayEngine:
