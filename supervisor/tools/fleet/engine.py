@@ -205,7 +205,11 @@ class LocalEngine:
         False when no worker was started (the caller compiles them)."""
         if not self.warm:
             return False
-        for error in self.warm[0].result()[1]:
+        try:
+            first = self.warm[0].result()
+        except BrokenProcessPool:  # its worker died (out of memory): the caller compiles
+            return False
+        for error in first[1]:
             if error is not None:
                 raise config_error(error)
         return True
@@ -217,13 +221,14 @@ class LocalEngine:
         with uninterrupted():
             self._stop_started()
             if self._live is not None:  # a run whose own stop was cut short (Ctrl-C)
-                _halt(self._live, {})
+                _halt(self._live)
                 self._live.shutdown(wait=True, cancel_futures=True)
                 self._live = None
             server.stop()
 
     def _stop_started(self) -> None:
         if self._started is not None:
+            _halt(self._started[0])  # its workers only compile: nothing to finish
             self._started[0].shutdown(wait=True, cancel_futures=True)
             self._started = None
         self.warm = []
@@ -268,18 +273,20 @@ class LocalEngine:
             self._live = pool
             window = self.window * self.jobs
             broken: list[list[tuple[BagTask, int]]] = []  # the calls the pool's break took
+            unrun: list[tuple[BagTask, int]] = []  # sent to a pool already broken: not run
             running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]] = {}
             whole = False
             try:
                 while True:
-                    while not broken and len(running) < window:
+                    while not (broken or unrun) and len(running) < window:
                         batch = self._next(todo, retry, left, running)
                         if not batch:
                             break
                         try:
                             running[pool.submit(_run, [t for t, _ in batch])] = batch
                         except BrokenProcessPool:  # a worker died: the next pool runs them
-                            broken.append(batch)
+                            unrun.extend(batch)
+                            break
                     if not running:
                         break
                     finished, _ = wait(running, return_when=FIRST_COMPLETED)
@@ -309,12 +316,16 @@ class LocalEngine:
             finally:
                 with uninterrupted():  # a second Ctrl-C cannot leave workers behind
                     if not whole:  # closed early (an error, Ctrl-C): stop now (``_halt``)
-                        _halt(pool, running)
+                        _halt(pool)
                     pool.shutdown(wait=True, cancel_futures=True)
                     self._live = None
             # The pool's workers are all gone now (a break terminates them all): a row
             # a worker committed before is final, and a bag without one is charged an
             # attempt, whichever worker died, as concurrent.futures does not say which.
+            # A bag on its last attempt is failed only when its call was the only one
+            # in flight: then the death was its own; beside others it goes again.
+            alone = len(broken) == 1
+            retry.extend(unrun)
             for batch in broken:
                 for task, n in batch:
                     if (r := _committed(written, task, since)) is not None:
@@ -322,9 +333,11 @@ class LocalEngine:
                         yield r
                     elif n < ATTEMPTS:
                         retry.append((task, n + 1))
-                    else:
+                    elif alone:
                         left -= 1
                         yield BagResult(task, "failed", f"its worker process died {n} times")
+                    else:
+                        retry.append((task, n))
 
     def _next(
         self,
@@ -335,7 +348,8 @@ class LocalEngine:
     ) -> list[tuple[BagTask, int]]:
         """The next call's bags: a retried bag alone, and while a bag on its last
         attempt is in flight no other such bag, so that a bag that kills its worker
-        fails alone, not the bags retried beside it; else fresh bags (``_batch``)."""
+        is the only last-attempt bag its death can take down (``results`` fails such a
+        bag only when its call was the only one in flight); else fresh bags."""
         if retry:
             last = retry[0][1] >= ATTEMPTS
             if not last or not any(b[0][1] >= ATTEMPTS for b in running.values()):
@@ -367,14 +381,14 @@ def _internal(task: BagTask, e: Exception) -> BagResult:
     return BagResult(task, "failed", _reason(f"internal error: {type(e).__name__}: {e}"))
 
 
-def _halt(pool: ProcessPoolExecutor, running: dict[Future[list[BagResult]], Any]) -> None:
-    """Stop a pool now: the calls not started cancelled, and its workers killed rather
-    than left to finish the calls they hold (up to ``batch`` bags each).  A killed
-    worker leaves no partial file (supervisor/files.py): a bag without its row is not
-    finished, and the next run replays it.  Python 3.11's pool cannot terminate its
+def _halt(pool: ProcessPoolExecutor) -> None:
+    """Stop a pool now: its workers killed rather than left to finish the calls they
+    hold (up to ``batch`` bags each).  A killed worker leaves no partial file under a
+    name a reader reads (supervisor/files.py; at most a hidden temporary): a bag
+    without its row is not finished, and the next run replays it.  Python 3.11's pool cannot terminate its
     workers (``terminate_workers`` is 3.14's), so they are taken from its process list."""
-    for f in running:
-        f.cancel()
+    # the calls not started are cancelled by the caller's shutdown(cancel_futures=True),
+    # in the pool's own thread: a cancel() here races its marking them broken
     processes = getattr(pool, "_processes", None)
     for process in list(processes.values()) if isinstance(processes, dict) else []:
         with contextlib.suppress(OSError, ValueError, AttributeError):
@@ -508,7 +522,12 @@ class RayEngine:
                     batch = running.pop(ref)
                     if unsent:
                         send()
-                    yield from _ray_results(ray, ref, batch)
+                    results = _ray_results(ray, ref, batch)
+                    if results is None:  # a task of several bags failed: each goes alone,
+                        for t in batch:  # so one bag's death is not its neighbours' row
+                            running[remote.remote([t], done_ref)] = [t]
+                        continue
+                    yield from results
         finally:
             # closed early (an error, Ctrl-C): the tasks not finished are cancelled
             for ref in running:
@@ -563,19 +582,22 @@ def _reachable(address: str) -> None:
         ) from None
 
 
-def _ray_results(ray: Any, ref: Any, batch: list[BagTask]) -> list[BagResult]:
+def _ray_results(ray: Any, ref: Any, batch: list[BagTask]) -> list[BagResult] | None:
     """A Ray task's results, or each of its bags failed with the reason: its worker
     died on every attempt (Ray retried the whole task; nothing of it was written),
-    or a node was lost."""
+    or a node was lost.  None for a task of several bags that failed: which of its
+    bags failed it is not known, and the caller sends each again alone."""
     try:
         results: list[BagResult] = ray.get(ref)
         return results
-    except ray.exceptions.WorkerCrashedError:
-        return [BagResult(t, "failed", f"its worker process died {ATTEMPTS} times") for t in batch]
     except ray.exceptions.RayError as e:
+        if len(batch) > 1:
+            return None
+        if isinstance(e, ray.exceptions.WorkerCrashedError):
+            return [BagResult(batch[0], "failed", f"its worker process died {ATTEMPTS} times")]
         cause = getattr(e, "cause", None) or e
         why = _reason(f"internal error: {type(cause).__name__}: {cause}")
-        return [BagResult(t, "failed", why) for t in batch]
+        return [BagResult(batch[0], "failed", why)]
 
 
 def import_ray() -> Any:

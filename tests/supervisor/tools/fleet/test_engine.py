@@ -692,6 +692,56 @@ def test_a_bag_that_kills_its_worker_each_time_fails_alone(tmp_path):
     assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (n, n)
 
 
+TWO_POISONS = """
+import argparse, sys
+from pathlib import Path
+from supervisor.tools.fleet import server
+from supervisor.tools.fleet.command import _replay
+from supervisor.tools.fleet.dataset import Dataset
+from supervisor.tools.fleet.engine import LocalEngine
+cfg, root, ds = sys.argv[1:4]
+args = argparse.Namespace(config=cfg, compare=None, archives=[root], robot_from=None,
+                          output=ds, quiet=True)
+# one bag a call and one call per worker: a bag retried on its last attempt runs beside
+# a fresh bag, which may be the next one that kills its worker
+engine = LocalEngine(2, Path(ds), batch=1, window=1)
+try:
+    sys.exit(_replay(args, engine, None, Dataset(Path(ds), make=False).done(), set()))
+finally:
+    engine.close()
+    server.stop()
+"""
+
+
+@pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
+def test_two_bags_that_kill_their_workers_fail_and_no_bag_beside_them(tmp_path):
+    # strace SIGKILLs whichever process opens b00's or b04's file.  Each death takes
+    # down the bag beside it too; a bag on its last attempt is failed only when its
+    # call was the only one in flight, so the healthy bags all end read.
+    from supervisor.tools.fleet.engine import ATTEMPTS
+
+    root = tmp_path / "fleet"
+    bags = _tiny_fleet(root)
+    for extra in bags[12:]:
+        shutil.rmtree(extra)
+    bags = bags[:12]
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    poisons = [next(bags[i].glob("*.mcap")) for i in (0, 4)]
+    run = subprocess.run(
+        _strace("-P", str(poisons[0]), "-P", str(poisons[1]), "-e", "trace=openat",
+                "-e", "inject=openat:signal=KILL",
+                sys.executable, "-c", TWO_POISONS, str(cfg), str(root), str(ds)),
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert run.returncode == 1 and "Traceback" not in run.stderr, run.stderr
+    assert "12 bags (10 read, 0 skipped, 0 damaged, 2 failed)" in run.stdout, run.stdout
+    assert query(f"SELECT bag, reason FROM {BAGS.format(ds)} WHERE status <> 'read'") == [
+        (str(bags[0]), f"its worker process died {ATTEMPTS} times"),
+        (str(bags[4]), f"its worker process died {ATTEMPTS} times"),
+    ]
+
+
 def test_the_local_pool_with_the_parent_writing_gives_the_workers_dataset(tmp_path):
     """``LocalEngine(writes_to=None)``: results come back with their tables and the
     parent writes them (``Writers``, as for Ray); the same rows as the workers write."""
