@@ -19,6 +19,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -328,6 +329,54 @@ def test_a_ray_worker_killed_in_the_middle_of_a_task_of_several_bags_reruns_them
     want = query(ROWS.format(VIOLATIONS.format(clean)))
     assert want and query(ROWS.format(VIOLATIONS.format(killed))) == want
     assert query(BAG_ROWS.format(BAGS.format(killed))) == query(BAG_ROWS.format(BAGS.format(clean)))
+
+
+@needs_ray
+@pytest.mark.slow
+def test_a_bag_that_kills_its_ray_worker_each_time_fails_alone_not_its_task(tmp_path):
+    """A bag whose worker dies on every attempt, in a Ray task of several bags: the
+    task fails whole after Ray's retries, then each of its bags goes alone, so only
+    that bag is failed and its neighbours are read."""
+    import threading
+
+    from supervisor.tools.fleet.engine import ATTEMPTS
+
+    root = tmp_path / "fleet"
+    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
+    for i, bag in enumerate(bags):
+        write_bag(bag, messages(10 + i, 40000))
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    # one CPU: 12 bags in a window of 4 tasks make the first task b00-b02
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1", "--engine", "ray"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
+    )  # fmt: skip
+    kills = []
+
+    def killer() -> None:  # every worker that opens b01 is killed, until the run ends
+        while proc.poll() is None:
+            victim = _ray_worker_reading(proc.pid, str(bags[1]))
+            if victim:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(victim, signal.SIGKILL)
+                    kills.append(victim)
+            time.sleep(0.005)  # polling interval, not synchronisation
+
+    thread = threading.Thread(target=killer)
+    thread.start()
+    try:
+        out, err = proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+        thread.join()
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    assert "12 bags (11 read, 0 skipped, 0 damaged, 1 failed)" in out, (out, kills)
+    assert query(f"SELECT bag, reason FROM {BAGS.format(ds)} WHERE status <> 'read'") == [
+        (str(bags[1]), f"its worker process died {ATTEMPTS} times")
+    ]
 
 
 def _named(pid: int, name: bytes) -> bool:
