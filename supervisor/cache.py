@@ -89,21 +89,24 @@ def _close_all(held: dict[str, int]) -> None:
 @contextlib.contextmanager
 def _locked(item: Path, how: int) -> Iterator[None]:
     """The item's lock file (made on first use, never a symbolic link) held ``how``;
-    a checker of a cache it cannot write (read-only media) reads without it."""
+    a checker that cannot make or lock it (read-only media, a full disk, a quota, a
+    filesystem without locks) reads without it: the digest still guards the item."""
+    fd: int | None = None
     try:
         fd = os.open(
             item.with_name(item.name + ".lock"), os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o600
         )
-    except OSError as e:
-        if how != fcntl.LOCK_SH or e.errno not in (errno.EROFS, errno.EACCES):
-            raise
-        yield  # nobody can put into it either
-        return
-    try:
         fcntl.flock(fd, how)
+    except OSError:
+        if how != fcntl.LOCK_SH:
+            if fd is not None:
+                os.close(fd)
+            raise
+    try:
         yield
     finally:
-        os.close(fd)
+        if fd is not None:
+            os.close(fd)
 
 
 def _digest(path: Path) -> str:

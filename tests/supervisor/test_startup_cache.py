@@ -503,3 +503,23 @@ def test_two_builders_of_one_entry_never_make_a_reader_call_it_damaged(tmp_path:
         assert "damaged" not in err, err
     for out, _ in outs:
         assert int(out.split()[1]) >= 300, out
+
+
+def test_an_item_whose_lock_cannot_be_taken_is_still_read(tmp_path: Path) -> None:
+    """A checker that cannot make or lock the item's lock file (read-only media, a full
+    disk, a filesystem without locks; here the name is taken by a directory) reads
+    the item as before items had locks: its digest still guards it."""
+    root = tmp_path / "cache"
+    root.mkdir(mode=0o700)
+    key = hashlib.sha256(b"no lock").hexdigest()
+    c = cache.Cache(root)
+    path = c.put(key, "item", b"monitor")
+    c.close()
+    assert path is not None
+    (root / key / "item.lock").unlink()
+    (root / key / "item.lock").mkdir()
+    c = cache.Cache(root)
+    try:
+        assert c.read(key, "item") == b"monitor"
+    finally:
+        c.close()
