@@ -429,27 +429,41 @@ def test_a_reader_never_loses_an_entry_to_a_concurrent_pruner(tmp_path: Path) ->
     the entry again and again, a pruner removes it whenever nobody holds it, and
     readers read it.  A reader sees the whole entry or a miss, never a file
     removed under it (FileNotFoundError) or half an entry."""
+    looping, counted = _race(tmp_path, RACER, ["writer"], ["pruner", "reader", "reader"])
+    ((code, _, err),) = looping
+    assert code == 0, err
+    for code, out, err in counted:
+        assert code == 0 and "Traceback" not in err, err
+        role, count = out.split()
+        assert int(count) >= 30, out  # the race was run: entries read and pruned
+
+
+def _race(
+    tmp_path: Path, script: str, looping: list[str], counting: list[str]
+) -> tuple[list[tuple[int, str, str]], list[tuple[int, str, str]]]:
+    """Processes running ``script`` (argv: cache root, key, role, stop file) on one
+    cache: the ``counting`` roles run until they have counted enough, then the
+    ``looping`` ones are told to stop; each one's exit code, stdout and stderr."""
     root = tmp_path / "cache"
     root.mkdir(mode=0o700)
     stop = tmp_path / "stop"
-    key = hashlib.sha256(b"raced").hexdigest()
+    key = hashlib.sha256(script.encode()).hexdigest()
 
-    def racer(role: str) -> subprocess.Popen[str]:
-        argv = [sys.executable, "-c", RACER, str(root), key, role, str(stop)]
+    def start(role: str) -> subprocess.Popen[str]:
+        argv = [sys.executable, "-c", script, str(root), key, role, str(stop)]
         return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
-    writer = racer("writer")
-    others = [racer("pruner"), racer("reader"), racer("reader")]
+    loops = [start(r) for r in looping]
+    counts = [start(r) for r in counting]
     try:
-        outs = [p.communicate(timeout=180) for p in others]
+        counted = [p.communicate(timeout=180) for p in counts]
     finally:
         stop.touch()
-        w_out, w_err = writer.communicate(timeout=60)
-    assert writer.returncode == 0, w_err
-    for p, (out, err) in zip(others, outs, strict=True):
-        assert p.returncode == 0 and "Traceback" not in err, err
-        role, count = out.split()
-        assert int(count) >= 30, out  # the race was run: entries read and pruned
+        looped = [p.communicate(timeout=60) for p in loops]
+    return (
+        [(p.returncode, o, e) for p, (o, e) in zip(loops, looped, strict=True)],
+        [(p.returncode, o, e) for p, (o, e) in zip(counts, counted, strict=True)],
+    )
 
 
 PUTTER = """
@@ -482,26 +496,11 @@ def test_two_builders_of_one_entry_never_make_a_reader_call_it_damaged(tmp_path:
     compiling one config into a cold cache) whose bytes differ: a reader between one's
     item and its digest would see the other's digest.  It sees either whole item,
     never a "damaged" one that it then removes from under both."""
-    root = tmp_path / "cache"
-    root.mkdir(mode=0o700)
-    stop = tmp_path / "stop"
-    key = hashlib.sha256(b"two builders").hexdigest()
-
-    def putter(role: str) -> subprocess.Popen[str]:
-        argv = [sys.executable, "-c", PUTTER, str(root), key, role, str(stop)]
-        return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-    builders = [putter("a"), putter("b")]
-    readers = [putter("reader"), putter("reader")]
-    try:
-        outs = [p.communicate(timeout=180) for p in readers]
-    finally:
-        stop.touch()
-        built = [p.communicate(timeout=60) for p in builders]
-    for p, (_out, err) in zip(builders + readers, built + outs, strict=True):
-        assert p.returncode == 0 and "Traceback" not in err, err
+    builders, readers = _race(tmp_path, PUTTER, ["a", "b"], ["reader", "reader"])
+    for code, _, err in builders + readers:
+        assert code == 0 and "Traceback" not in err, err
         assert "damaged" not in err, err
-    for out, _ in outs:
+    for _, out, _ in readers:
         assert int(out.split()[1]) >= 300, out
 
 
