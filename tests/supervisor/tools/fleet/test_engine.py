@@ -20,7 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -225,26 +225,9 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
-def _ray_worker_reading_a_bag(cli: int) -> int | None:
-    """A Ray worker of the command's own local cluster (``ray::`` in its process title)
-    with a bag's file open: it is in the middle of a task."""
-    for pid in _descendants(cli):
-        try:
-            if not Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::"):
-                continue
-            fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
-        except OSError:
-            continue
-        if any(f.endswith((".mcap", ".db3")) for f in fds):
-            return pid
-    return None
-
-
 @needs_ray
 @pytest.mark.slow
 def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
-    from rosutil import wait_until
-
     root = tmp_path / "fleet"
     for i in range(4):
         write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
@@ -252,21 +235,15 @@ def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_pa
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
     # the command starts its own local cluster of one CPU: one worker, one task at a time
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(killed), "--jobs", "1", "--engine", "ray"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
-    )  # fmt: skip
-    try:
-        victim = wait_until(
-            "a Ray worker reading a bag", lambda: _ray_worker_reading_a_bag(proc.pid), 120
-        )
-        (raylet,) = [p for p in _descendants(proc.pid) if _named(p, b"raylet")]
-        os.kill(victim, signal.SIGKILL)
-        out, err = proc.communicate(timeout=300)
-    finally:
-        proc.kill()
-        proc.wait()
+    proc = _ray_fleet(cfg, root, killed)
+    raylets: list[int] = []
+
+    def a_worker_reading_a_bag() -> int | None:
+        raylets[:] = [p for p in _descendants(proc.pid) if _named(p, b"raylet")]
+        return _ray_worker_reading(proc.pid)
+
+    out, err = _killed_once(proc, "a Ray worker reading a bag", a_worker_reading_a_bag)
+    (raylet,) = raylets
     assert proc.returncode == 0 and "Traceback" not in err, err
     assert "4 bags (4 read, 0 skipped, 0 damaged, 0 failed)" in out
     want = query(ROWS.format(VIOLATIONS.format(clean)))
@@ -280,8 +257,9 @@ def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_pa
         os.kill(raylet, 0)
 
 
-def _ray_worker_reading(cli: int, bag: str) -> int | None:
-    """A Ray worker of the command's own local cluster with a file of ``bag`` open."""
+def _ray_worker_reading(cli: int, bag: str | None = None) -> int | None:
+    """A Ray worker of the command's own local cluster (``ray::`` in its process title)
+    with a file of ``bag`` open, or of any bag: it is in the middle of a task."""
     for pid in _descendants(cli):
         try:
             if not Path(f"/proc/{pid}/cmdline").read_bytes().startswith(b"ray::"):
@@ -289,9 +267,43 @@ def _ray_worker_reading(cli: int, bag: str) -> int | None:
             fds = [os.readlink(f) for f in Path(f"/proc/{pid}/fd").iterdir()]
         except OSError:
             continue
-        if any(f.startswith(bag + "/") for f in fds):
+        if any(f.startswith(bag + "/") if bag else f.endswith((".mcap", ".db3")) for f in fds):
             return pid
     return None
+
+
+def _ray_fleet(cfg: Path, root: Path, out: Path) -> subprocess.Popen[str]:
+    """``fleet replay --engine ray`` on a local cluster of one CPU that it starts: one
+    worker, the tasks one at a time, in order."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(out), "--jobs", "1", "--engine", "ray"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
+    )  # fmt: skip
+
+
+def _killed_once(
+    proc: subprocess.Popen[str], what: str, find: Callable[[], int | None]
+) -> tuple[str, str]:
+    """The process ``find`` names (once it does) SIGKILLed, and the command's output
+    once it ends."""
+    from rosutil import wait_until
+
+    try:
+        os.kill(wait_until(what, find, 120), signal.SIGKILL)
+        return proc.communicate(timeout=300)
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def _twelve_bags(root: Path) -> list[Path]:
+    """b00..b11 of one robot, 40,000 messages each: in a window of 4 Ray tasks on one
+    CPU, the first task is b00-b02."""
+    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
+    for i, bag in enumerate(bags):
+        write_bag(bag, messages(10 + i, 40000))
+    return bags
 
 
 @needs_ray
@@ -299,31 +311,18 @@ def _ray_worker_reading(cli: int, bag: str) -> int | None:
 def test_a_ray_worker_killed_in_the_middle_of_a_task_of_several_bags_reruns_them_once(tmp_path):
     """A Ray task runs several bags (engine.RAY_BATCH): killed after its first bag, the
     task is retried whole, and each of its bags is written once, none lost."""
-    from rosutil import wait_until
 
     root = tmp_path / "fleet"
-    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
-    for i, bag in enumerate(bags):
-        write_bag(bag, messages(10 + i, 40000))
+    bags = _twelve_bags(root)
     cfg = config(tmp_path)
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
     # one CPU: the tasks run one at a time, in order; 12 bags in a window of 4 tasks
     # make the first task b00-b02, so a worker reading b01 has finished b00 in it
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(killed), "--jobs", "1", "--engine", "ray"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
-    )  # fmt: skip
-    try:
-        victim = wait_until(
-            "a Ray worker reading b01", lambda: _ray_worker_reading(proc.pid, str(bags[1])), 120
-        )
-        os.kill(victim, signal.SIGKILL)
-        out, err = proc.communicate(timeout=300)
-    finally:
-        proc.kill()
-        proc.wait()
+    proc = _ray_fleet(cfg, root, killed)
+    out, err = _killed_once(
+        proc, "a Ray worker reading b01", lambda: _ray_worker_reading(proc.pid, str(bags[1]))
+    )
     assert proc.returncode == 0 and "Traceback" not in err, err
     assert "12 bags (12 read, 0 skipped, 0 damaged, 0 failed)" in out, out
     want = query(ROWS.format(VIOLATIONS.format(clean)))
@@ -342,17 +341,11 @@ def test_a_bag_that_kills_its_ray_worker_each_time_fails_alone_not_its_task(tmp_
     from supervisor.tools.fleet.engine import ATTEMPTS
 
     root = tmp_path / "fleet"
-    bags = [root / "robot-a" / f"b{i:02d}" for i in range(12)]
-    for i, bag in enumerate(bags):
-        write_bag(bag, messages(10 + i, 40000))
+    bags = _twelve_bags(root)
     cfg = config(tmp_path)
     ds = tmp_path / "ds"
     # one CPU: 12 bags in a window of 4 tasks make the first task b00-b02
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(ds), "--jobs", "1", "--engine", "ray"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=RAY_ENV,
-    )  # fmt: skip
+    proc = _ray_fleet(cfg, root, ds)
     kills = []
 
     def killer() -> None:  # every worker that opens b01 is killed, until the run ends
