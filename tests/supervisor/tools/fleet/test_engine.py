@@ -30,6 +30,7 @@ from tests.supervisor.tools.fleet.test_fleet_replay import (
     VIOLATIONS,
     archive,
     fleet,
+    four_bags_and_a_clean_run,
     query,
 )
 from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
@@ -228,12 +229,7 @@ def _descendants(pid: int) -> list[int]:
 @needs_ray
 @pytest.mark.slow
 def test_a_ray_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
-    root = tmp_path / "fleet"
-    for i in range(4):
-        write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
-    cfg = config(tmp_path)
-    clean, killed = tmp_path / "clean", tmp_path / "killed"
-    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    root, cfg, clean, killed = four_bags_and_a_clean_run(tmp_path)
     # the command starts its own local cluster of one CPU: one worker, one task at a time
     proc = _ray_fleet(cfg, root, killed)
     raylets: list[int] = []

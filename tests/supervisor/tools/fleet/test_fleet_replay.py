@@ -255,15 +255,23 @@ def _reading_a_bag(parent: int) -> int | None:
     return None
 
 
-def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
-    from rosutil import wait_until
-
+def four_bags_and_a_clean_run(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
+    """Four 40,000-message bags of two robots, long enough to kill a worker in one,
+    and a clean run's dataset to compare with: the archive, the config, the clean
+    dataset and the path for the killed run's."""
     root = tmp_path / "fleet"
     for i in range(4):
         write_bag(root / f"robot-{i % 2}" / f"b{i}", messages(10 + i, 40000))
     cfg = config(tmp_path)
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    return root, cfg, clean, killed
+
+
+def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
+    from rosutil import wait_until
+
+    root, cfg, clean, killed = four_bags_and_a_clean_run(tmp_path)
     proc = subprocess.Popen(
         [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
          str(killed), "--jobs", "1"],
