@@ -322,9 +322,7 @@ class LocalEngine:
             # The pool's workers are all gone now (a break terminates them all): a row
             # a worker committed before is final, and a bag without one is charged an
             # attempt, whichever worker died, as concurrent.futures does not say which.
-            # A bag on its last attempt is failed only when its call was the only one
-            # in flight: then the death was its own; beside others it goes again.
-            alone = len(broken) == 1
+            # A bag on its last attempt ran alone (``_next``): its death was its own.
             retry.extend(unrun)
             for batch in broken:
                 for task, n in batch:
@@ -333,11 +331,9 @@ class LocalEngine:
                         yield r
                     elif n < ATTEMPTS:
                         retry.append((task, n + 1))
-                    elif alone:
+                    else:
                         left -= 1
                         yield BagResult(task, "failed", f"its worker process died {n} times")
-                    else:
-                        retry.append((task, n))
 
     def _next(
         self,
@@ -346,14 +342,17 @@ class LocalEngine:
         left: int,
         running: dict[Future[list[BagResult]], list[tuple[BagTask, int]]],
     ) -> list[tuple[BagTask, int]]:
-        """The next call's bags: a retried bag alone, and while a bag on its last
-        attempt is in flight no other such bag, so that a bag that kills its worker
-        is the only last-attempt bag its death can take down (``results`` fails such a
-        bag only when its call was the only one in flight); else fresh bags."""
+        """The next call's bags: a retried bag alone, and a bag on its last attempt
+        alone in the pool (none: wait for the calls in flight to end), so that a bag
+        that kills its worker fails alone and no bag is failed for another's death;
+        else fresh bags (``_batch``).  A death takes at most the calls then in flight
+        to their last attempt, so the bags run alone after it stay few."""
+        if any(b[0][1] >= ATTEMPTS for b in running.values()):
+            return []
         if retry:
-            last = retry[0][1] >= ATTEMPTS
-            if not last or not any(b[0][1] >= ATTEMPTS for b in running.values()):
+            if retry[0][1] < ATTEMPTS or not running:
                 return [retry.popleft()]
+            return []
         return [(t, 1) for t in itertools.islice(todo, self._batch(left, running))]
 
 
