@@ -9,11 +9,14 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from monitors.errors import UserError
 from supervisor.progress import Line
 from supervisor.tools.fleet.report import add_parser as add_report_parser
+
+if TYPE_CHECKING:  # the engines import pyarrow: only once a command needs them
+    from supervisor.tools.fleet.engine import Engine
 
 EXIT_OK, EXIT_FAIL = 0, 1
 MAX_JOBS = 512
@@ -150,7 +153,11 @@ def _fleet(args: argparse.Namespace) -> int:
 
 
 def _replay(
-    args: argparse.Namespace, engine: Any, namespace: str | None, done: Any, done_contents: set[str]
+    args: argparse.Namespace,
+    engine: Engine,
+    namespace: str | None,
+    done: Any,
+    done_contents: set[str],
 ) -> int:
     from supervisor.tools.fleet.archive import list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers
@@ -210,7 +217,7 @@ def _replay(
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
 
 
-def _config_shas(configs: list[Path], engine: Any) -> list[str]:
+def _config_shas(configs: list[Path], engine: Engine) -> list[str]:
     """Each config's SHA-256 (its bytes', as ``Config.sha256``), once it is known to
     compile: a bad config is one error before any bag.  The pool's first worker
     compiles them for its tasks anyway, so this process does not (0.5 s of its CPU per

@@ -35,7 +35,7 @@ from concurrent.futures import (
 )
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
@@ -142,6 +142,22 @@ def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]
     import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
 
     return os.getpid(), [compile_config(c) for c in configs]
+
+
+class Engine(Protocol):
+    """What ``fleet replay`` needs of an engine (command.py): its workers started and
+    the configs compiled by them while the archive is listed, each bag's result as it
+    comes, and everything it started stopped."""
+
+    def start(
+        self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
+    ) -> None: ...
+
+    def checked(self) -> bool: ...
+
+    def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]: ...
+
+    def close(self) -> None: ...
 
 
 class LocalEngine:
