@@ -156,6 +156,10 @@ def _wheelhouse(wheel: Path) -> Path:
             "pip",
             "wheel",
             "--quiet",
+            # sdists (empy, sdnotify) built in an isolated build environment: the
+            # legacy `setup.py bdist_wheel` needs the `wheel` package, which a fresh
+            # virtualenv does not have.
+            "--use-pep517",
             # What an earlier run left here is reused (sdnotify, for one, is an
             # sdist that pip builds into a wheel).
             "--find-links",
