@@ -6,10 +6,17 @@ A bag is what ``replay`` reads as one: a rosbag2 directory (``metadata.yaml``, o
 recording directory of ``run --record`` holds one bag directory per rotation, and each
 is a bag here.  The robot is the first directory under the archive root, or what
 ``--robot-from`` matches.
+
+The archive is untrusted: its names may be any bytes, its links may loop or lead out,
+its trees may be deep.  Links to directories are never followed below a root (nor by
+a glob's ``**``), a tree deeper than ``MAX_DEPTH`` or a directory that cannot be
+listed is an error, and an ARCHIVE that holds no bag is one too: nothing is left out
+without a word (docs/reference/commands.md, "fleet replay").
 """
 
 from __future__ import annotations
 
+import fnmatch
 import glob
 import hashlib
 import os
@@ -50,21 +57,51 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
         roots = _expanded(arg)
         if not roots:
             raise UserError("no such directory, bag or match", file=printable(arg))
+        named = 0
         for root, path in roots:
-            for bag in _bags(path):
+            bags = _bags(path)
+            named += len(bags)
+            for bag in bags:
                 key = os.path.abspath(bag)
                 if key in found:
                     continue
                 if len(found) >= MAX_BAGS:
                     raise UserError(f"more than {MAX_BAGS:,} bags", file=printable(arg))
-                robot, why = _robot(Path(key), Path(os.path.abspath(root)), rule)
-                try:
-                    size, fp = fingerprint(Path(key))
-                except OSError as e:  # gone or unreadable since it was listed: its row says so
-                    fp = hashlib.sha256(key.encode()).hexdigest()  # its row's own key
-                    size, robot, why = 0, None, f"cannot read: {e.strerror or e}"
-                found[key] = BagRef(key, robot, why, size, fp)
-    return [found[k] for k in sorted(found)]
+                found[key] = _ref(key, root, rule)
+        if not named:  # a typo, a FIFO, a file of another kind: said, not a run of nothing
+            raise UserError(
+                "no bag here (a rosbag2 directory, or a .mcap or .db3 file, plain or .zstd)",
+                file=printable(arg),
+            )
+    # a storage file of a bag directory also listed (a glob's ``**`` matches both) is
+    # that bag, not a second one
+    for key in [k for k in found if os.path.dirname(k) in found and os.path.isfile(k)]:
+        del found[key]
+    return sorted(found.values(), key=lambda b: b.path)
+
+
+def _ref(key: str, root: str, rule: re.Pattern[str] | None) -> BagRef:
+    text = _utf8(key)
+    if text is None:  # the dataset's columns are text: the bag's row says why, escaped
+        shown = os.fsencode(key).decode("utf-8", "backslashreplace")
+        fp = hashlib.sha256(os.fsencode(key)).hexdigest()
+        return BagRef(shown, None, "its path is not UTF-8: rename it", 0, fp)
+    robot, why = _robot(Path(key), Path(os.path.abspath(root)), rule)
+    try:
+        size, fp = fingerprint(Path(key))
+    except OSError as e:  # gone or unreadable since it was listed: its row says so
+        fp = hashlib.sha256(key.encode()).hexdigest()  # its row's own key
+        size, robot, why = 0, None, f"cannot read: {e.strerror or e}"
+    return BagRef(key, robot, why, size, fp)
+
+
+def _utf8(path: str) -> str | None:
+    """``path`` when it is UTF-8 (Python keeps other bytes as lone surrogates)."""
+    try:
+        path.encode()
+    except UnicodeEncodeError:
+        return None
+    return path
 
 
 def _expanded(arg: str) -> list[tuple[str, str]]:
@@ -77,8 +114,68 @@ def _expanded(arg: str) -> list[tuple[str, str]]:
                 break
             head.append(part)
         root = str(Path(*head)) if head else "."
-        return [(root, m) for m in sorted(glob.glob(arg, recursive=True))]
+        return [(root, m) for m in sorted(_glob(root, Path(arg).parts[len(head) :]))]
     return [(arg, arg)] if os.path.exists(arg) else []
+
+
+def _glob(root: str, parts: tuple[str, ...]) -> list[str]:
+    """glob.glob's matches of ``root/parts...``, iteratively: a component that is no
+    wildcard is a path (a link is followed, as the user wrote it), ``*`` and ``[..]``
+    match names in one directory, and ``**`` any depth down to ``MAX_DEPTH`` without
+    entering a link (glob.glob walked each path two link loops spell, without end)."""
+    out: list[str] = []
+    todo: list[tuple[str, int, int]] = [(root, 0, 0)]  # path, next part, depth under **
+    while todo:
+        path, i, depth = todo.pop()
+        if i == len(parts):
+            out.append(path)
+            if len(out) > MAX_BAGS:
+                raise UserError(f"more than {MAX_BAGS:,} matches", file=printable(root))
+            continue
+        part = parts[i]
+        if not glob.has_magic(part):
+            child = os.path.join(path, part)
+            if os.path.lexists(child):
+                todo.append((child, i + 1, depth))
+            continue
+        if part == "**":
+            todo.append((path, i + 1, depth))  # no directory at all
+        for name, is_dir, is_link in _names(path):
+            if name.startswith(".") and not part.startswith("."):
+                continue  # as glob.glob: a wildcard matches no hidden name
+            child = os.path.join(path, name)
+            if part == "**":
+                if is_link:
+                    continue  # neither entered nor matched: a link could lead anywhere
+                if is_dir:
+                    if depth >= MAX_DEPTH:
+                        raise _too_deep(child)
+                    todo.append((child, i, depth + 1))
+                elif i + 1 == len(parts):
+                    todo.append((child, i + 1, depth))
+            elif fnmatch.fnmatchcase(name, part):
+                todo.append((child, i + 1, depth))
+    return out
+
+
+def _names(path: str) -> list[tuple[str, bool, bool]]:
+    """The names in the directory ``path``, whether each is a directory itself and
+    whether it is a link; nothing when ``path`` is no directory."""
+    try:
+        with os.scandir(path) as it:
+            return [(e.name, e.is_dir(follow_symlinks=False), e.is_symlink()) for e in it]
+    except NotADirectoryError:
+        return []
+    except OSError as e:
+        raise UserError(f"cannot list: {e.strerror or e}", file=printable(path)) from None
+
+
+def _too_deep(path: str | Path) -> UserError:
+    return UserError(
+        f"directories nested deeper than {MAX_DEPTH} below the archive",
+        file=printable(str(path)),
+        hint="give a directory nearer the bags as ARCHIVE",
+    )
 
 
 def _is_bag_dir(p: Path) -> bool:
@@ -94,6 +191,8 @@ def _bags(path: str) -> list[Path]:
     p = Path(path)
     if p.is_file():
         return [p] if p.name.endswith(BAG_FILES) else []
+    if not p.is_dir():  # a FIFO, a device: no bag (list_archive says so)
+        return []
     out: list[Path] = []
     todo = [(p, 0)]
     while todo:
@@ -101,16 +200,16 @@ def _bags(path: str) -> list[Path]:
         if _is_bag_dir(d):
             out.append(d)
             continue
-        if depth >= MAX_DEPTH:
-            continue
         try:
             children = sorted(d.iterdir())
-        except OSError:
-            continue
+        except OSError as e:  # its bags would be missing without a word
+            raise UserError(f"cannot list: {e.strerror or e}", file=printable(str(d))) from None
         for c in children:
             if c.is_symlink():
                 continue  # an archive is its own tree: a link could lead anywhere
             if c.is_dir():  # a storage file makes its directory a bag (_is_bag_dir)
+                if depth >= MAX_DEPTH:
+                    raise _too_deep(c)
                 todo.append((c, depth + 1))
     return out
 
@@ -159,10 +258,12 @@ def _robot(bag: Path, root: Path, rule: re.Pattern[str] | None) -> tuple[str | N
 
 
 def bag_files(bag: Path) -> list[Path]:
-    """The files that make up ``bag``, sorted: what its content hash reads."""
+    """The files that make up ``bag``, sorted: what its content hash reads.  A link to
+    a file is its target's bytes, as replay reads it: two bags of links (git-annex's
+    layout) hashed as no files at all were one content, and the second was skipped."""
     if bag.is_file():
         return [bag]
-    return sorted(c for c in bag.iterdir() if c.is_file() and not c.is_symlink())
+    return sorted(c for c in bag.iterdir() if c.is_file())
 
 
 def fingerprint(bag: Path) -> tuple[int, str]:
@@ -174,7 +275,8 @@ def fingerprint(bag: Path) -> tuple[int, str]:
     for f in bag_files(bag):
         st = f.stat()
         total += st.st_size
-        h.update(f"{f.name}\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
+        # a name's bytes as they are: a file may be named in any encoding
+        h.update(os.fsencode(f.name) + f"\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
     return total, h.hexdigest()
 
 
@@ -182,7 +284,7 @@ def content_hash(bag: Path) -> str:
     """SHA-256 over the bag's files' names and bytes, in name order."""
     h = hashlib.sha256()
     for f in bag_files(bag):
-        h.update(f.name.encode() + b"\0")
+        h.update(os.fsencode(f.name) + b"\0")
         with f.open("rb") as fh:
             while chunk := fh.read(1 << 20):
                 h.update(chunk)

@@ -192,11 +192,13 @@ def test_robot_from_a_rule_and_a_name_that_is_no_partition(tmp_path):
     [
         (["{cfg}", "{tmp}/nothing-here", "-o", "{tmp}/ds"], "no such directory, bag or match"),
         (["{cfg}", "{tmp}", "-o", "{tmp}/ds", "--robot-from", "x"], "must hold {robot} once"),
-        (["{tmp}/none.yaml", "{tmp}", "-o", "{tmp}/ds"], "none.yaml"),
+        (["{tmp}/none.yaml", "{tmp}/fleet", "-o", "{tmp}/ds"], "none.yaml"),
+        (["{cfg}", "{cfg}", "-o", "{tmp}/ds"], "c.yaml: no bag here"),
     ],
 )
 def test_bad_input_is_one_line(tmp_path, args, message):
     cfg = config(tmp_path)
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 50))
     run = fleet(*[a.format(cfg=cfg, tmp=tmp_path) for a in args], ok=(1,))
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and message in lines[0], run.stderr
