@@ -80,7 +80,7 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
     return sorted(found.values(), key=lambda b: b.path)
 
 
-def _ref(key: str, root: str, rule: re.Pattern[str] | None) -> BagRef:
+def _ref(key: str, root: str, rule: RobotRule | None) -> BagRef:
     text = _utf8(key)
     if text is None:  # the dataset's columns are text: the bag's row says why, escaped
         shown = os.fsencode(key).decode("utf-8", "backslashreplace")
@@ -214,32 +214,88 @@ def _bags(path: str) -> list[Path]:
     return out
 
 
-def robot_rule(rule: str) -> re.Pattern[str]:
-    """``--robot-from``: a path pattern with ``{robot}`` once (one path component),
-    ``*`` (within a component) and ``**`` (any depth), matched against the bag's
-    absolute path, starting at a component."""
+MAX_RULE = 256  # characters of a --robot-from rule
+
+
+@dataclass(frozen=True)
+class RobotRule:
+    """``--robot-from`` compiled: one pattern per directory of the rule, ``None`` for
+    ``**``.  Matched directory by directory (``matches``), never as one regular
+    expression over the whole path: that one backtracked through every way its
+    ``**`` could split a long path, minutes per bag for ``**x**`` and hostile names."""
+
+    parts: tuple[re.Pattern[str] | None, ...]
+
+    def robot(self, path: str) -> str | None:
+        """The robot's name in ``path`` (absolute): the leftmost place where the rule
+        matches whole directories, each ``**`` taking as many as it can."""
+        names = path.split("/")
+        k, n = len(self.parts), len(names)
+        # ok[i][j]: the rule's parts from i match the path's names from j on
+        ok = [[False] * (n + 1) for _ in range(k)] + [[True] * (n + 1)]
+        for i in range(k - 1, -1, -1):
+            part, after = self.parts[i], ok[i + 1]
+            if part is None:
+                later = False
+                for j in range(n, -1, -1):
+                    later = later or after[j]
+                    ok[i][j] = later
+            else:
+                for j in range(n):
+                    ok[i][j] = after[j + 1] and part.fullmatch(names[j]) is not None
+        j = next((j for j in range(n + 1) if ok[0][j]), None)
+        if j is None:
+            return None
+        robot = None
+        for i, part in enumerate(self.parts):
+            if part is None:
+                j = max(x for x in range(j, n + 1) if ok[i + 1][x])
+                continue
+            m = part.fullmatch(names[j])
+            assert m is not None  # ok[i][j]
+            robot = m.groupdict().get("robot") or robot
+            j += 1
+        return robot
+
+
+def robot_rule(rule: str) -> RobotRule:
+    """``--robot-from``: a path pattern with ``{robot}`` once (in one directory), ``*``
+    (within a directory, one per directory) and ``**`` (a whole directory: any
+    depth), matched against the bag's absolute path from a directory on."""
+    hint = "for example '/data/{robot}/**' or 'robot-{robot}'"
     if rule.count("{robot}") != 1:
-        raise UserError(
-            f"--robot-from {printable(rule)!r} must hold {{robot}} once",
-            hint="for example '/data/{robot}/**' or 'robot-{robot}'",
-        )
-    out = []
-    for piece in re.split(r"(\{robot\}|\*\*|\*)", rule):
-        if piece == "{robot}":
-            out.append(r"(?P<robot>[^/]+)")
-        elif piece == "**":
-            out.append(r".*")
-        elif piece == "*":
-            out.append(r"[^/]*")
-        else:
-            out.append(re.escape(piece))
-    return re.compile(r"(?:^|/)" + "".join(out) + r"(?:/|$)")
+        raise UserError(f"--robot-from {printable(rule)!r} must hold {{robot}} once", hint=hint)
+    if len(rule) > MAX_RULE:
+        raise UserError(f"--robot-from is longer than {MAX_RULE} characters", hint=hint)
+    parts: list[re.Pattern[str] | None] = []
+    names = rule.rstrip("/").split("/")
+    for n, name in enumerate(names):
+        if name == "**":
+            parts.append(None)
+            continue
+        if "**" in name or name.count("*") > 1:
+            raise UserError(
+                f"--robot-from {printable(rule)!r}: ** is a directory of its own and a "
+                "directory holds one * at most",
+                hint=hint,
+            )
+        if not name and n > 0:
+            continue  # a doubled slash
+        out = []
+        for piece in re.split(r"(\{robot\}|\*)", name):
+            if piece == "{robot}":
+                out.append(r"(?P<robot>.+)")
+            elif piece == "*":
+                out.append(r".*")
+            else:
+                out.append(re.escape(piece))
+        parts.append(re.compile("".join(out), re.DOTALL))
+    return RobotRule(tuple(parts))
 
 
-def _robot(bag: Path, root: Path, rule: re.Pattern[str] | None) -> tuple[str | None, str | None]:
+def _robot(bag: Path, root: Path, rule: RobotRule | None) -> tuple[str | None, str | None]:
     if rule is not None:
-        m = rule.search(bag.as_posix())
-        name = m.group("robot") if m else None
+        name = rule.robot(bag.as_posix())
         if name is None:
             return None, "--robot-from does not match its path"
     else:

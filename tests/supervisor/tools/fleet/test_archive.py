@@ -201,3 +201,27 @@ def test_a_directory_that_cannot_be_listed_is_an_error_not_a_silent_skip():
     finally:
         (top / "fleet" / "r2" / "closed").chmod(0o755)
         shutil.rmtree(top)
+
+
+def test_a_rules_double_star_is_any_depth_zero_too(tmp_path):
+    """``fleet/**/{robot}/bags`` names the robot of ``fleet/r1/bags`` as of
+    ``fleet/2026/r2/bags`` (the whole path was one expression, and its ``**`` needed a
+    directory)."""
+    touch(tmp_path / "fleet" / "r1" / "bags" / "b" / "a.mcap")
+    touch(tmp_path / "fleet" / "2026" / "r2" / "bags" / "b" / "a.mcap")
+    got = list_archive([str(tmp_path / "fleet")], robot_from="fleet/**/{robot}/bags")
+    assert [b.robot for b in got] == ["r2", "r1"]
+    # each ** takes as many directories as it can, as before; a leading / is the root
+    assert [b.robot for b in list_archive([str(tmp_path)], robot_from="**/{robot}/b")] == [
+        "bags",
+        "bags",
+    ]
+    rooted = list_archive([str(tmp_path)], robot_from="/fleet/**/{robot}")
+    assert [b.robot for b in rooted] == [None, None]
+
+
+@pytest.mark.parametrize("rule", ["**x**{robot}", "a*b*{robot}", "x/{robot}**"])
+def test_a_rule_that_would_backtrack_is_refused(tmp_path, rule):
+    touch(tmp_path / "r" / "a.mcap")
+    with pytest.raises(UserError, match=r"\*\* is a directory of its own"):
+        list_archive([str(tmp_path)], robot_from=rule)

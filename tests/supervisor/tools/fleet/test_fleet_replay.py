@@ -194,6 +194,10 @@ def test_robot_from_a_rule_and_a_name_that_is_no_partition(tmp_path):
         (["{cfg}", "{tmp}", "-o", "{tmp}/ds", "--robot-from", "x"], "must hold {robot} once"),
         (["{tmp}/none.yaml", "{tmp}/fleet", "-o", "{tmp}/ds"], "none.yaml"),
         (["{cfg}", "{cfg}", "-o", "{tmp}/ds"], "c.yaml: no bag here"),
+        (
+            ["{cfg}", "{tmp}/fleet", "-o", "{tmp}/ds", "--robot-from", "**x**{{robot}}"],
+            "one * at most",
+        ),
     ],
 )
 def test_bad_input_is_one_line(tmp_path, args, message):
