@@ -53,6 +53,9 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
     path.  An archive that names nothing is an error."""
     rule = robot_rule(robot_from) if robot_from is not None else None
     found: dict[str, BagRef] = {}
+    # each bag once by what it is, not how it is reached: an archive and a link to it
+    # (or a bind mount) replayed every bag twice, each violation two rows
+    seen: dict[tuple[int, int], str] = {}
     for arg in archives:
         roots = _expanded(arg)
         if not roots:
@@ -63,8 +66,11 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
             named += len(bags)
             for bag in bags:
                 key = os.path.abspath(bag)
-                if key in found:
+                ident = _identity(key)
+                if key in found or (ident is not None and ident in seen):
                     continue
+                if ident is not None:
+                    seen[ident] = key
                 if len(found) >= MAX_BAGS:
                     raise UserError(f"more than {MAX_BAGS:,} bags", file=printable(arg))
                 found[key] = _ref(key, root, rule)
@@ -75,8 +81,9 @@ def list_archive(archives: list[str], robot_from: str | None = None) -> list[Bag
             )
     # a storage file of a bag directory also listed (a glob's ``**`` matches both) is
     # that bag, not a second one
-    for key in [k for k in found if os.path.dirname(k) in found and os.path.isfile(k)]:
-        del found[key]
+    for key in [k for k in found if os.path.isfile(k)]:
+        if _identity(os.path.dirname(key)) in seen:
+            del found[key]
     return sorted(found.values(), key=lambda b: b.path)
 
 
@@ -93,6 +100,14 @@ def _ref(key: str, root: str, rule: RobotRule | None) -> BagRef:
         fp = hashlib.sha256(key.encode()).hexdigest()  # its row's own key
         size, robot, why = 0, None, f"cannot read: {e.strerror or e}"
     return BagRef(key, robot, why, size, fp)
+
+
+def _identity(path: str) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None  # its row says why it cannot be read
+    return st.st_dev, st.st_ino
 
 
 def _utf8(path: str) -> str | None:

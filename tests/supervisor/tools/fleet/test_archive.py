@@ -225,3 +225,19 @@ def test_a_rule_that_would_backtrack_is_refused(tmp_path, rule):
     touch(tmp_path / "r" / "a.mcap")
     with pytest.raises(UserError, match=r"\*\* is a directory of its own"):
         list_archive([str(tmp_path)], robot_from=rule)
+
+
+def test_one_bag_by_two_paths_in_one_run_is_listed_once(tmp_path):
+    """The archive and a link to it (or a bind mount): each bag was replayed twice
+    in one run, and every violation was two rows of the dataset."""
+    touch(tmp_path / "fleet" / "r1" / "b" / "a.mcap")
+    touch(tmp_path / "fleet" / "r2" / "one.mcap")
+    (tmp_path / "again").symlink_to(tmp_path / "fleet")
+    got = list_archive(
+        [
+            str(tmp_path / "fleet"),
+            str(tmp_path / "again"),
+            str(tmp_path / "again" / "r2" / "one.mcap"),
+        ]
+    )
+    assert [os.path.relpath(b.path, tmp_path) for b in got] == ["fleet/r1/b", "fleet/r2"]
