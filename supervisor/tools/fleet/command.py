@@ -132,6 +132,8 @@ def _fleet(args: argparse.Namespace) -> int:
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
     if args.engine == "ray":
         import_ray()  # missing: one line with the fix, before any config is compiled
+    if args.compare is not None:
+        _two_configs(Path(args.config), Path(args.compare))
     # made first: an unreachable cluster is said before anything is compiled or read
     engine = (
         RayEngine(args.jobs, args.address)
@@ -215,6 +217,22 @@ def _replay(
         _compare(dataset, shas, {fp for _, fp, _ in where.values()})
     # a damaged bag was judged only up to its damage: as replay, that is not a success
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
+
+
+def _two_configs(config: Path, other: Path) -> None:
+    """``--compare`` of a config with its own bytes: the dataset keys every row by the
+    config's hash, so each bag was replayed twice into the same files and compared
+    with itself.  (One that cannot be read is said where it is compiled.)"""
+    try:
+        same = config.read_bytes() == other.read_bytes()
+    except OSError:
+        return
+    if same:
+        raise UserError(
+            f"--compare: the same bytes as {config}: nothing to compare",
+            file=str(other),
+            hint="give the changed config",
+        )
 
 
 def _config_shas(configs: list[Path], engine: Engine) -> list[str]:

@@ -9,6 +9,7 @@ writes, and anything else is one ``UserError``.
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -109,8 +110,71 @@ def check_dataset(root: Path) -> None:
         )
 
 
+def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
+    """The Parquet files under ``where`` as fleet replay lays them out: a directory
+    per level (``robot=``, ``date=``), then ``*.parquet`` files.  Anything else is an
+    error naming it: a link (pyarrow's discovery followed a loop without end, or
+    counted another dataset's rows), a FIFO or device, a directory or file where
+    the layout has none (its rows were added, or left out, without a word).  Hidden
+    and ``_`` names are skipped, as pyarrow does (an interrupted write's temporary)."""
+    import stat
+
+    out: list[str] = []
+    todo = [(where, 0)]
+    while todo:
+        d, depth = todo.pop()
+        try:
+            with os.scandir(d) as it:
+                entries = sorted(it, key=lambda e: e.name)
+        except OSError as e:
+            raise UserError(f"cannot list: {e.strerror or e}", file=str(d)) from None
+        for entry in entries:
+            if entry.name.startswith((".", "_")):
+                continue
+            path = Path(entry.path)
+            try:
+                mode = entry.stat(follow_symlinks=False).st_mode
+            except OSError as e:
+                raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
+            what = _kind(mode)
+            if what is not None:
+                raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path))
+            if depth < len(levels):
+                if not (stat.S_ISDIR(mode) and entry.name.startswith(f"{levels[depth]}=")):
+                    raise UserError(
+                        f"not {levels[depth]}={levels[depth][0].upper()}: not fleet replay's "
+                        "layout",
+                        file=_shown(path),
+                    )
+                todo.append((path, depth + 1))
+            elif stat.S_ISREG(mode) and entry.name.endswith(".parquet"):
+                out.append(entry.path)
+            else:
+                raise UserError(
+                    "not a .parquet file here: not fleet replay's layout", file=_shown(path)
+                )
+    return sorted(out)
+
+
+def _kind(mode: int) -> str | None:
+    """What an entry is, when no dataset of fleet replay holds one."""
+    import stat
+
+    if stat.S_ISLNK(mode):
+        return "a link"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    return "a device or socket"
+
+
+def _shown(path: Path) -> str:
+    return printable(str(path))
+
+
 def read_bags(root: Path) -> pa.Table:
-    files = sorted((root / "bags").glob("*.parquet"))
+    files = dataset_files(root / "bags", ())
     if not files:
         return BAGS.empty_table()
     try:
@@ -128,14 +192,23 @@ def read_violations(root: Path) -> pa.Table:
     schema = pa.schema([*_FILE_SCHEMA, ("robot", pa.string()), ("date", pa.string())])
     if not where.is_dir():
         return schema.empty_table()
+    files = dataset_files(where, ("robot", "date"))
+    if not files:
+        return schema.empty_table()
     try:
-        found = ds.dataset(where, format="parquet", partitioning=partitions(), schema=schema)
+        found = ds.dataset(
+            files,
+            format="parquet",
+            partitioning=partitions(),
+            partition_base_dir=str(where),
+            schema=schema,
+        )
         table = found.to_table(columns=[*COLUMNS, "robot", "date"])
     except (pa.ArrowException, OSError) as e:
         raise UserError(
             f"not a fleet dataset's violations ({_one_line(e)})", file=str(where)
         ) from None
-    # a file outside robot=R/date=D has no partition values: not fleet replay's
+    # a partition of no value (hive's default partition): not fleet replay's
     nulls = pc.sum(pc.or_(pc.is_null(table["robot"]), pc.is_null(table["date"]))).as_py()
     if nulls:
         raise UserError(

@@ -4,11 +4,12 @@ robot of each, globs, links, and the fingerprint that resume trusts."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 
 from monitors.errors import UserError
-from supervisor.tools.fleet.archive import content_hash, list_archive
+from supervisor.tools.fleet.archive import MAX_DEPTH, content_hash, list_archive
 
 
 def touch(path, data=b"x"):
@@ -70,3 +71,173 @@ def test_a_rule_without_one_robot_is_refused(tmp_path, rule):
     touch(tmp_path / "r" / "a.mcap")
     with pytest.raises(UserError, match="must hold"):
         list_archive([str(tmp_path)], robot_from=rule)
+
+
+def test_a_bag_whose_path_is_not_utf8_is_a_failed_row_not_a_crash(tmp_path):
+    # a directory name in Latin-1, as an old recorder may have written it
+    bad = os.fsdecode(bytes(tmp_path / "fleet" / "r1") + b"/caf\xe9")
+    touch(tmp_path / "fleet" / "r1" / "ok" / "a.mcap")
+    os.makedirs(bad)
+    with open(os.path.join(bad, "a.mcap"), "wb") as f:
+        f.write(b"x")
+    got = {b.path: b for b in list_archive([str(tmp_path / "fleet")])}
+    assert len(got) == 2
+    (shown,) = [p for p in got if "caf" in p]
+    assert shown.endswith("caf\\xe9") and shown.encode()  # a string the dataset can hold
+    assert got[shown].robot is None and "not UTF-8" in (got[shown].robot_error or "")
+    assert got[str(tmp_path / "fleet" / "r1" / "ok")].robot == "r1"
+    # a file so named inside a bag: its bytes hashed as they are
+    with open(os.fsdecode(bytes(tmp_path / "fleet" / "r1" / "ok") + b"/b\xe9.mcap"), "wb") as f:
+        f.write(b"y")
+    (ok,) = [b for b in list_archive([str(tmp_path / "fleet")]) if b.robot]
+    assert ok.size == 2 and len(content_hash(Path(ok.path))) == 64
+
+
+def test_a_bags_linked_storage_files_are_in_its_content_hash(tmp_path):
+    """Two bags whose files are links to different data (as git-annex lays them out)
+    are two contents: replay reads through the links, so the hash does too."""
+    one = touch(tmp_path / "store" / "one.mcap", b"one")
+    two = touch(tmp_path / "store" / "two.mcap", b"two")
+    for name, target in (("x", one), ("y", two)):
+        (tmp_path / "fleet" / "r1" / name).mkdir(parents=True)
+        (tmp_path / "fleet" / "r1" / name / f"{name}.mcap").symlink_to(target)
+    x, y = list_archive([str(tmp_path / "fleet")])
+    assert content_hash(Path(x.path)) != content_hash(Path(y.path))
+    assert x.size == y.size == 3
+
+
+@pytest.mark.parametrize("what", ["fifo", "text", "empty-dir", "device"])
+def test_an_archive_that_holds_no_bag_is_one_error(tmp_path, what):
+    path = tmp_path / "a.mcap"
+    if what == "fifo":
+        os.mkfifo(path)
+    elif what == "text":
+        path = touch(tmp_path / "notes.txt")
+    elif what == "empty-dir":
+        path = tmp_path / "empty"
+        path.mkdir()
+    else:
+        path = Path("/dev/null")
+    with pytest.raises(UserError, match="no bag") as e:
+        list_archive([str(path)])
+    assert e.value.file == str(path)
+
+
+def test_a_tree_deeper_than_the_bound_is_an_error_not_a_silent_skip(tmp_path):
+    deep = tmp_path / "fleet" / "r1"
+    for i in range(MAX_DEPTH + 1):
+        deep = deep / f"d{i}"
+    touch(deep / "bag" / "a.mcap")
+    touch(tmp_path / "fleet" / "r1" / "shallow" / "a.mcap")
+    with pytest.raises(UserError, match=f"deeper than {MAX_DEPTH}"):
+        list_archive([str(tmp_path / "fleet")])
+
+
+def test_a_glob_follows_no_link_loop_and_ends(tmp_path):
+    """``**`` never descends into a link: two loops made glob.glob walk every path
+    they spell, without end."""
+    touch(tmp_path / "fleet" / "r1" / "b" / "a.mcap")
+    touch(tmp_path / "fleet" / "r2" / "b" / "a.mcap")
+    (tmp_path / "fleet" / "r1" / "loop").symlink_to("..")
+    (tmp_path / "fleet" / "r2" / "loop").symlink_to("..")
+    (tmp_path / "fleet" / "r2" / "out").symlink_to(touch(tmp_path / "else" / "b" / "a.mcap").parent)
+    got = list_archive([str(tmp_path / "fleet" / "**")])  # a timeout of the suite if it loops
+    assert [os.path.relpath(b.path, tmp_path / "fleet") for b in got] == ["r1/b", "r2/b"]
+    assert [b.robot for b in got] == ["r1", "r2"]
+    # a component that is no wildcard still follows a link, as a path does
+    (tmp_path / "linked").symlink_to(tmp_path / "fleet")
+    assert len(list_archive([str(tmp_path / "linked" / "*" / "b")])) == 2
+
+
+def test_a_glob_as_deep_as_the_bound_is_an_error(tmp_path):
+    deep = tmp_path / "fleet"
+    for i in range(MAX_DEPTH + 2):
+        deep = deep / f"d{i}"
+    touch(deep / "a.mcap")
+    with pytest.raises(UserError, match=f"deeper than {MAX_DEPTH}"):
+        list_archive([str(tmp_path / "fleet" / "**" / "*.mcap")])
+
+
+def test_a_directory_that_cannot_be_listed_is_an_error_not_a_silent_skip():
+    """Run as an unprivileged user (root lists any directory): its bags were missing
+    from the run without a word."""
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    top = Path(tempfile.mkdtemp(dir="/tmp"))  # reachable by the unprivileged user
+    try:
+        top.chmod(0o755)
+        touch(top / "fleet" / "r1" / "b" / "a.mcap")
+        (top / "fleet" / "r2" / "closed").mkdir(parents=True)
+        for d in (top / "fleet", top / "fleet" / "r1", top / "fleet" / "r1" / "b"):
+            d.chmod(0o755)
+        (top / "fleet" / "r2").chmod(0o755)
+        (top / "fleet" / "r2" / "closed").chmod(0o000)
+        as_user = (
+            [] if os.geteuid() else ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+        )
+        code = (
+            "import sys\n"
+            "from monitors.errors import UserError\n"
+            "from supervisor.tools.fleet.archive import list_archive\n"
+            "try:\n"
+            f"    print(len(list_archive([{str(top / 'fleet')!r}])))\n"
+            "except UserError as e:\n"
+            "    print(e)\n"
+        )
+        run = subprocess.run(
+            [*as_user, sys.executable, "-c", code],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=Path(__file__).parents[4],
+        )
+        assert run.returncode == 0, run.stderr
+        assert "cannot list: Permission denied" in run.stdout and "r2/closed" in run.stdout, (
+            run.stdout
+        )
+    finally:
+        (top / "fleet" / "r2" / "closed").chmod(0o755)
+        shutil.rmtree(top)
+
+
+def test_a_rules_double_star_is_any_depth_zero_too(tmp_path):
+    """``fleet/**/{robot}/bags`` names the robot of ``fleet/r1/bags`` as of
+    ``fleet/2026/r2/bags`` (the whole path was one expression, and its ``**`` needed a
+    directory)."""
+    touch(tmp_path / "fleet" / "r1" / "bags" / "b" / "a.mcap")
+    touch(tmp_path / "fleet" / "2026" / "r2" / "bags" / "b" / "a.mcap")
+    got = list_archive([str(tmp_path / "fleet")], robot_from="fleet/**/{robot}/bags")
+    assert [b.robot for b in got] == ["r2", "r1"]
+    # each ** takes as many directories as it can, as before; a leading / is the root
+    assert [b.robot for b in list_archive([str(tmp_path)], robot_from="**/{robot}/b")] == [
+        "bags",
+        "bags",
+    ]
+    rooted = list_archive([str(tmp_path)], robot_from="/fleet/**/{robot}")
+    assert [b.robot for b in rooted] == [None, None]
+
+
+@pytest.mark.parametrize("rule", ["**x**{robot}", "a*b*{robot}", "x/{robot}**"])
+def test_a_rule_that_would_backtrack_is_refused(tmp_path, rule):
+    touch(tmp_path / "r" / "a.mcap")
+    with pytest.raises(UserError, match=r"\*\* is a directory of its own"):
+        list_archive([str(tmp_path)], robot_from=rule)
+
+
+def test_one_bag_by_two_paths_in_one_run_is_listed_once(tmp_path):
+    """The archive and a link to it (or a bind mount): each bag was replayed twice
+    in one run, and every violation was two rows of the dataset."""
+    touch(tmp_path / "fleet" / "r1" / "b" / "a.mcap")
+    touch(tmp_path / "fleet" / "r2" / "one.mcap")
+    (tmp_path / "again").symlink_to(tmp_path / "fleet")
+    got = list_archive(
+        [
+            str(tmp_path / "fleet"),
+            str(tmp_path / "again"),
+            str(tmp_path / "again" / "r2" / "one.mcap"),
+        ]
+    )
+    assert [os.path.relpath(b.path, tmp_path) for b in got] == ["fleet/r1/b", "fleet/r2"]

@@ -192,11 +192,17 @@ def test_robot_from_a_rule_and_a_name_that_is_no_partition(tmp_path):
     [
         (["{cfg}", "{tmp}/nothing-here", "-o", "{tmp}/ds"], "no such directory, bag or match"),
         (["{cfg}", "{tmp}", "-o", "{tmp}/ds", "--robot-from", "x"], "must hold {robot} once"),
-        (["{tmp}/none.yaml", "{tmp}", "-o", "{tmp}/ds"], "none.yaml"),
+        (["{tmp}/none.yaml", "{tmp}/fleet", "-o", "{tmp}/ds"], "none.yaml"),
+        (["{cfg}", "{cfg}", "-o", "{tmp}/ds"], "c.yaml: no bag here"),
+        (
+            ["{cfg}", "{tmp}/fleet", "-o", "{tmp}/ds", "--robot-from", "**x**{{robot}}"],
+            "one * at most",
+        ),
     ],
 )
 def test_bad_input_is_one_line(tmp_path, args, message):
     cfg = config(tmp_path)
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 50))
     run = fleet(*[a.format(cfg=cfg, tmp=tmp_path) for a in args], ok=(1,))
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and message in lines[0], run.stderr
@@ -217,8 +223,8 @@ def test_a_damaged_dataset_is_one_line(tmp_path, table, data):
     touch = tmp_path / "ds" / table / "x.parquet"
     touch.parent.mkdir(parents=True)
     touch.write_bytes(data)
-    cfg = config(tmp_path)
-    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", cfg, ok=(1,))
+    cfg, other = config(tmp_path), config(tmp_path, "d.yaml", limit=2.3)
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", other, ok=(1,))
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and ("x.parquet" in lines[0] or "ds/bags" in lines[0]), lines
     assert "internal error" not in lines[0]
@@ -354,3 +360,16 @@ def test_a_robot_named_by_digits_stays_its_name_in_compare(tmp_path):
     run = fleet(a, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", b, ok=(0,))
     robots = {line.split()[1] for line in run.stdout.splitlines()[3:]}
     assert robots == {"007"}, run.stdout
+
+
+def test_compare_with_a_config_of_the_same_bytes_is_one_line(tmp_path):
+    """Its bags were replayed twice under one config hash (the summary counted six
+    bags for three rows) and compared with themselves."""
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 50))
+    cfg = config(tmp_path)
+    copy = tmp_path / "copy.yaml"
+    copy.write_bytes(cfg.read_bytes())
+    run = fleet(cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", copy, ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "copy.yaml" in lines[0] and "same bytes" in lines[0], run.stderr
+    assert not (tmp_path / "ds").exists()  # said before anything is replayed

@@ -315,7 +315,7 @@ def test_a_bag_changed_since_its_replay_gets_no_page(tmp_path):
         ("bags:garbage", ["{tmp}/d", "-o", "{tmp}/f.html"], "x.parquet"),
         ("violations:garbage", ["{tmp}/d", "-o", "{tmp}/f.html"], "x.parquet"),
         ("violations:other-columns", ["{tmp}/d", "-o", "{tmp}/f.html"], "violations"),
-        ("violations:no-partition", ["{tmp}/d", "-o", "{tmp}/f.html"], "outside robot=R/date=D"),
+        ("violations:no-partition", ["{tmp}/d", "-o", "{tmp}/f.html"], "x.parquet: not robot=R"),
         ("plain-ds", ["{tmp}/d", "-o", "{tmp}/f.html", "--baseline", "{tmp}/nope"], "nor the hash"),
         ("plain-ds", ["{tmp}/d", "-o", "{tmp}/f.html", "--baseline", "abcdef0123"], "matches 0"),
         (
@@ -417,3 +417,50 @@ def _read(fd: int) -> bytes:
         return os.read(fd, 4096)
     except OSError:  # EIO: the child closed the terminal
         return b""
+
+
+@pytest.mark.parametrize(
+    "make, said",
+    [
+        ("loop", "/loop: a link"),  # pyarrow's discovery walked it without end
+        ("link-file", "bags/zz.parquet: a link"),  # another dataset's row, counted as this one's
+        ("fifo", ": a FIFO"),  # left out without a word
+        ("extra-partition", "extra=1: not a .parquet file here"),  # its rows added to the day's
+        ("robot-file", "violations/stray.parquet: not robot=R"),
+    ],
+)
+def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_path, make, said):
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    robot = ds / "violations" / "robot=robot-a"
+    day = next(robot.iterdir())
+    if make == "loop":
+        (robot / "loop").symlink_to("..")
+        (ds / "violations" / "robot=robot-b" / "loop").symlink_to("../..")
+    elif make == "link-file":
+        (ds / "bags" / "zz.parquet").symlink_to(next((fleet["before"] / "bags").iterdir()))
+    elif make == "fifo":
+        os.mkfifo(day / "zz.parquet")
+    elif make == "extra-partition":
+        (day / "extra=1").mkdir()
+        shutil.copy(next(day.glob("*.parquet")), day / "extra=1" / "x.parquet")
+    else:
+        shutil.copy(next(day.glob("*.parquet")), ds / "violations" / "stray.parquet")
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "supervisor",
+            "fleet",
+            "report",
+            str(ds),
+            "-o",
+            str(tmp_path / "f.html"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,  # a walk without end fails here, not at the suite's timeout
+    )
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1 and said in lines[0], run.stderr
+    assert str(ds) in lines[0] and "internal error" not in lines[0]
