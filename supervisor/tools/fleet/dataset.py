@@ -123,7 +123,12 @@ class Dataset:
         files = sorted(self.bags_dir.glob("*.parquet")) if self.bags_dir.is_dir() else []
         tables = []
         for f in files:
-            table = _row_file(f, self.bags_dir)
+            try:
+                table = _row_file(f, self.bags_dir)
+            except FileNotFoundError as e:  # taken away while it was listed
+                raise UserError(
+                    f"not a fleet dataset's bags table ({e.strerror or e})", file=str(f)
+                ) from None
             if table is not None:
                 tables.append(table)
             elif damaged is not None:
