@@ -422,7 +422,7 @@ def split(config: Path, bags: list[Path], where: Path) -> dict[str, Any]:
     decoding its messages into columns, the rest of the task (the session, stepping
     the monitor, the violations' Arrow table), and the write of the result into the
     dataset (a pool's worker's, Ray's parent's).  CPU time (``time.process_time``), not wall: on a loaded
-    machine the wall time is the other processes' as much as ours; the writes' fsync
+    machine the wall time is the other processes' as much as ours; the writes' sync
     waits are not CPU and are left out."""
     from monitors.errors import UserError
     from supervisor.tools.fleet.archive import content_hash, fingerprint
@@ -656,7 +656,7 @@ def format_results(out: dict[str, Any]) -> str:
         ("hash", "reading (the bag's bytes hashed)"),
         ("read_decode", "reading and decoding into columns"),
         ("step", "stepping (session, monitor, violations table)"),
-        ("write", "writing (the bag's Parquet files, fsynced)"),
+        ("write", "writing (the bag's Parquet files, synced)"),
         ("task", "whole task in the worker"),
     ):
         cells = " | ".join(f"{out[k]['ns_per_message'][part]:.0f}" for k, _ in names)

@@ -145,6 +145,8 @@ def _fleet(args: argparse.Namespace) -> int:
     # what an earlier run finished, read (nothing made yet) before the workers start:
     # they take it at their start, while this process compiles the config
     done = Dataset(Path(args.output), make=False).done()
+    if (damage := done.damage()) is not None:  # a power loss: those bags run again
+        print(damage, file=sys.stderr, flush=True)
     # by content hash too: the same bag under another path is hashed, not replayed
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
@@ -209,6 +211,9 @@ def _replay(
                 robot, fp, _size = where[result.task.bag]
                 count(writers.put(result, robot, fp))
             count(writers.drain())
+        # every bag's files durable, the pool's (a dead worker's too) and the writers':
+        # the groups' syncs leave the last rows to this one (dataset.py)
+        dataset.sync()
     finally:
         results.close()  # an error stops the pool too (engine.py)
         progress.end()

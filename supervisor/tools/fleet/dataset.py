@@ -16,11 +16,21 @@ The bag's row is written last: a bag with no row is not finished, and its violat
 files, if any, are rewritten when it is done again.  Each file is written whole or
 not at all (supervisor/files.py).  Hive partitioning, as DuckDB, pandas and polars
 read it (``read_parquet('DATASET/violations/**/*.parquet', hive_partitioning=true)``).
+
+Durable in groups (``Commits``): no fsync per file, one ``syncfs`` per group of bags,
+between the group's violation files and their rows, so a row is renamed into place
+only once its bag's violations are on disk; the rows themselves are made durable by
+the next group's sync and by the run's last one (``Dataset.sync``), before its
+summary.  A process killed at any point leaves what it renamed readable (the page
+cache outlives it): the parent reads a dead worker's rows back (engine.py).  Only a
+power loss before a sync can leave a row file empty or cut short: its bag is then
+not finished, and the next run says so in one line and replays it (``done``).
 """
 
 from __future__ import annotations
 
 import hashlib
+import re
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -35,7 +45,7 @@ import pyarrow.parquet as pq
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
-from supervisor.files import write_atomic
+from supervisor.files import sync_filesystem, write_whole
 from supervisor.tools.fleet.task import BagResult
 
 BAGS = pa.schema(
@@ -62,6 +72,23 @@ class Done:
 
     fingerprints: frozenset[tuple[str, str]]  # (config_sha256, fingerprint)
     contents: frozenset[tuple[str, str]]  # (config_sha256, bag_sha256)
+    damaged: tuple[Path, ...] = ()  # row files a power loss left unreadable: not finished
+
+    def damage(self) -> str | None:
+        """The one line that says which bags' rows were damaged, or None."""
+        if not self.damaged:
+            return None
+        more = f" (and {len(self.damaged) - 1} more)" if len(self.damaged) > 1 else ""
+        return str(
+            UserError(
+                f"a bag's row is empty or cut short{more}, as a power loss before the "
+                "dataset's sync leaves it: that bag is not finished and is replayed",
+                file=str(self.damaged[0]),
+            )
+        )
+
+
+KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
 
 
 class Dataset:
@@ -80,64 +107,63 @@ class Dataset:
         """Every bag finished (any status but failed) in an earlier run."""
         fps: set[tuple[str, str]] = set()
         contents: set[tuple[str, str]] = set()
-        table = self.bags()
+        damaged: list[Path] = []
+        table = self.bags(damaged)
         finished = table.filter(pc.not_equal(table["status"], "failed"))
         for row in finished.select(["config_sha256", "fingerprint", "bag_sha256"]).to_pylist():
             fps.add((row["config_sha256"], row["fingerprint"]))
             if row["bag_sha256"]:
                 contents.add((row["config_sha256"], row["bag_sha256"]))
-        return Done(frozenset(fps), frozenset(contents))
+        return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
-    def bags(self) -> pa.Table:
-        """The bags table: one row per bag and config."""
+    def bags(self, damaged: list[Path] | None = None) -> pa.Table:
+        """The bags table: one row per bag and config.  A row file of this dataset's
+        naming that a power loss left empty or cut short is left out (its bag is not
+        finished) and added to ``damaged``; any other unreadable file is an error."""
         files = sorted(self.bags_dir.glob("*.parquet")) if self.bags_dir.is_dir() else []
-        if not files:
-            return BAGS.empty_table()
-        try:
-            return pa.concat_tables([pq.read_table(f, schema=BAGS) for f in files])
-        except (pa.ArrowException, OSError) as e:
-            raise UserError(
-                f"not a fleet dataset's bags table ({e})", file=str(self.bags_dir)
-            ) from None
+        tables = []
+        for f in files:
+            try:
+                table = _row_file(f, self.bags_dir)
+            except FileNotFoundError as e:  # taken away while it was listed
+                raise UserError(
+                    f"not a fleet dataset's bags table ({e.strerror or e})", file=str(f)
+                ) from None
+            if table is not None:
+                tables.append(table)
+            elif damaged is not None:
+                damaged.append(f)
+        return pa.concat_tables(tables) if tables else BAGS.empty_table()
 
     def write(self, result: BagResult, robot: str, fingerprint: str) -> None:
-        """One bag's violations, then its row."""
-        task = result.task
-        key = self.key(task.config_sha256, fingerprint)
-        v = result.violations
-        for date in sorted(set(v.column("date").to_pylist())):
-            part = v.filter(pc.equal(v["date"], date)).drop_columns(["date"])
-            _write(self.violations_dir / f"robot={robot}" / f"date={date}" / f"{key}.parquet", part)
-        row = {
-            "bag": task.bag,
-            "robot": robot,
-            "bag_sha256": result.bag_sha256,
-            "fingerprint": fingerprint,
-            "config_sha256": task.config_sha256,
-            "messages": result.messages,
-            "violations": v.num_rows,
-            "status": result.status,
-            "reason": result.reason,
-            "seconds": result.seconds,
-            "finished_ts": time.time_ns(),
-        }
-        _write(self.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
+        """One bag's files, durable: a group of one (``Commits``)."""
+        commits = Commits(self)
+        commits.add(result, robot, fingerprint)
+        commits.commit()
+
+    def sync(self) -> None:
+        """Every file written to the dataset so far durable, by any process (a dead
+        worker's too): the run's last sync, before its summary."""
+        try:
+            sync_filesystem(self.root)
+        except OSError as e:
+            raise UserError(
+                f"cannot write the dataset: {e.strerror or e}", file=str(self.root)
+            ) from None
 
     def row(self, config_sha256: str, fingerprint: str) -> dict[str, Any] | None:
         """This bag's row under this config (``BAGS``' columns, ``finished_ts`` in ns
-        since the epoch), or None: the bag is not finished.  A row is written whole or
-        not at all (``_write``)."""
+        since the epoch), or None: the bag is not finished (no row, or one a power
+        loss damaged, ``bags``)."""
         path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
         try:
-            table = pq.read_table(path, schema=BAGS)
-            at = table.schema.get_field_index("finished_ts")
-            rows = table.set_column(at, "finished_ts", table["finished_ts"].cast(pa.int64()))
+            table = _row_file(path, self.bags_dir)
         except FileNotFoundError:
             return None
-        except (pa.ArrowException, OSError) as e:
-            raise UserError(
-                f"not a fleet dataset's bag row ({printable(str(e))})", file=str(path)
-            ) from None
+        if table is None:
+            return None
+        at = table.schema.get_field_index("finished_ts")
+        rows = table.set_column(at, "finished_ts", table["finished_ts"].cast(pa.int64()))
         return rows.to_pylist()[0] if rows.num_rows == 1 else None
 
     @staticmethod
@@ -161,6 +187,65 @@ class Dataset:
             ) from None
 
 
+class Commits:
+    """One writer's bags made durable in groups (module docstring): each bag's
+    violation files written whole at once, its row once they are synced.  A bag
+    without violation files has nothing to wait for: its row is written at once.  A
+    group is synced once its bags took ``GROUP_S`` seconds of replay, so a worker
+    killed loses at most that much finished work (a long bag is a group of its own),
+    or when the caller ends it (``commit``: a pool's call, a few of Ray's results)."""
+
+    GROUP_S = 0.5
+
+    def __init__(self, dataset: Dataset) -> None:
+        self.dataset = dataset
+        self.rows: list[tuple[BagResult, str, str]] = []  # waiting for the next sync
+        self.seconds = 0.0  # the replay time of the bags waiting
+
+    def add(self, result: BagResult, robot: str, fingerprint: str) -> None:
+        ds = self.dataset
+        key = ds.key(result.task.config_sha256, fingerprint)
+        v = result.violations
+        dates = sorted(set(v.column("date").to_pylist()))
+        for date in dates:
+            part = v.filter(pc.equal(v["date"], date)).drop_columns(["date"])
+            _write(ds.violations_dir / f"robot={robot}" / f"date={date}" / f"{key}.parquet", part)
+        if not dates:
+            self._row(result, robot, fingerprint)
+            return
+        self.rows.append((result, robot, fingerprint))
+        self.seconds += result.seconds
+        if self.seconds >= self.GROUP_S:
+            self.commit()
+
+    def commit(self) -> None:
+        """The waiting bags' violations synced, then their rows written."""
+        if not self.rows:
+            return
+        self.dataset.sync()
+        for result, robot, fingerprint in self.rows:
+            self._row(result, robot, fingerprint)
+        self.rows, self.seconds = [], 0.0
+
+    def _row(self, result: BagResult, robot: str, fingerprint: str) -> None:
+        task = result.task
+        row = {
+            "bag": task.bag,
+            "robot": robot,
+            "bag_sha256": result.bag_sha256,
+            "fingerprint": fingerprint,
+            "config_sha256": task.config_sha256,
+            "messages": result.messages,
+            "violations": result.violations.num_rows,
+            "status": result.status,
+            "reason": result.reason,
+            "seconds": result.seconds,
+            "finished_ts": time.time_ns(),
+        }
+        key = self.dataset.key(task.config_sha256, fingerprint)
+        _write(self.dataset.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
+
+
 def partitions() -> Any:
     """The violations' hive partitions, as text: a robot named 007 stays "007"
     (pyarrow infers a number otherwise)."""
@@ -172,36 +257,50 @@ def partitions() -> Any:
 
 
 class Writers:
-    """``Dataset.write`` on a few threads, so that the parent keeps taking results while
-    files are synced: each file is fsynced with its directory (supervisor/files.py),
-    milliseconds on a busy disk, as long as a small bag's whole task
-    (docs/BENCHMARKS.md, "Fleet").  A bag's own files stay in order (its violations,
-    then its row); ``put`` and ``drain`` give back the results whose files are
-    written, in the order they were put, and raise a write's error."""
+    """Ray's results written by the parent, in groups of up to ``GROUP`` bags
+    (``Commits``: one sync per group) on a few threads, so that the parent keeps
+    taking results while a group is synced (docs/BENCHMARKS.md, "Fleet").  A bag's
+    own files stay in order (its violations, then its row); ``put`` and ``drain``
+    give back the results whose files are written, in the order they were put, and
+    raise a write's error."""
 
     THREADS = 4
+    GROUP = 16  # bags a sync at most: a Ray task's results (engine.py, RAY_BATCH)
     BACKLOG = 64  # results waiting for their files at most: then put waits
 
     def __init__(self, dataset: Dataset) -> None:
         self.dataset = dataset
         self.pool = ThreadPoolExecutor(self.THREADS, thread_name_prefix="fleet-write")
-        self.pending: deque[tuple[Future[None], BagResult]] = deque()
+        self.group: list[tuple[BagResult, str, str]] = []  # not yet handed to a thread
+        self.pending: deque[tuple[Future[None], list[BagResult]]] = deque()
+        self.waiting = 0  # results in ``pending``
 
     def put(self, result: BagResult, robot: str, fingerprint: str) -> list[BagResult]:
-        future = self.pool.submit(self.dataset.write, result, robot, fingerprint)
-        self.pending.append((future, result))
-        out = []
-        while self.pending and (self.pending[0][0].done() or len(self.pending) > self.BACKLOG):
-            out.append(self._next())
+        self.group.append((result, robot, fingerprint))
+        if len(self.group) >= self.GROUP:
+            self._send()
+        out: list[BagResult] = []
+        while self.pending and (self.pending[0][0].done() or self.waiting > self.BACKLOG):
+            out += self._next()
         return out
 
-    def drain(self) -> list[BagResult]:
-        return [self._next() for _ in range(len(self.pending))]
+    def _send(self) -> None:
+        group, self.group = self.group, []
+        self.pending.append(
+            (self.pool.submit(_write_group, self.dataset, group), [r for r, _, _ in group])
+        )
+        self.waiting += len(group)
 
-    def _next(self) -> BagResult:
-        future, result = self.pending.popleft()
+    def drain(self) -> list[BagResult]:
+        if self.group:
+            self._send()
+        return [r for _ in range(len(self.pending)) for r in self._next()]
+
+    def _next(self) -> list[BagResult]:
+        future, results = self.pending.popleft()
         future.result()  # its error (a full disk) stops the run, as a write here would
-        return result
+        self.waiting -= len(results)
+        return results
 
     def __enter__(self) -> Writers:
         return self
@@ -213,11 +312,49 @@ class Writers:
         self.pool.shutdown(wait=True, cancel_futures=True)
 
 
+def _write_group(dataset: Dataset, group: list[tuple[BagResult, str, str]]) -> None:
+    commits = Commits(dataset)
+    for result, robot, fingerprint in group:
+        commits.add(result, robot, fingerprint)
+    commits.commit()
+
+
 def _write(path: Path, table: pa.Table) -> None:
+    """Whole, not yet durable (``Commits`` syncs)."""
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(path, sink.getvalue().to_pybytes(), mode=0o644)
+        write_whole(path, sink.getvalue().to_pybytes(), mode=0o644)
     except OSError as e:  # a full disk or a directory taken away during the run
         raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None
+
+
+def _row_file(path: Path, where: Path) -> pa.Table | None:
+    """A row file read against ``BAGS``; None for one of this dataset's names that a
+    power loss left empty or cut short (module docstring).  Any other file that is
+    not a row is one error: not this dataset's."""
+    ours = KEY.fullmatch(path.name) is not None
+    try:
+        return pq.read_table(path, schema=BAGS)
+    except FileNotFoundError:
+        raise
+    except (pa.ArrowException, OSError) as e:
+        if ours and _cut(path):
+            return None
+        raise UserError(
+            f"not a fleet dataset's bags table ({printable(str(e))})", file=str(where)
+        ) from None
+
+
+def _cut(path: Path) -> bool:
+    """Whether a file that is no row has the signs of a write a power loss cut short:
+    empty, or not Parquet to its end (no footer), or a footer whose columns are the
+    row's (its data pages lost)."""
+    try:
+        if path.stat().st_size == 0:
+            return True
+        schema = pq.read_schema(path)
+    except (pa.ArrowException, OSError):
+        return True
+    return schema.names == BAGS.names

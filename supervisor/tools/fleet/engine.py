@@ -1,8 +1,8 @@
 """Engines: what runs the tasks. An engine takes ``BagTask``s and the content hashes
 already done, and yields each ``BagResult`` as it comes, in any order.
 ``LocalEngine`` is a process pool on this machine; given the dataset
-(``writes_to``), each worker writes its bag's files itself (``Dataset.write``) and
-yields the result only once they are durable, without its Arrow table, so the
+(``writes_to``), each worker writes its bag's files itself (``dataset.Commits``) and
+yields the result only once they are written, without its Arrow table, so the
 parent writes nothing and the pool's processes are the run's only busy ones
 (docs/BENCHMARKS.md, "Fleet"); a dead worker's committed bags stay done, the rest
 are retried one a call (``LocalEngine``).  ``RayEngine`` runs the same ``run_task`` as Ray
@@ -40,7 +40,7 @@ from typing import Any, Protocol
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet import server
-from supervisor.tools.fleet.dataset import Dataset
+from supervisor.tools.fleet.dataset import Commits, Dataset
 from supervisor.tools.fleet.stopping import uninterrupted
 from supervisor.tools.fleet.task import (
     BagResult,
@@ -86,12 +86,14 @@ class WriteFailed(Exception):
 
 def _run(tasks: list[BagTask]) -> list[BagResult]:
     """``tasks`` one after the other.  Given the dataset, each bag's files are written
-    on this worker's writer thread while the next bag is replayed (each file's fsync
-    is a wait, milliseconds on a busy disk: docs/BENCHMARKS.md, "Fleet"), and the
-    results are returned, without their tables, once every file is durable: done
-    means written.  A write error stops the call before its next bag."""
+    on this worker's writer thread while the next bag is replayed, durable in groups
+    (``dataset.Commits``: one sync for several bags, a row only once its violations
+    are synced; docs/BENCHMARKS.md, "Fleet"), and the results are returned, without
+    their tables, once the call's last group is committed: done means written.  A
+    write error stops the call before its next bag."""
     if _dataset is None or _writer is None:
         return [_one(t, _done) for t in tasks]
+    commits = Commits(_dataset)
     writes: list[tuple[Future[None], BagResult]] = []
     for t in tasks:
         if any(f.done() and f.exception() is not None for f, _ in writes):
@@ -99,15 +101,17 @@ def _run(tasks: list[BagTask]) -> list[BagResult]:
         result = _one(t, _done)
         # the table stays with its write alone: a call does not hold all its bags' tables
         writes.append(
-            (_writer.submit(_dataset.write, result, t.robot, t.fingerprint), result.without_table())
+            (_writer.submit(commits.add, result, t.robot, t.fingerprint), result.without_table())
         )
+    last = _writer.submit(commits.commit)
     out = []
-    for future, slim in writes:
+    for future, slim in [*writes, (last, None)]:
         try:
             future.result()
         except UserError as e:
             raise WriteFailed(e.message, e.file) from None
-        out.append(slim)
+        if slim is not None:
+            out.append(slim)
     return out
 
 

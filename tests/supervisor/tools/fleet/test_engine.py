@@ -595,16 +595,20 @@ def test_a_worker_killed_between_a_bags_violations_and_its_row_leaves_it_to_the_
 CALLS_OF_8 = 40
 
 
+# the 4th bag of the second call (b08 to b15)
+LATE = 11
+
+
 def _tiny_fleet(root: Path) -> list[Path]:
     """``CALLS_OF_8`` tiny bags b00.. of one robot, in the order the engine sends them;
-    b03 alone recorded a day later, so that its violations alone make their
-    partition's directory (``date=1970-01-02``)."""
+    b11 (``LATE``) alone recorded a day later, so that its violations alone make
+    their partition's directory (``date=1970-01-02``)."""
     day = 86_400 * 10**9
     return [
         write_bag(
             root / "robot-a" / f"b{i:02d}",
-            [(t + day, topic, v) for t, topic, v in messages(103, 1500)]
-            if i == 3
+            [(t + day, topic, v) for t, topic, v in messages(100 + i, 1500)]
+            if i == LATE
             else messages(100 + i, 120),
         )
         for i in range(CALLS_OF_8)
@@ -657,8 +661,10 @@ PER_BAG = (
 @pytest.mark.skipif(shutil.which("strace") is None, reason="strace is not installed")
 def test_a_worker_killed_mid_call_keeps_the_bags_it_committed_and_retries_the_rest(tmp_path):
     # strace stops (SIGSTOP) the worker as its writer thread makes the directory of
-    # b03's violations, the 4th bag of the first call: b00 to b02 are committed (one
-    # writer thread, in order), b03 to b07 not; the worker is SIGKILLed there.  The
+    # b11's violations, the 4th bag of the second call: the first call's bags (b00 to
+    # b07) are committed, their group synced at the call's end; b08 to b10 have their
+    # violations written and wait for their group's sync for their rows
+    # (dataset.Commits), b11 to b15 have none; the worker is SIGKILLed there.  The
     # retry's worker is stopped there too (strace counts per process), and let go
     # (SIGCONT).  The committed bags count once, as read, and are not written again;
     # the rest of the call is retried.
@@ -670,22 +676,22 @@ def test_a_worker_killed_mid_call_keeps_the_bags_it_committed_and_retries_the_re
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
     rows = _rows(killed, cfg, root)
-    b03_violations = killed / "violations" / "robot=robot-a" / "date=1970-01-02"
+    late_violations = killed / "violations" / "robot=robot-a" / "date=1970-01-02"
     proc = subprocess.Popen(
-        _strace("-P", str(b03_violations), "-e", "trace=mkdir,mkdirat",
+        _strace("-P", str(late_violations), "-e", "trace=mkdir,mkdirat",
                 "-e", "inject=mkdir,mkdirat:signal=STOP:when=1",
                 sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root),
                 "-o", str(killed), "--jobs", "1", "--quiet"),
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     try:
-        committed = ["b00", "b01", "b02"]
-        worker = wait_until("the worker stopped at b03", lambda: _stopped(proc.pid), 120)
+        committed = [f"b{i:02d}" for i in range(8)]
+        worker = wait_until(f"the worker stopped at b{LATE}", lambda: _stopped(proc.pid), 120)
         assert all(rows[b].exists() for b in committed)
         before = {b: _finished(rows[b]) for b in committed}
-        assert not any(rows[f"b{i:02d}"].exists() for i in range(3, CALLS_OF_8))
+        assert not any(rows[f"b{i:02d}"].exists() for i in range(8, CALLS_OF_8))
         os.kill(worker, signal.SIGKILL)
-        retry = wait_until("the retry at b03", lambda: _stopped(proc.pid, worker), 120)
+        retry = wait_until(f"the retry at b{LATE}", lambda: _stopped(proc.pid, worker), 120)
         os.kill(retry, signal.SIGCONT)
         out, err = proc.communicate(timeout=300)
     finally:
@@ -695,7 +701,7 @@ def test_a_worker_killed_mid_call_keeps_the_bags_it_committed_and_retries_the_re
     assert f"{CALLS_OF_8} bags ({CALLS_OF_8} read, 0 skipped, 0 damaged, 0 failed)" in out, out
     assert {b: _finished(rows[b]) for b in committed} == before  # not written again
     want = query(PER_BAG.format(VIOLATIONS.format(clean)))
-    assert any(bag.endswith("b03") for bag, *_ in want)
+    assert any(bag.endswith(f"b{LATE}") for bag, *_ in want)
     assert query(PER_BAG.format(VIOLATIONS.format(killed))) == want
     assert all(n == distinct for _, _, n, distinct in want)
     assert query(
