@@ -11,6 +11,7 @@ mitigations and variables used elsewhere).
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -70,6 +71,22 @@ class ConfigSource:
         cls, path: str | Path, data: bytes, imports: dict[str, bytes] | None = None
     ) -> ConfigSource:
         return cls(str(Path(path)), data, hashlib.sha256(data).hexdigest(), Imports(imports))
+
+    def identity(self) -> str:
+        """What the config judges with, as one SHA-256: ``sha256`` when it imports
+        nothing, else a hash of it and of each imported file's name (relative to the
+        config) and bytes.  A changed FRET export under an unchanged config is then
+        another config to whoever keys results by it (fleet replay's dataset,
+        docs/reference/fleet.md).  Known once the config is loaded: its imports are
+        read then."""
+        files = self.imports.files()
+        if not files:
+            return self.sha256
+        h = hashlib.sha256(f"config {self.sha256}\0".encode())
+        base = Path(self.path).parent
+        for name, data in sorted((os.path.relpath(k, base), v) for k, v in files.items()):
+            h.update(f"import {name}\0{hashlib.sha256(data).hexdigest()}\0".encode())
+        return h.hexdigest()
 
 
 def read_config(path: str | Path) -> ConfigSource:
@@ -134,6 +151,7 @@ def load_config(source: str | Path | ConfigSource) -> Config:
     return Config(
         path=file,
         sha256=source.sha256,
+        identity=source.identity(),  # every import read by now
         component=str(component),
         step=step,
         variables=variables,

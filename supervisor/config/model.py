@@ -144,6 +144,9 @@ class Config:
     # "file:line: note: ..." lines the loader found worth saying (an import leaving
     # requirements out); check prints them with its other notes.
     notes: list[str] = field(default_factory=list)
+    # The config with the files it imports, as one SHA-256 (ConfigSource.identity):
+    # what fleet replay keys its dataset by.  Empty when not made by load_config.
+    identity: str = ""
 
     @property
     def inputs(self) -> list[Variable]:

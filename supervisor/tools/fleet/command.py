@@ -132,8 +132,6 @@ def _fleet(args: argparse.Namespace) -> int:
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
     if args.engine == "ray":
         import_ray()  # missing: one line with the fix, before any config is compiled
-    if args.compare is not None:
-        _two_configs(Path(args.config), Path(args.compare))
     # made first: an unreachable cluster is said before anything is compiled or read
     engine = (
         RayEngine(args.jobs, args.address)
@@ -224,45 +222,31 @@ def _replay(
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
 
 
-def _two_configs(config: Path, other: Path) -> None:
-    """``--compare`` of a config with its own bytes: the dataset keys every row by the
-    config's hash, so each bag was replayed twice into the same files and compared
-    with itself.  (One that cannot be read is said where it is compiled.)"""
-    try:
-        same = config.read_bytes() == other.read_bytes()
-    except OSError:
-        return
-    if same:
-        raise UserError(
-            f"--compare: the same bytes as {config}: nothing to compare",
-            file=str(other),
-            hint="give the changed config",
-        )
-
-
 def _config_shas(configs: list[Path], engine: Engine) -> list[str]:
-    """Each config's SHA-256 (its bytes', as ``Config.sha256``), once it is known to
-    compile: a bad config is one error before any bag.  The pool's first worker
-    compiles them for its tasks anyway, so this process does not (0.5 s of its CPU per
-    run, docs/BENCHMARKS.md, "Fleet"); so does Ray's first worker.  Without one (no
-    bags, or its worker died) they are compiled here."""
-    import hashlib
+    """Each config's identity (``ConfigSource.identity``: its bytes' SHA-256, with the
+    files it imports), once it is known to compile: a bad config is one error before
+    any bag.  The pool's first worker compiles them for its tasks anyway and answers
+    with them, so this process does not (0.5 s of its CPU per run, docs/BENCHMARKS.md,
+    "Fleet"); so does Ray's first worker.  Without one (no bags, or its worker died)
+    they are compiled here.  ``--compare`` of a config with itself (the same bytes and
+    imports) is refused: every row is keyed by this hash, so each bag would be replayed
+    twice into the same files and compared with itself."""
+    shas = engine.checked()
+    if shas is None:
+        from supervisor.tools.replay.session import loaded
 
-    if engine.checked():
         shas = []
         for c in configs:
-            try:
-                shas.append(hashlib.sha256(c.read_bytes()).hexdigest())
-            except OSError as e:  # taken away since the worker read it
-                raise UserError(f"cannot read: {e.strerror or e}", file=str(c)) from None
-        return shas
-    from supervisor.tools.replay.session import loaded
-
-    out = []
-    for c in configs:
-        with loaded(c) as session:
-            out.append(session.config.sha256)
-    return out
+            with loaded(c) as session:  # its error, if any, is said here
+                shas.append(session.config.identity)
+    if len(shas) == 2 and shas[0] == shas[1]:
+        raise UserError(
+            f"--compare: the same bytes as {configs[0]}, importing the same files: "
+            "nothing to compare",
+            file=str(configs[1]),
+            hint="give the changed config",
+        )
+    return shas
 
 
 def _chain(first: list[Any], rest: Any) -> Any:

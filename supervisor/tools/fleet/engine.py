@@ -139,10 +139,18 @@ def _die_with_server() -> None:
 ConfigError = tuple[str, str, int | None, int | None, str | None]
 
 
-def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[ConfigError | None]]:
+def _identities(answers: list[str | ConfigError]) -> list[str]:
+    """``_warm``'s answers: the configs' identities, or the first error raised."""
+    for answer in answers:
+        if not isinstance(answer, str):
+            raise config_error(answer)
+    return [a for a in answers if isinstance(a, str)]
+
+
+def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[str | ConfigError]]:
     """What every task imports, imported, and ``configs`` compiled (their monitors
     loaded), while the parent lists the archive (``LocalEngine.start``): the worker's
-    pid and each config's error, if any."""
+    pid and each config's identity or error."""
     import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
 
     return os.getpid(), [compile_config(c) for c in configs]
@@ -157,7 +165,7 @@ class Engine(Protocol):
         self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
     ) -> None: ...
 
-    def checked(self) -> bool: ...
+    def checked(self) -> list[str] | None: ...
 
     def results(self, tasks: list[BagTask], done: Collection[str]) -> Iterator[BagResult]: ...
 
@@ -198,7 +206,7 @@ class LocalEngine:
         self._started: tuple[ProcessPoolExecutor, frozenset[str]] | None = None
         self._live: ProcessPoolExecutor | None = None  # the pool ``results`` runs on
         # the started workers' imports and compiles (their pids, the configs' errors)
-        self.warm: list[Future[tuple[int, list[ConfigError | None]]]] = []
+        self.warm: list[Future[tuple[int, list[str | ConfigError]]]] = []
 
     def start(
         self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
@@ -219,20 +227,18 @@ class LocalEngine:
         # started one per submit (concurrent.futures), each compile on a worker of its own
         self.warm = [pool.submit(_warm, configs) for _ in range(workers)]
 
-    def checked(self) -> bool:
-        """Whether the started workers compiled the configs given to ``start``: the
-        first worker's answer awaited, its first config error raised (``UserError``);
-        False when no worker was started (the caller compiles them)."""
+    def checked(self) -> list[str] | None:
+        """The identities of the configs given to ``start``, as the started workers
+        compiled them: the first worker's answer awaited, its first config error
+        raised (``UserError``); None when no worker was started (the caller compiles
+        them)."""
         if not self.warm:
-            return False
+            return None
         try:
             first = self.warm[0].result()
         except BrokenProcessPool:  # its worker died (out of memory): the caller compiles
-            return False
-        for error in first[1]:
-            if error is not None:
-                raise config_error(error)
-        return True
+            return None
+        return _identities(first[1])
 
     def close(self) -> None:
         """The started workers stopped, when ``results`` did not take them, and the
@@ -465,21 +471,18 @@ class RayEngine:
         warm = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_warm)
         self.warm = [warm.remote(configs) for _ in range(min(cpus, tasks or cpus))]
 
-    def checked(self) -> bool:
-        """Whether a started worker compiled the configs given to ``start``, its first
-        config error raised (``UserError``); False when none was started or its worker
-        died (the caller compiles them)."""
+    def checked(self) -> list[str] | None:
+        """The identities of the configs given to ``start``, as a started worker
+        compiled them, its first config error raised (``UserError``); None when none
+        was started or its worker died (the caller compiles them)."""
         if not self.warm:
-            return False
+            return None
         ray = self._ray
         try:
-            errors = ray.get(self.warm[0])[1]
+            answers = ray.get(self.warm[0])[1]
         except ray.exceptions.RayError:
-            return False
-        for error in errors:
-            if error is not None:
-                raise config_error(error)
-        return True
+            return None
+        return _identities(answers)
 
     def close(self) -> None:
         """The cluster left (stopped, when this engine started it) and its temporary

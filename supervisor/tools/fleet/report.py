@@ -109,7 +109,7 @@ def _configs(paths: list[str]) -> dict[str, Path]:
     out = {}
     for p in paths:
         path = Path(p).absolute()
-        out[load_config(path).sha256] = path
+        out[load_config(path).identity] = path  # as fleet replay keyed its rows
     return out
 
 

@@ -122,10 +122,11 @@ def _compiled(config: str) -> Any:
     return kept[1]
 
 
-def compile_config(config: str) -> tuple[str, str, int | None, int | None, str | None] | None:
+def compile_config(config: str) -> str | tuple[str, str, int | None, int | None, str | None]:
     """The config compiled and its monitor loaded, both kept for this worker's tasks,
     as a worker starts (engine.py, ``LocalEngine.start``): the parent then compiles
-    nothing (docs/BENCHMARKS.md, "Fleet").  A bad config: its error's parts, as a
+    nothing (docs/BENCHMARKS.md, "Fleet").  The config's identity (``Config.identity``,
+    what the dataset is keyed by); a bad config: its error's parts, as a
     ``UserError`` does not cross processes whole (its fields are keyword-only)."""
     from supervisor.tools.replay.session import loaded, prepare
 
@@ -137,7 +138,7 @@ def compile_config(config: str) -> tuple[str, str, int | None, int | None, str |
             pass  # the monitor built or found in the cache, then kept for the tasks
     except UserError as e:
         return (e.message, e.file, e.line, e.col, e.hint)
-    return None
+    return str(prepared.project.config.identity)
 
 
 def config_error(parts: tuple[str, str, int | None, int | None, str | None]) -> UserError:

@@ -373,3 +373,30 @@ def test_compare_with_a_config_of_the_same_bytes_is_one_line(tmp_path):
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "copy.yaml" in lines[0] and "same bytes" in lines[0], run.stderr
     assert not (tmp_path / "ds").exists()  # said before anything is replayed
+
+
+def test_an_edited_import_replays_the_bags_again(tmp_path):
+    """The dataset is keyed by the config with the files it imports: a changed
+    ``variables_from`` file under an unchanged config is not "done before"."""
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 200))
+    write_bag(tmp_path / "fleet" / "r1" / "b2", messages(2, 200))
+    cfg = tmp_path / "c.yaml"
+    text = config(tmp_path).read_text()
+    speed = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
+    assert speed in text
+    text = text.replace(speed, "").replace(
+        "variables:\n", "variables_from: speed.txt\nvariables:\n"
+    )
+    cfg.write_text(text)
+    imported = tmp_path / "speed.txt"
+    imported.write_text('("speed","double","/speed","double")\n')
+    ds = tmp_path / "ds"
+    first = fleet(cfg, tmp_path / "fleet", "-o", ds)
+    assert "2 bags (2 read, 0 skipped, 0 damaged, 0 failed), 0 done before" in first.stdout
+    imported.write_text('("speed","float","/speed","double")\n')  # speed judged as float
+    again = fleet(cfg, tmp_path / "fleet", "-o", ds)
+    assert "2 bags (2 read, 0 skipped, 0 damaged, 0 failed), 0 done before" in again.stdout
+    assert query(f"SELECT count(DISTINCT config_sha256), count(*) FROM {BAGS.format(ds)}")[0] == (
+        2,
+        4,
+    )
