@@ -227,10 +227,16 @@ def _replay(
 def _two_configs(config: Path, other: Path) -> None:
     """``--compare`` of a config with its own bytes: the dataset keys every row by the
     config's hash, so each bag was replayed twice into the same files and compared
-    with itself.  (One that cannot be read is said where it is compiled.)"""
+    with itself.  (One that cannot be read, or is no regular file of a config's size,
+    is said where it is compiled: read bounded here, a FIFO or /dev/zero is no hang.)"""
+    from monitors.untrusted import Untrusted, read_regular
+    from supervisor.config.limits import MAX_CONFIG_BYTES
+
     try:
-        same = config.read_bytes() == other.read_bytes()
-    except OSError:
+        same = read_regular(config, max_bytes=MAX_CONFIG_BYTES) == read_regular(
+            other, max_bytes=MAX_CONFIG_BYTES
+        )
+    except Untrusted:
         return
     if same:
         raise UserError(
