@@ -82,7 +82,8 @@ class Done:
         return str(
             UserError(
                 f"a bag's row is empty or cut short{more}, as a power loss before the "
-                "dataset's sync leaves it: that bag is not finished and is replayed",
+                "dataset's sync leaves it: removed with its violation files, that bag is "
+                "not finished and is replayed",
                 file=str(self.damaged[0]),
             )
         )
@@ -134,6 +135,21 @@ class Dataset:
             elif damaged is not None:
                 damaged.append(f)
         return pa.concat_tables(tables) if tables else BAGS.empty_table()
+
+    def drop(self, damaged: tuple[Path, ...]) -> None:
+        """Each damaged row (``Done.damaged``) taken away with its violation files,
+        those first: its bag's key may have changed since (its files touched or
+        copied), and the next rows are written under the new key, so what was left
+        stayed beside them, each violation two rows, and the damaged row for good."""
+        try:
+            for row in damaged:
+                for f in self.violations_dir.glob(f"robot=*/date=*/{row.name}"):
+                    f.unlink(missing_ok=True)
+                row.unlink(missing_ok=True)
+        except OSError as e:
+            raise UserError(
+                f"cannot write the dataset: {e.strerror or e}", file=str(self.root)
+            ) from None
 
     def write(self, result: BagResult, robot: str, fingerprint: str) -> None:
         """One bag's files, durable: a group of one (``Commits``)."""

@@ -110,11 +110,13 @@ _prepared: dict[str, tuple[str, Any]] = {}
 
 
 def _compiled(config: str) -> Any:
+    from monitors.untrusted import Untrusted, read_regular
+    from supervisor.config.limits import MAX_CONFIG_BYTES
     from supervisor.tools.replay.session import prepare
 
-    try:
-        sha = hashlib.sha256(Path(config).read_bytes()).hexdigest()
-    except OSError:
+    try:  # bounded: a FIFO or /dev/zero is said by prepare's own read, not a hang
+        sha = hashlib.sha256(read_regular(config, max_bytes=MAX_CONFIG_BYTES)).hexdigest()
+    except Untrusted:
         return None  # replay says why, as for any bag
     kept = _prepared.get(config)
     if kept is None or kept[0] != sha:

@@ -5,6 +5,7 @@ groups (``Commits``), and a row a power loss damaged replayed with one line."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -131,3 +132,37 @@ def test_a_row_a_power_loss_damaged_is_one_line_and_its_bag_is_replayed(tmp_path
     again = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
     assert again.stderr.strip() == ""
     assert f"0 bags (0 read, 0 skipped, 0 damaged, 0 failed), {n} done before" in again.stdout
+
+
+def test_a_damaged_row_of_a_bag_whose_files_changed_leaves_no_duplicates(tmp_path):
+    # The damaged row's bag is now under another key (its files touched, as a copy
+    # without -p leaves them): its old violation files were left beside the new ones
+    # (each violation two rows), and the damaged row stayed, said on every run and
+    # refused by fleet report for good.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    clean, ds = tmp_path / "clean", tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    import pyarrow.parquet as pq
+
+    row = next(r for r in (ds / "bags").glob("*.parquet") if list(ds.rglob(f"*/*/{r.name}")))
+    bag = Path(pq.read_table(row)["bag"][0].as_py())
+    row.write_bytes(b"")
+    for f in bag.iterdir():
+        os.utime(f, ns=(1, 1))  # its fingerprint new, none of its content
+    fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert len([line for line in run.stderr.splitlines() if line.strip()]) == 1, run.stderr
+    names = sorted(str(f.relative_to(ds)) for f in ds.rglob("*.parquet"))
+    assert names == sorted(str(f.relative_to(clean)) for f in clean.rglob("*.parquet"))
+    assert sorted(_files(ds).values(), key=str) == sorted(_files(clean).values(), key=str)
+    again = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert again.stderr.strip() == ""
+    report = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", ds, "-o", tmp_path / "r.html"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert report.returncode == 0, report.stderr

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -400,3 +401,25 @@ def test_an_edited_import_replays_the_bags_again(tmp_path):
         2,
         4,
     )
+
+
+@pytest.mark.parametrize("other", ["fifo", "/dev/zero"])
+def test_compare_with_a_fifo_or_a_device_is_one_line_not_a_hang(tmp_path, other):
+    """--compare's same-bytes check read both paths whole: a FIFO hung the run, and
+    /dev/zero filled memory to an internal error (exit 3).  The child's address
+    space is bounded so that a regression fails here, not the machine."""
+    write_bag(tmp_path / "fleet" / "r1" / "b1", messages(1, 50))
+    cfg = config(tmp_path)
+    if other == "fifo":
+        other = str(tmp_path / "fifo")
+        os.mkfifo(other)
+    args = [cfg, tmp_path / "fleet", "-o", tmp_path / "ds", "--compare", other]
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        preexec_fn=lambda: resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30)),
+    )
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode in (1, 2) and len(lines) == 1 and other in lines[0], run.stderr
