@@ -616,8 +616,18 @@ def _tiny_fleet(root: Path) -> list[Path]:
 
 
 def _stopped(root: int, other_than: int = 0) -> int | None:
-    """A process below ``root`` stopped whole (strace's injected SIGSTOP: every
-    thread stopped, one at a mkdir), not one thread at a syscall strace looks at."""
+    """A process below ``root`` stopped whole by strace's injected SIGSTOP (every
+    thread stopped, one at a mkdir) and still so a moment later: each thread also
+    passes through a tracing stop at every syscall strace sees, and on a loaded
+    machine all of them were once caught in one at an earlier mkdir (CI)."""
+    first = _stopped_now(root, other_than)
+    if first is None:
+        return None
+    time.sleep(0.5)
+    return first if _stopped_now(root, other_than) == first else None
+
+
+def _stopped_now(root: int, other_than: int) -> int | None:
     for d in Path("/proc").glob("[0-9]*"):
         pid = int(d.name)
         if pid == other_than or not _below(pid, root):
