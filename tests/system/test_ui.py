@@ -304,6 +304,34 @@ def test_the_page_shows_the_status_live_and_resets_with_the_token(served: Any) -
         pw.stop()
 
 
+@pytest.mark.slow
+def test_a_held_click_on_reset_survives_the_status_documents(served: Any) -> None:
+    """The tables are redrawn on every status document: a Reset pressed and held
+    across documents (a person's click) still asks for the reset."""
+    from tests.system.test_ui_fleet import held_click
+
+    server, hub, control = served
+    pw, page, console, requests = open_page(server.url())
+    try:
+        button = "button.reset-one[data-requirement='operationalstate_2']"
+        page.wait_for_selector(button)
+        page.evaluate(f"() => sessionStorage.setItem(TOKEN_KEY, {TOKEN.decode()!r})")
+
+        def documents() -> None:
+            for _ in range(3):
+                hub.on_status(status_doc(str(control.path)))
+                page.wait_for_timeout(100)
+
+        held_click(page, button, 200, documents)
+        wait = time.monotonic() + 5
+        while not control.requests and time.monotonic() < wait:
+            page.wait_for_timeout(50)
+        assert [r.get("requirement") for r in control.requests] == ["operationalstate_2"]
+        assert console == [], console
+    finally:
+        pw.stop()
+
+
 # ---------------------------------------------------------------- over DDS
 
 

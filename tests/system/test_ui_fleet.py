@@ -317,6 +317,46 @@ def test_the_fleet_page_shows_a_silent_robot_as_lost(fleet_served: Any) -> None:
         pw.stop()
 
 
+def held_click(page: Any, selector: str, hold_ms: int, during: Any = None) -> None:
+    """A person's click: pressed, held ``hold_ms`` (longer than the page's redraws,
+    during which ``during()`` may send documents), released on the same spot."""
+    box = None
+    for _ in range(50):  # None while a redraw replaces the element (before the fix: often)
+        if (box := page.locator(selector).bounding_box()) is not None:
+            break
+        page.wait_for_timeout(20)
+    assert box is not None, selector
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    if during is not None:
+        during()
+    page.wait_for_timeout(hold_ms)
+    page.mouse.up()
+
+
+@pytest.mark.slow
+def test_a_held_click_on_a_robots_link_survives_the_rows_updates(fleet_served: Any) -> None:
+    """The rows update four times a second and on every document: a click held
+    longer than that (a person's) still follows the link."""
+    server, fleet, control = fleet_served
+    r1, r2 = robot(fleet, "r1"), robot(fleet, "r2")
+    pw, page, console, requests = open_page(server.url())
+    try:
+        fleet.on_status(r1, doc_of("robot1", str(control.path), "2026-11-23T17:05:00.0Z"))
+        page.wait_for_selector("tr.robot[data-robot='r1'][data-state='live']")
+
+        def documents() -> None:
+            for i in range(3):
+                fleet.on_status(r2, doc_of("robot2", "/nonexistent", f"2026-11-23T17:05:0{i}.0Z"))
+                page.wait_for_timeout(150)
+
+        held_click(page, "tr.robot[data-robot='r1'] a", 300, documents)
+        page.wait_for_url(server.url() + "robot/r1", timeout=5000)
+        assert console == [], console
+    finally:
+        pw.stop()
+
+
 # ---------------------------------------------------------------- over DDS
 
 

@@ -13,6 +13,46 @@ docs/reference/commands.md, ``ui``.
 
 from __future__ import annotations
 
+# Both pages' scripts: the live tables redrawn in place.
+PATCH_JS = r"""
+// Live tables are redrawn in place (docs/reference/commands.md, ui): only the text and
+// attributes that changed are touched, and keyed rows (data-key) keep their elements,
+// so a button or link under a person's pointer stays the same element through a
+// redraw and their click lands on what they pressed.
+function patch(el, html) {
+  const t = document.createElement("template");
+  t.innerHTML = html;
+  patchChildren(el, t.content);
+}
+function keyOf(n) { return n.nodeType === 1 ? n.getAttribute("data-key") : null; }
+function patchNode(old, neu) {
+  if (old.nodeType !== 1) { if (old.nodeValue !== neu.nodeValue) old.nodeValue = neu.nodeValue; return; }
+  for (const a of Array.from(old.attributes)) if (!neu.hasAttribute(a.name)) old.removeAttribute(a.name);
+  for (const a of Array.from(neu.attributes)) {
+    if (old.getAttribute(a.name) !== a.value) old.setAttribute(a.name, a.value);
+  }
+  patchChildren(old, neu);
+}
+function patchChildren(old, neu) {
+  const keyed = new Map();
+  for (const c of old.childNodes) { const k = keyOf(c); if (k !== null && !keyed.has(k)) keyed.set(k, c); }
+  const next = Array.from(neu.childNodes);
+  next.forEach((n, i) => {
+    const at = old.childNodes[i] ?? null, k = keyOf(n);
+    let o = k !== null ? keyed.get(k) : at;
+    if (k !== null) keyed.delete(k);  // a repeated key gets an element of its own
+    else if (o !== null && keyOf(o) !== null) o = null;  // never reuse another row's element
+    if (o && o.nodeType === n.nodeType && o.nodeName === n.nodeName) {
+      patchNode(o, n);
+      if (o !== at) old.insertBefore(o, at);
+    } else {
+      old.insertBefore(n, at);
+    }
+  });
+  while (old.childNodes.length > next.length) old.removeChild(old.lastChild);
+}
+"""
+
 PAGE = r"""<!doctype html>
 <html lang="en">
 <head>
@@ -142,6 +182,7 @@ ROS_DOMAIN_ID and ROS_AUTOMATIC_DISCOVERY_RANGE.</p>
 </main>
 <script nonce="__NONCE__">
 "use strict";
+/*__PATCH__*/
 const SPARK_S = 30;          // seconds of values a sparkline shows
 // No status document for LIVE_PERIODS of the period the documents announce
 // (status_period_s, the daemon's ros.status_ms), at least LIVE_MIN_S: not live.  A
@@ -343,7 +384,7 @@ function renderHealth() {
   // the socket this UI is configured with, never the one the document names
   rows.push(["resets", M.reset.available ? `through <code>${esc(M.reset.socket)}</code>`
              : `<span class="muted">unavailable: ${esc(M.reset.why)}</span>`]);
-  $("health").innerHTML = rows.map(([k, v]) => `<tr><th>${esc(k)}</th><td>${v}</td></tr>`).join("");
+  patch($("health"), rows.map(([k, v]) => `<tr><th>${esc(k)}</th><td>${v}</td></tr>`).join(""));
   $("reset-all").disabled = !M.reset.available;
 }
 
@@ -415,15 +456,15 @@ function renderRequirements() {
     const formula = r.formula || learned.formula || "";
     const staleIn = arr(r.stale_inputs).map(String);
     const stale = staleIn.length ? `<div class="stale">stale: ${esc(staleIn.join(", "))}</div>` : "";
-    return `<tr class="req" data-requirement="${esc(r.id)}" data-state="${esc(state)}" ` +
+    return `<tr class="req" data-key="${esc(r.id)}" data-requirement="${esc(r.id)}" data-state="${esc(state)}" ` +
       `data-daemon-state="${esc(daemonState)}" data-violations="${esc(count)}">` +
       `<td><b>${esc(r.id)}</b><div>${esc(text)}</div><code class="muted">${esc(formula)}</code></td>` +
       `<td>${badge}${stale}${gauge(r)}</td>` +
       `<td>${esc(count)}</td><td>${esc(fmtTs(last))}</td><td>${acts}</td>` +
       `<td><button class="reset-one" data-requirement="${esc(r.id)}" ${M.reset.available ? "" : "disabled"}>Reset</button></td></tr>`;
   });
-  $("requirements").innerHTML = rows.join("") ||
-    `<tr><td colspan="6" class="muted">no requirements known yet</td></tr>`;
+  patch($("requirements"), rows.join("") ||
+    `<tr><td colspan="6" class="muted">no requirements known yet</td></tr>`);
   heldShown = held.sort().join("\n");
 }
 
@@ -440,19 +481,19 @@ function spark(name) {
 
 function renderInputs() {
   const rows = inputs().map((i) => obj(i)).map((i) =>
-    `<tr class="input" data-input="${esc(i.name)}" data-stale="${i.stale === true ? 1 : 0}">` +
+    `<tr class="input" data-key="${esc(i.name)}" data-input="${esc(i.name)}" data-stale="${i.stale === true ? 1 : 0}">` +
     `<td><b>${esc(i.name)}</b><div class="muted">${esc(i.topic)}</div></td>` +
     `<td class="value">${esc(fmtValue(i.value, i.type, i.precision))}</td>` +
     `<td><span class="age" data-age="${esc(num(i.age_s) ?? "")}">${esc(fmtAge(i.age_s))}</span>` +
     `${i.stale === true ? ' <span class="stale">stale</span>' : ""}</td><td>${spark(i.name)}</td></tr>`);
-  $("inputs").innerHTML = rows.join("") || `<tr><td colspan="4" class="muted">no inputs known yet</td></tr>`;
+  patch($("inputs"), rows.join("") || `<tr><td colspan="4" class="muted">no inputs known yet</td></tr>`);
 }
 
 function renderFeed() {
-  $("feed").innerHTML = M.feed.map((e) =>
+  patch($("feed"), M.feed.map((e) =>
     `<li class="ev ${esc(e.event)}" data-event="${esc(e.event)}" data-requirement="${esc(e.requirement)}">` +
     `<span class="muted">${esc(fmtTs(e.ts))}</span> <span class="k">${esc(e.event)}</span> ` +
-    `${esc(e.requirement)} ${esc(e.what)} <span class="muted">${esc(e.detail)}</span></li>`).join("");
+    `${esc(e.requirement)} ${esc(e.what)} <span class="muted">${esc(e.detail)}</span></li>`).join(""));
 }
 
 function renderOpView() {
@@ -618,6 +659,7 @@ tr.lost td { color: #b71c1c; }
 </main>
 <script nonce="__NONCE__">
 "use strict";
+/*__PATCH__*/
 const R = {};               // robot id -> {row, at: performance.now() when received}
 let connected = false;
 const $ = (id) => document.getElementById(id);
@@ -649,7 +691,7 @@ function render() {
   $("conn").className = connected ? "" : "off";
   const entries = Object.values(R).sort((a, b) => a.row.name.localeCompare(b.row.name));
   let lost = 0;
-  $("robots").innerHTML = entries.map((e) => {
+  patch($("robots"), entries.map((e) => {
     const r = e.row, a = age(e);
     const state = a == null ? "waiting" : (a > r.lost_after_s ? "lost" : "live");
     if (state === "lost") lost += 1;
@@ -659,7 +701,7 @@ function render() {
     const open = (r.open || []).length
       ? `<span class="open">${r.open.length}</span> <span class="muted">${esc(r.open.join(", "))}</span>` : "0";
     const uptime = state === "live" && r.uptime_s != null ? r.uptime_s + (performance.now() - e.at) / 1000 : r.uptime_s;
-    return `<tr class="robot ${state}" data-robot="${esc(r.id)}" data-state="${state}" data-open="${(r.open || []).length}">` +
+    return `<tr class="robot ${state}" data-key="${esc(r.id)}" data-robot="${esc(r.id)}" data-state="${state}" data-open="${(r.open || []).length}">` +
       `<td><a href="/robot/${encodeURIComponent(r.id)}"><b>${esc(r.name)}</b></a><div class="muted">${where}</div></td>` +
       `<td><span class="state state-${state}">${label}</span>${trust(r)}</td>` +
       `<td>${esc(r.host)}</td><td>${esc(r.component)}</td>` +
@@ -667,7 +709,7 @@ function render() {
       `<td>${esc(fmtDur(uptime))}</td><td>${num(r.tick_rate_hz, 1)}</td><td>${num(r.receive_rate_hz, 1)}</td>` +
       `<td class="${r.lost ? "fail" : ""}">${esc(r.lost)}</td><td>${open}</td>` +
       `<td class="age">${esc(fmtAge(a))}</td></tr>`;
-  }).join("") || `<tr><td colspan="11" class="muted">no supervisors known yet</td></tr>`;
+  }).join("") || `<tr><td colspan="11" class="muted">no supervisors known yet</td></tr>`);
   $("count").textContent = `${entries.length} supervisors` + (lost ? `, ${lost} lost` : "");
 }
 setInterval(render, 250);   // ages tick and a silent robot turns LOST between updates
@@ -694,3 +736,6 @@ connect();
 </body>
 </html>
 """
+
+PAGE = PAGE.replace("/*__PATCH__*/", PATCH_JS)
+FLEET_PAGE = FLEET_PAGE.replace("/*__PATCH__*/", PATCH_JS)
