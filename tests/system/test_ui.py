@@ -332,6 +332,29 @@ def test_a_held_click_on_reset_survives_the_status_documents(served: Any) -> Non
         pw.stop()
 
 
+@pytest.mark.slow
+def test_a_rows_button_stays_its_own_when_the_rows_reorder(served: Any) -> None:
+    """The most recently violated requirement moves to the top: each Reset button is
+    still the element it was, with its own requirement, not its neighbour's."""
+    server, hub, control = served
+    pw, page, console, requests = open_page(server.url())
+    try:
+        page.wait_for_selector("tr.req[data-requirement='operationalstate_2']")
+        order = "() => [...document.querySelectorAll('tr.req')].map(r => r.dataset.requirement)"
+        first, second = page.evaluate(order)
+        button = page.evaluate_handle(
+            f"() => document.querySelector(\"button.reset-one[data-requirement='{second}']\")"
+        )
+        hub.on_violation({"event": "violation", "requirement": second, "tick": 9,
+                          "inputs": {"x": 1}, "text": "t", "formula": "f"})  # fmt: skip
+        wait_js(page, f"document.querySelector('tr.req').dataset.requirement === '{second}'")
+        assert page.evaluate(order) == [second, first]
+        assert button.evaluate("b => b.isConnected && b.dataset.requirement") == second
+        assert console == [], console
+    finally:
+        pw.stop()
+
+
 # ---------------------------------------------------------------- over DDS
 
 
