@@ -279,6 +279,20 @@ def _sha256(key: str, v: Any) -> None:
         raise BadRecord(f"{key} must be a SHA-256 (a string of at most 64 characters)")
 
 
+MAX_IMPORTS = 1000  # a config's imported files a record may name
+
+
+def _digests(key: str, v: Any) -> None:
+    ok = (
+        isinstance(v, dict)
+        and len(v) <= MAX_IMPORTS
+        and all(isinstance(k, str) and len(k) <= 4096 for k in v)
+        and all(isinstance(d, str) and len(d) <= 64 for d in v.values())
+    )
+    if not ok:
+        raise BadRecord(f"{key} must map at most {MAX_IMPORTS} file names to SHA-256s")
+
+
 def _ranges(key: str, v: Any) -> None:
     ok = isinstance(v, list) and all(
         isinstance(r, list)
@@ -371,6 +385,7 @@ SCHEMA: dict[str, dict[str, tuple[Check, bool]]] = {
         "config": (_string, False),
         "tick": (_tick, False),
         "previous_last_sha256": (_sha256, False),
+        "imports": (_digests, False),  # start, reload, replay: the config's imports
     },
 }
 # A supervisor record's fields whose meaning depends on its ``what``.

@@ -79,14 +79,25 @@ class ConfigSource:
         another config to whoever keys results by it (fleet replay's dataset,
         docs/reference/fleet.md).  Known once the config is loaded: its imports are
         read then."""
-        files = self.imports.files()
-        if not files:
+        digests = self.import_digests()
+        if not digests:
             return self.sha256
         h = hashlib.sha256(f"config {self.sha256}\0".encode())
-        base = Path(self.path).parent
-        for name, data in sorted((os.path.relpath(k, base), v) for k, v in files.items()):
-            h.update(f"import {name}\0{hashlib.sha256(data).hexdigest()}\0".encode())
+        for name, digest in digests.items():
+            h.update(f"import {name}\0{digest}\0".encode())
         return h.hexdigest()
+
+    def import_digests(self) -> dict[str, str]:
+        """Each imported file's SHA-256 by its name relative to the config, sorted:
+        what the violation log's start record keeps, so that ``report`` can tell an
+        edited import under an unchanged config (docs/reference/log.md)."""
+        base = Path(self.path).parent
+        return dict(
+            sorted(
+                (os.path.relpath(k, base), hashlib.sha256(v).hexdigest())
+                for k, v in self.imports.files().items()
+            )
+        )
 
 
 def read_config(path: str | Path) -> ConfigSource:
@@ -152,6 +163,7 @@ def load_config(source: str | Path | ConfigSource) -> Config:
         path=file,
         sha256=source.sha256,
         identity=source.identity(),  # every import read by now
+        import_digests=source.import_digests(),
         component=str(component),
         step=step,
         variables=variables,

@@ -147,6 +147,15 @@ class Config:
     # The config with the files it imports, as one SHA-256 (ConfigSource.identity):
     # what fleet replay keys its dataset by.  Empty when not made by load_config.
     identity: str = ""
+    # Each imported file's SHA-256 by its name relative to the config
+    # (ConfigSource.import_digests): kept in the violation log's start record.
+    import_digests: dict[str, str] = field(default_factory=dict)
+
+    def log_fields(self) -> dict[str, Any]:
+        """What the violation log's start, reload and replay records say of the config
+        beside its hash (in every record): its imports' hashes, when it has any
+        (docs/reference/log.md, "supervisor records")."""
+        return {"imports": dict(self.import_digests)} if self.import_digests else {}
 
     @property
     def inputs(self) -> list[Variable]:

@@ -419,6 +419,7 @@ class SupervisorNode:
             inputs=len(new.config.inputs),
             policy=new.config.step.policy,
             tick=self.core.tick,  # the first tick judged by the new monitor
+            **new.config.log_fields(),
             **how,
         )
         if new.config.ros.status_ms:  # the status topic names the new config at once

@@ -215,7 +215,7 @@ def _open_log(
 
 def _log_start(log: ViolationLog, config: str, session: Session, skipped: list[str]) -> None:
     """The start record, and what the validation could not judge or warned of."""
-    log.supervisor("start", config=str(config), pid=os.getpid())
+    log.supervisor("start", config=str(config), pid=os.getpid(), **session.config.log_fields())
     for why in skipped:  # run validates as check does; say what it could not judge
         log.supervisor("analysis_skipped", why=why)
     for w in session.project.warnings:  # e.g. an SSH key the robot does not hold

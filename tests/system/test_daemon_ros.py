@@ -248,6 +248,40 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
 # ------------------------------------------------------------------ garbage
 
 
+def test_the_start_and_reload_records_name_the_imports_hashes(tmp_path: Path) -> None:
+    """The records' config_sha256 is the config file's alone: its FRET export and
+    variables file are in the start and reload records, so an edited import is
+    told apart after the incident (docs/reference/log.md)."""
+    import hashlib
+    import shutil
+
+    root = Path(__file__).resolve().parents[2] / "config"
+    names = ("srobot-from-fret.yaml", "srobot-fret-export.json", "srobot-ogma-variables.txt")
+    for name in names:
+        shutil.copy(root / name, tmp_path / name)
+    config = tmp_path / names[0]
+    d = _daemon(tmp_path, config)
+    try:
+
+        def digest(name: str) -> str:
+            return hashlib.sha256((tmp_path / name).read_bytes()).hexdigest()
+
+        start = d.wait_record(lambda r: r.get("what") == "start", "start")
+        assert start["imports"] == {n: digest(n) for n in names[1:]}
+        export = tmp_path / names[1]
+        export.write_text(
+            export.read_text().replace("distance_to_target > 3", "distance_to_target > 4")
+        )
+        d.proc.send_signal(signal.SIGHUP)
+        reload = d.wait_record(lambda r: r.get("what") == "reload", "reload", timeout=60)
+        assert reload["ok"] is True, reload
+        assert reload["config_sha256"] == start["config_sha256"]  # the file: unchanged
+        assert reload["imports"][names[1]] == digest(names[1]) != start["imports"][names[1]]
+        d.terminate(budget=10)
+    finally:
+        d.close()
+
+
 def test_garbage_on_topics(tmp_path: Path, robot_node: Any) -> None:
     """Wrong message type on a topic, huge integers, NaN, a publisher that
     goes away and comes back: reported, and the daemon keeps monitoring."""

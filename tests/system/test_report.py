@@ -115,6 +115,38 @@ def test_report_from_the_log_alone(logged: tuple[Path, Path, Path], tmp_path: Pa
     assert html.count('class="mk violation"') == 3
 
 
+def test_an_import_edited_since_the_log_is_not_read_as_the_logs_config(
+    logged: tuple[Path, Path, Path], tmp_path: Path
+) -> None:
+    """The log's records carry the config file's hash; an edited ``variables_from``
+    (or FRET export) under the same file judged with other inputs.  The replay record
+    names the imports' hashes, and the report does not read the log with the edited
+    ones: without ``--config`` it goes on without a config, with it it refuses."""
+    config, trace, _log = logged
+    speed = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
+    text = config.read_text()
+    assert speed in text
+    config.write_text(
+        text.replace(speed, "").replace("variables:\n", "variables_from: v.txt\nvariables:\n")
+    )
+    imported = tmp_path / "v.txt"
+    imported.write_text('("speed","double","/speed","double")\n')
+    log = tmp_path / "imports.jsonl"
+    assert run("replay", str(config), str(trace), "-o", str(log), "--quiet").returncode == 0
+    start = next(r for r in iter_records(str(log)) if r.get("what") == "replay")
+    assert list(start["imports"]) == ["v.txt"]
+    out = tmp_path / "report.html"
+    assert main(["report", str(log), "-o", str(out), "--quiet"]) == 0
+    assert "the arm is rated to 2 m/s" in out.read_text()  # read with the config
+    imported.write_text('("speed","float","/speed","double")\n')
+    assert main(["report", str(log), "-o", str(out), "--quiet"]) == 0
+    html = out.read_text()
+    assert "the arm is rated to 2 m/s" not in html and "its import v.txt is not the one" in html
+    r = run("report", str(log), "--config", str(config), "-o", str(out))
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"{config}:" in r.stderr and "its import v.txt is not the one" in r.stderr
+
+
 @pytest.mark.slow
 def test_report_with_the_bag_replays_the_whole_window(
     logged: tuple[Path, Path, Path], tmp_path: Path

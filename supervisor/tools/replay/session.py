@@ -172,7 +172,11 @@ def run_one(
                 durability=cfg.log_durability,
             )
             out.supervisor(
-                "replay", config=str(config), recordings=[str(p) for p in paths], dry_run=True
+                "replay",
+                config=str(config),
+                recordings=[str(p) for p in paths],
+                dry_run=True,
+                **cfg.log_fields(),
             )
         warnings: list[str] = []
         try:

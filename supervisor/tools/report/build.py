@@ -6,8 +6,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from monitors.errors import UserError
 from supervisor.config.model import Config
-from supervisor.tools.report.data import LogData, load_logs, median, resolve_config
+from supervisor.tools.report.data import (
+    LogData,
+    changed_imports,
+    load_logs,
+    median,
+    resolve_config,
+)
 from supervisor.tools.report.inputs import (
     SHOWN_PER_REQUIREMENT,
     Series,
@@ -75,7 +82,14 @@ def build(
         from supervisor.config import load_config
         from supervisor.pipeline import build_project
 
-        project = build_project(load_config(cfg_path), ros=False)
+        loaded = load_config(cfg_path)
+        changed = changed_imports(data, loaded.sha256, loaded.import_digests)
+        if changed is not None and (config is not None or bags):
+            raise UserError(f"{changed}; give the files as they were", file=str(cfg_path))
+        if changed is not None:  # found beside the log: the report goes on without it
+            cfg_path, no_config = None, f"{cfg_path}: {changed}"
+        else:
+            project = build_project(loaded, ros=False)
     cfg = project.config if project is not None else None
     notes: list[str] = []
     reqs = _requirements(data, project)

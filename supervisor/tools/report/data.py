@@ -128,6 +128,28 @@ def config_hash(data: LogData) -> str | None:
     )
 
 
+def changed_imports(data: LogData, sha256: str, digests: dict[str, str]) -> str | None:
+    """How the imports of a config whose file is the log's (``sha256``) differ from
+    those its start, reload or replay records name, if they do: an edited FRET export
+    under an unchanged config judges with other requirements.  A log that names no
+    imports (an older writer's) is not checked."""
+    for r in reversed(data.records):
+        logged = r.get("imports")
+        if r.get("event") != "supervisor" or r.get("config_sha256") != sha256:
+            continue
+        if not isinstance(logged, dict) or logged == digests:
+            continue
+        for name in sorted(set(logged) | set(digests)):
+            was, now = logged.get(name), digests.get(name)
+            if was != now:
+                return (
+                    f"its import {printable(name)} is not the one the log was written with "
+                    f"(SHA-256 {printable(str(was or 'none')[:12])}... then, "
+                    f"{(now or 'none')[:12]}... now)"
+                )
+    return None
+
+
 def _candidates(data: LogData, bags: list[str]) -> list[Path]:
     """Regular files (not links) named ``*.yaml``/``*.yml`` beside the logs and in
     the recordings, as an incident's files are kept together."""
