@@ -29,6 +29,7 @@ from rosutil import (  # noqa: E402
     spin_until,
     variant,
     wait_matched,
+    wait_until,
 )
 from std_msgs.msg import Bool, Int64, String  # noqa: E402
 
@@ -168,6 +169,14 @@ def test_stale_input_stops_robot(tmp_path: Path, robot_node: Any) -> None:
 # ------------------------------------------------------------------ notify, watchdog, reload
 
 
+def _stopped(pid: int) -> bool:
+    """Every thread of ``pid`` in a stop (SIGSTOP): state T in /proc."""
+    tasks = Path(f"/proc/{pid}/task")
+    return all(
+        (t / "stat").read_text().rpartition(")")[2].split()[0] == "T" for t in tasks.iterdir()
+    )
+
+
 def _watchdog_times(notes: list[tuple[float, str]]) -> list[float]:
     return [t for t, n in notes if "WATCHDOG=1" in n.splitlines()]
 
@@ -189,6 +198,10 @@ def test_notify_watchdog_reload_stop(tmp_path: Path, robot_node: Any) -> None:
         # A loop that does not run sends no pings (SIGSTOP stops every thread;
         # the in-process test below stalls only the loop).
         d.proc.send_signal(signal.SIGSTOP)
+        # A ping sent just before the signal can still be in the socket: once every
+        # thread is stopped nothing more is sent, so what is queued then goes first.
+        wait_until("the daemon stopped", lambda: _stopped(d.proc.pid), 5)
+        d.collect(0.05)
         stopped = d.collect(0.8)
         d.proc.send_signal(signal.SIGCONT)
         assert _watchdog_times(stopped) == []
