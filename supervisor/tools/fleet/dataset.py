@@ -30,7 +30,9 @@ not finished, and the next run says so in one line and replays it (``done``).
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+import stat
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -89,6 +91,7 @@ class Done:
         )
 
 
+MAX_ERROR = 300  # characters of a reader's error in a line about a dataset's file
 KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
 
 
@@ -118,22 +121,42 @@ class Dataset:
         return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
     def bags(self, damaged: list[Path] | None = None) -> pa.Table:
-        """The bags table: one row per bag and config.  A row file of this dataset's
-        naming that a power loss left empty or cut short is left out (its bag is not
-        finished) and added to ``damaged``; any other unreadable file is an error."""
-        files = sorted(self.bags_dir.glob("*.parquet")) if self.bags_dir.is_dir() else []
+        """The bags table: one row per bag and config, from the files of
+        ``dataset_files`` (anything else in ``bags/`` is one error).  A row file of
+        this dataset's naming that a power loss left empty or cut short is added to
+        ``damaged`` and left out (its bag is not finished); without ``damaged``
+        (``fleet report``) it is one error naming it.  Any other unreadable file is
+        an error: not this dataset's."""
+        try:
+            mode = self.bags_dir.lstat().st_mode
+        except FileNotFoundError:
+            return BAGS.empty_table()  # nothing finished yet
+        except OSError as e:
+            raise UserError(f"cannot read: {e.strerror or e}", file=_shown(self.bags_dir)) from None
+        if stat.S_ISLNK(mode):  # another dataset's rows, counted as this one's
+            raise UserError(
+                "a link, not a directory fleet replay writes", file=_shown(self.bags_dir)
+            )
         tables = []
-        for f in files:
+        for name in dataset_files(self.bags_dir, ()):
+            f = Path(name)
             try:
-                table = _row_file(f, self.bags_dir)
+                table = _row_file(f)
             except FileNotFoundError as e:  # taken away while it was listed
                 raise UserError(
-                    f"not a fleet dataset's bags table ({e.strerror or e})", file=str(f)
+                    f"not a fleet dataset's bags table ({e.strerror or e})", file=_shown(f)
                 ) from None
             if table is not None:
                 tables.append(table)
             elif damaged is not None:
                 damaged.append(f)
+            else:
+                raise UserError(
+                    "a bag's row is empty or cut short, as a power loss before the dataset's "
+                    "sync leaves it",
+                    file=_shown(f),
+                    hint="run the same fleet replay again: it removes that row and replays its bag",
+                )
         return pa.concat_tables(tables) if tables else BAGS.empty_table()
 
     def drop(self, damaged: tuple[Path, ...]) -> None:
@@ -173,7 +196,7 @@ class Dataset:
         loss damaged, ``bags``)."""
         path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
         try:
-            table = _row_file(path, self.bags_dir)
+            table = _row_file(path)
         except FileNotFoundError:
             return None
         if table is None:
@@ -262,6 +285,65 @@ class Commits:
         _write(self.dataset.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
 
 
+def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
+    """The Parquet files under ``where`` as fleet replay lays them out: a directory
+    per level (``robot=``, ``date=``), then ``*.parquet`` files.  Anything else is an
+    error naming it: a link (pyarrow's discovery followed a loop without end, or
+    counted another dataset's rows), a FIFO or device, a directory or file where
+    the layout has none (its rows were added, or left out, without a word).  Hidden
+    and ``_`` names are skipped, as pyarrow does (an interrupted write's temporary)."""
+    out: list[str] = []
+    todo = [(where, 0)]
+    while todo:
+        d, depth = todo.pop()
+        try:
+            with os.scandir(d) as it:
+                entries = sorted(it, key=lambda e: e.name)
+        except OSError as e:
+            raise UserError(f"cannot list: {e.strerror or e}", file=str(d)) from None
+        for entry in entries:
+            if entry.name.startswith((".", "_")):
+                continue
+            path = Path(entry.path)
+            try:
+                mode = entry.stat(follow_symlinks=False).st_mode
+            except OSError as e:
+                raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
+            what = _kind(mode)
+            if what is not None:
+                raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path))
+            if depth < len(levels):
+                if not (stat.S_ISDIR(mode) and entry.name.startswith(f"{levels[depth]}=")):
+                    raise UserError(
+                        f"not {levels[depth]}={levels[depth][0].upper()}: not fleet replay's "
+                        "layout",
+                        file=_shown(path),
+                    )
+                todo.append((path, depth + 1))
+            elif stat.S_ISREG(mode) and entry.name.endswith(".parquet"):
+                out.append(entry.path)
+            else:
+                raise UserError(
+                    "not a .parquet file here: not fleet replay's layout", file=_shown(path)
+                )
+    return sorted(out)
+
+
+def _kind(mode: int) -> str | None:
+    """What an entry is, when no dataset of fleet replay holds one."""
+    if stat.S_ISLNK(mode):
+        return "a link"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    return "a device or socket"
+
+
+def _shown(path: Path) -> str:
+    return printable(str(path))
+
+
 def partitions() -> Any:
     """The violations' hive partitions, as text: a robot named 007 stays "007"
     (pyarrow infers a number otherwise)."""
@@ -346,7 +428,7 @@ def _write(path: Path, table: pa.Table) -> None:
         raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None
 
 
-def _row_file(path: Path, where: Path) -> pa.Table | None:
+def _row_file(path: Path) -> pa.Table | None:
     """A row file read against ``BAGS``; None for one of this dataset's names that a
     power loss left empty or cut short (module docstring).  Any other file that is
     not a row is one error: not this dataset's."""
@@ -359,8 +441,13 @@ def _row_file(path: Path, where: Path) -> pa.Table | None:
         if ours and _cut(path):
             return None
         raise UserError(
-            f"not a fleet dataset's bags table ({printable(str(e))})", file=str(where)
+            f"not a fleet dataset's bags table ({one_line(e)})", file=_shown(path)
         ) from None
+
+
+def one_line(e: BaseException) -> str:
+    """An error's text as one printable line of a bounded length."""
+    return printable(" ".join(str(e).split()))[:MAX_ERROR]
 
 
 def _cut(path: Path) -> bool:

@@ -9,7 +9,6 @@ writes, and anything else is one ``UserError``.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +20,7 @@ import pyarrow.dataset as ds
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
-from supervisor.tools.fleet.dataset import BAGS, partitions
+from supervisor.tools.fleet.dataset import Dataset, dataset_files, one_line, partitions
 from supervisor.tools.fleet.task import VIOLATIONS
 
 # What one page shows at most; the rest is counted ("N more").
@@ -110,79 +109,11 @@ def check_dataset(root: Path) -> None:
         )
 
 
-def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
-    """The Parquet files under ``where`` as fleet replay lays them out: a directory
-    per level (``robot=``, ``date=``), then ``*.parquet`` files.  Anything else is an
-    error naming it: a link (pyarrow's discovery followed a loop without end, or
-    counted another dataset's rows), a FIFO or device, a directory or file where
-    the layout has none (its rows were added, or left out, without a word).  Hidden
-    and ``_`` names are skipped, as pyarrow does (an interrupted write's temporary)."""
-    import stat
-
-    out: list[str] = []
-    todo = [(where, 0)]
-    while todo:
-        d, depth = todo.pop()
-        try:
-            with os.scandir(d) as it:
-                entries = sorted(it, key=lambda e: e.name)
-        except OSError as e:
-            raise UserError(f"cannot list: {e.strerror or e}", file=str(d)) from None
-        for entry in entries:
-            if entry.name.startswith((".", "_")):
-                continue
-            path = Path(entry.path)
-            try:
-                mode = entry.stat(follow_symlinks=False).st_mode
-            except OSError as e:
-                raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
-            what = _kind(mode)
-            if what is not None:
-                raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path))
-            if depth < len(levels):
-                if not (stat.S_ISDIR(mode) and entry.name.startswith(f"{levels[depth]}=")):
-                    raise UserError(
-                        f"not {levels[depth]}={levels[depth][0].upper()}: not fleet replay's "
-                        "layout",
-                        file=_shown(path),
-                    )
-                todo.append((path, depth + 1))
-            elif stat.S_ISREG(mode) and entry.name.endswith(".parquet"):
-                out.append(entry.path)
-            else:
-                raise UserError(
-                    "not a .parquet file here: not fleet replay's layout", file=_shown(path)
-                )
-    return sorted(out)
-
-
-def _kind(mode: int) -> str | None:
-    """What an entry is, when no dataset of fleet replay holds one."""
-    import stat
-
-    if stat.S_ISLNK(mode):
-        return "a link"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
-        return None
-    return "a device or socket"
-
-
-def _shown(path: Path) -> str:
-    return printable(str(path))
-
-
 def read_bags(root: Path) -> pa.Table:
-    files = dataset_files(root / "bags", ())
-    if not files:
-        return BAGS.empty_table()
-    try:
-        return ds.dataset(files, format="parquet", schema=BAGS).to_table()
-    except (pa.ArrowException, OSError) as e:
-        raise UserError(
-            f"not a fleet dataset's bags table ({_one_line(e)})", file=str(root / "bags")
-        ) from None
+    """The bags table, read as fleet replay's resume reads it (dataset.py): a row a
+    power loss damaged is one line naming it, as the page would count its bag as
+    not finished without a word."""
+    return Dataset(root, make=False).bags()
 
 
 def read_violations(root: Path) -> pa.Table:
@@ -206,7 +137,7 @@ def read_violations(root: Path) -> pa.Table:
         table = found.to_table(columns=[*COLUMNS, "robot", "date"])
     except (pa.ArrowException, OSError) as e:
         raise UserError(
-            f"not a fleet dataset's violations ({_one_line(e)})", file=str(where)
+            f"not a fleet dataset's violations ({one_line(e)})", file=str(where)
         ) from None
     # a partition of no value (hive's default partition): not fleet replay's
     nulls = pc.sum(pc.or_(pc.is_null(table["robot"]), pc.is_null(table["date"]))).as_py()
@@ -216,10 +147,6 @@ def read_violations(root: Path) -> pa.Table:
             file=str(where),
         )
     return table
-
-
-def _one_line(e: BaseException) -> str:
-    return printable(" ".join(str(e).split()))[:MAX_TEXT]
 
 
 def summarize(root: Path, baseline: str | None) -> Summary:

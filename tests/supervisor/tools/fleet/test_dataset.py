@@ -166,3 +166,37 @@ def test_a_damaged_row_of_a_bag_whose_files_changed_leaves_no_duplicates(tmp_pat
         timeout=300,
     )
     assert report.returncode == 0, report.stderr
+
+
+@pytest.mark.parametrize(
+    "make, said",
+    [
+        ("link", "zz.parquet: a link"),  # another dataset's row, counted as finished here
+        ("fifo", "zz.parquet: a FIFO"),
+        ("directory", "zz: not a .parquet file here"),
+    ],
+)
+def test_resume_refuses_what_fleet_replay_never_writes_in_the_bags_table(tmp_path, make, said):
+    # The bags table is read one way by fleet replay's resume and by fleet report
+    # (dataset.py, ``dataset_files``): a link, a FIFO or a stray directory is one line.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    other, ds = tmp_path / "other", tmp_path / "ds"
+    fleet(cfg, root, "-o", other, "--jobs", "1", ok=(0,))
+    (ds / "bags").mkdir(parents=True)
+    if make == "link":
+        (ds / "bags" / "zz.parquet").symlink_to(next((other / "bags").iterdir()))
+    elif make == "fifo":
+        os.mkfifo(ds / "bags" / "zz.parquet")
+    else:
+        (ds / "bags" / "zz").mkdir()
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1"],
+        capture_output=True, text=True, timeout=120,  # a FIFO's wait fails here
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1 and said in lines[0], run.stderr
+    assert str(ds / "bags") in lines[0] and "internal error" not in lines[0]
+    assert not (ds / "violations").exists()  # said before any bag was replayed

@@ -464,3 +464,18 @@ def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_pa
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 1 and len(lines) == 1 and said in lines[0], run.stderr
     assert str(ds) in lines[0] and "internal error" not in lines[0]
+
+
+@pytest.mark.parametrize("damage", ["empty", "cut"])
+def test_a_row_a_power_loss_damaged_is_one_line_naming_its_file(fleet, tmp_path, damage):
+    # fleet report reads the bags table as fleet replay's resume does (dataset.py):
+    # a row file a power loss left empty or cut short is named, with what to do.
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    row = sorted((ds / "bags").glob("*.parquet"))[2]
+    whole = row.read_bytes()
+    row.write_bytes(b"" if damage == "empty" else whole[: len(whole) // 2])
+    run = report(ds, "-o", tmp_path / "f.html", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and str(row) in lines[0], run.stderr
+    assert "empty or cut short" in lines[0] and "fleet replay" in lines[0]
