@@ -92,6 +92,15 @@ class Done:
 
 
 MAX_ERROR = 300  # characters of a reader's error in a line about a dataset's file
+# What one reading of a dataset (fleet report, with its baseline; fleet replay's
+# resume) decodes at most: its columns in memory, about 18 million violations.  A
+# file of a few KB can hold gigabytes of repeated text (dictionary-encoded), so this
+# is checked before each file is decoded (``Budget``, docs/reference/fleet.md).
+# A violation decoded takes about 230 bytes with a bag path of 70 characters.
+MAX_DECODED_BYTES = 4 * 2**30
+# The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
+# prefix-encoded text that decodes to far more than it stores, is not its file.
+ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
 KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
 
 
@@ -120,13 +129,15 @@ class Dataset:
                 contents.add((row["config_sha256"], row["bag_sha256"]))
         return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
-    def bags(self, damaged: list[Path] | None = None) -> pa.Table:
+    def bags(self, damaged: list[Path] | None = None, budget: Budget | None = None) -> pa.Table:
         """The bags table: one row per bag and config, from the files of
         ``dataset_files`` (anything else in ``bags/`` is one error).  A row file of
         this dataset's naming that a power loss left empty or cut short is added to
         ``damaged`` and left out (its bag is not finished); without ``damaged``
         (``fleet report``) it is one error naming it.  Any other unreadable file is
-        an error: not this dataset's."""
+        an error: not this dataset's.  ``budget``: what the reading may still decode
+        (a new ``Budget`` without it)."""
+        budget = budget if budget is not None else Budget()
         try:
             mode = self.bags_dir.lstat().st_mode
         except FileNotFoundError:
@@ -141,7 +152,7 @@ class Dataset:
         for name in dataset_files(self.bags_dir, ()):
             f = Path(name)
             try:
-                table = _row_file(f)
+                table = _row_file(f, budget)
             except FileNotFoundError as e:  # taken away while it was listed
                 raise UserError(
                     f"not a fleet dataset's bags table ({e.strerror or e})", file=_shown(f)
@@ -196,7 +207,7 @@ class Dataset:
         loss damaged, ``bags``)."""
         path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
         try:
-            table = _row_file(path)
+            table = _row_file(path, Budget())
         except FileNotFoundError:
             return None
         if table is None:
@@ -428,13 +439,99 @@ def _write(path: Path, table: pa.Table) -> None:
         raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None
 
 
-def _row_file(path: Path) -> pa.Table | None:
+class Budget:
+    """What one reading of a dataset may still decode (``MAX_DECODED_BYTES``),
+    shared by the files it reads."""
+
+    def __init__(self, limit: int = MAX_DECODED_BYTES) -> None:
+        self.limit = limit
+        self.left = limit
+
+    def check(self, n: int, path: Path) -> None:
+        if n > self.left:
+            raise UserError(
+                f"with this file the dataset decodes to more than {self.limit / 2**30:g} GiB, "
+                "the most it is read to: not read",
+                file=_shown(path),
+                hint="a dataset this large is for DuckDB (docs/reference/fleet.md)",
+            )
+
+    def take(self, n: int, path: Path) -> None:
+        self.check(n, path)
+        self.left -= n
+
+
+def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Table:
+    """One of the dataset's Parquet files, ``schema``'s columns of ``schema``'s types,
+    decoded only once ``budget`` has room for it.  From its footer (its rows and its
+    columns' sizes), a bound: no value is longer than its column's bytes, so a column
+    decodes to at most its bytes, or, dictionary-encoded, its bytes once per row.  The
+    usual file fits it and is read at once; one that does not is read first with its
+    text columns as dictionary codes (each distinct value once), so that their
+    decoded size is known exactly before they are decoded.  A file of other columns,
+    types or encodings: not this dataset's."""
+
+    def wrong(why: str) -> UserError:
+        return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
+
+    footer = pq.ParquetFile(path)
+    found = footer.schema_arrow
+    for f in schema:
+        i = found.get_field_index(f.name)
+        if i < 0:
+            raise wrong(f"no column {f.name}")
+        if found.field(i).type != f.type:
+            raise wrong(f"column {f.name} is {found.field(i).type}, not {f.type}")
+    meta = footer.metadata
+    names = set(schema.names)
+    stored = bound = 0
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        for c in range(group.num_columns):
+            column = group.column(c)
+            if column.path_in_schema not in names:
+                continue
+            if not set(column.encodings) <= ENCODINGS:
+                odd = ", ".join(sorted(set(column.encodings) - ENCODINGS))
+                raise wrong(f"column {column.path_in_schema} encoded as {odd}")
+            size, rows = column.total_uncompressed_size, column.num_values
+            stored += size
+            coded = any("DICTIONARY" in e for e in column.encodings)
+            bound += rows * (size + 8) if coded else size + 8 * rows
+    if bound <= budget.left:
+        table = footer.read(columns=schema.names, use_threads=False)
+        budget.take(table.nbytes, path)
+        return table
+    # the codes and fixed-width values take at most 8 bytes a row and column
+    budget.check(stored + meta.num_rows * 8 * len(schema), path)
+    text = [f.name for f in schema if pa.types.is_string(f.type)]
+    coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta).read(
+        columns=schema.names, use_threads=False
+    )
+    budget.take(_decoded(coded), path)
+    return coded.cast(schema)
+
+
+def _decoded(table: pa.Table) -> int:
+    """The bytes ``table`` takes once its dictionary columns are decoded."""
+    n = 0
+    for column in table.columns:
+        if not pa.types.is_dictionary(column.type):
+            n += column.nbytes
+            continue
+        for chunk in column.chunks:
+            lengths = pc.binary_length(chunk.dictionary)
+            n += (pc.sum(pc.take(lengths, chunk.indices)).as_py() or 0) + 4 * (len(chunk) + 1)
+    return n
+
+
+def _row_file(path: Path, budget: Budget) -> pa.Table | None:
     """A row file read against ``BAGS``; None for one of this dataset's names that a
     power loss left empty or cut short (module docstring).  Any other file that is
     not a row is one error: not this dataset's."""
     ours = KEY.fullmatch(path.name) is not None
     try:
-        return pq.read_table(path, schema=BAGS)
+        return read_file(path, BAGS, budget, "bags table")
     except FileNotFoundError:
         raise
     except (pa.ArrowException, OSError) as e:

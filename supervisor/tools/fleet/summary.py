@@ -12,15 +12,15 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import unquote
 
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.dataset as ds
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
-from supervisor.tools.fleet.dataset import Dataset, dataset_files, one_line, partitions
+from supervisor.tools.fleet.dataset import Budget, Dataset, dataset_files, one_line, read_file
 from supervisor.tools.fleet.task import VIOLATIONS
 
 # What one page shows at most; the rest is counted ("N more").
@@ -109,54 +109,58 @@ def check_dataset(root: Path) -> None:
         )
 
 
-def read_bags(root: Path) -> pa.Table:
+def read_bags(root: Path, budget: Budget) -> pa.Table:
     """The bags table, read as fleet replay's resume reads it (dataset.py): a row a
     power loss damaged is one line naming it, as the page would count its bag as
     not finished without a word."""
-    return Dataset(root, make=False).bags()
+    return Dataset(root, make=False).bags(budget=budget)
 
 
-def read_violations(root: Path) -> pa.Table:
+def read_violations(root: Path, budget: Budget) -> pa.Table:
     """Every violation row with its robot and date, read against fleet replay's
-    schema (a file of other columns or types is an error, never a guess)."""
+    schema (a file of other columns or types is an error, never a guess), each file
+    decoded only within ``budget`` (dataset.py, ``read_file``)."""
     where = root / "violations"
     schema = pa.schema([*_FILE_SCHEMA, ("robot", pa.string()), ("date", pa.string())])
     if not where.is_dir():
         return schema.empty_table()
-    files = dataset_files(where, ("robot", "date"))
-    if not files:
-        return schema.empty_table()
-    try:
-        found = ds.dataset(
-            files,
-            format="parquet",
-            partitioning=partitions(),
-            partition_base_dir=str(where),
-            schema=schema,
-        )
-        table = found.to_table(columns=[*COLUMNS, "robot", "date"])
-    except (pa.ArrowException, OSError) as e:
+    tables = []
+    for name in dataset_files(where, ("robot", "date")):
+        path = Path(name)
+        try:
+            table = read_file(path, _FILE_SCHEMA, budget, "violations")
+        except (pa.ArrowException, OSError) as e:
+            raise UserError(
+                f"not a fleet dataset's violations ({one_line(e)})", file=printable(name)
+            ) from None
+        robot, date = (_partition(d, path) for d in (path.parent.parent, path.parent))
+        parts = [pa.repeat(pa.scalar(v, pa.string()), table.num_rows) for v in (robot, date)]
+        budget.take(sum(p.nbytes for p in parts), path)
+        tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
+    return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def _partition(directory: Path, path: Path) -> str:
+    """A partition's value (``robot=R``), URI-decoded as Hive partitioning reads it;
+    one of no value (Hive's default partition) is not fleet replay's."""
+    value = unquote(directory.name.partition("=")[2])
+    if value in ("", "__HIVE_DEFAULT_PARTITION__"):
         raise UserError(
-            f"not a fleet dataset's violations ({one_line(e)})", file=str(where)
-        ) from None
-    # a partition of no value (hive's default partition): not fleet replay's
-    nulls = pc.sum(pc.or_(pc.is_null(table["robot"]), pc.is_null(table["date"]))).as_py()
-    if nulls:
-        raise UserError(
-            f"not a fleet dataset's violations ({nulls} row(s) outside robot=R/date=D)",
-            file=str(where),
+            "not a fleet dataset's violations (a partition of no value, outside robot=R/date=D)",
+            file=printable(str(path)),
         )
-    return table
+    return value
 
 
 def summarize(root: Path, baseline: str | None) -> Summary:
     check_dataset(root)
-    bags = read_bags(root)
-    table = read_violations(root)
+    budget = Budget()  # the dataset's and the baseline's, all they decode
+    bags = read_bags(root, budget)
+    table = read_violations(root, budget)
     configs = sorted(set(table.column("config_sha256").to_pylist()) | set(_configs(bags)))
     changes = None
     if baseline is not None:
-        changes = _changes(root, table, bags, configs, baseline)
+        changes = _changes(root, table, bags, configs, baseline, budget)
     maps = _maps(table)
     statuses = {s: 0 for s in ("read", "skipped", "damaged", "failed")}
     per_robot: dict[str, dict[str, int]] = {}
@@ -289,15 +293,15 @@ def _top(per_bag: pa.Table) -> list[Violation]:
 
 
 def _changes(
-    root: Path, table: pa.Table, bags: pa.Table, configs: list[str], baseline: str
+    root: Path, table: pa.Table, bags: pa.Table, configs: list[str], baseline: str, budget: Budget
 ) -> Changes:
     """The baseline: another dataset (one config each), or the hash (a prefix of 8
     or more hex digits) of one of this dataset's two configs (fleet replay --compare)."""
     other = Path(baseline)
     if other.is_dir():
         check_dataset(other)
-        obags = read_bags(other)
-        otable = read_violations(other)
+        obags = read_bags(other, budget)
+        otable = read_violations(other, budget)
         mine = _one_config(root, table, bags)
         theirs = _one_config(other, otable, obags)
         # relabelled: two datasets may hold the same config (a re-run, another archive)
