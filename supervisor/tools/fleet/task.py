@@ -193,6 +193,14 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
     )
 
 
+def copy_of(task: BagTask, first: str, digest: str) -> BagResult:
+    """The result of a bag whose content is that of ``first``, another bag of the
+    run (archive.py, ``copies``): skipped, not replayed twice."""
+    return BagResult(
+        task, "skipped", _reason(f"the same content as {first}, replayed with this config"), digest
+    )
+
+
 def _table(task: BagTask, digest: str, rows: list[tuple[str, int, int, str]]) -> pa.Table:
     n = len(rows)
     return pa.table(
