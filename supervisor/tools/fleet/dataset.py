@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
+from urllib.parse import unquote
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -48,7 +49,7 @@ import pyarrow.parquet as pq
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.files import sync_filesystem, write_whole
-from supervisor.tools.fleet.task import BagResult
+from supervisor.tools.fleet.task import VIOLATIONS, BagResult
 
 BAGS = pa.schema(
     [
@@ -101,6 +102,9 @@ MAX_DECODED_BYTES = 4 * 2**30
 # The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
 # prefix-encoded text that decodes to far more than it stores, is not its file.
 ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
+# The violations' columns read back (``Dataset.violations``): ``inputs`` stays on disk.
+COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
+_READ = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
 KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
 
 
@@ -221,20 +225,41 @@ class Dataset:
         """``K``, the name of a bag's files under one config."""
         return hashlib.sha256(f"{config_sha256}\0{fingerprint}".encode()).hexdigest()[:32]
 
-    def violations(self) -> pa.Table:
-        """The whole violations dataset, its partitions as columns."""
+    def violations(self, budget: Budget | None = None) -> pa.Table:
+        """Every violation row with its robot and date (``COLUMNS``: ``inputs``, the
+        largest, is left on disk), from the files of ``dataset_files``, each read
+        against fleet replay's schema (a file of other columns or types is an error,
+        never a guess) and decoded only within ``budget`` (``read_file``)."""
+        budget = budget if budget is not None else Budget()
+        schema = pa.schema([*_READ, ("robot", pa.string()), ("date", pa.string())])
         if not self.violations_dir.is_dir():
-            return pa.table({})
-        import pyarrow.dataset as ds
+            return schema.empty_table()
+        tables = []
+        for name in dataset_files(self.violations_dir, ("robot", "date")):
+            path = Path(name)
+            try:
+                table = read_file(path, _READ, budget, "violations")
+            except (pa.ArrowException, OSError) as e:
+                raise UserError(
+                    f"not a fleet dataset's violations ({one_line(e)})", file=_shown(path)
+                ) from None
+            robot, date = (_partition(d, path) for d in (path.parent.parent, path.parent))
+            parts = [pa.repeat(pa.scalar(v, pa.string()), table.num_rows) for v in (robot, date)]
+            budget.take(sum(p.nbytes for p in parts), path)
+            tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
+        return pa.concat_tables(tables) if tables else schema.empty_table()
 
-        try:
-            found = ds.dataset(self.violations_dir, format="parquet", partitioning=partitions())
-            return found.to_table()
-        except (pa.ArrowException, OSError) as e:
-            raise UserError(
-                f"not a fleet dataset's violations ({printable(str(e))})",
-                file=str(self.violations_dir),
-            ) from None
+
+def _partition(directory: Path, path: Path) -> str:
+    """A partition's value (``robot=R``), URI-decoded as Hive partitioning reads it;
+    one of no value (Hive's default partition) is not fleet replay's."""
+    value = unquote(directory.name.partition("=")[2])
+    if value in ("", "__HIVE_DEFAULT_PARTITION__"):
+        raise UserError(
+            "not a fleet dataset's violations (a partition of no value, outside robot=R/date=D)",
+            file=_shown(path),
+        )
+    return value
 
 
 class Commits:
@@ -353,16 +378,6 @@ def _kind(mode: int) -> str | None:
 
 def _shown(path: Path) -> str:
     return printable(str(path))
-
-
-def partitions() -> Any:
-    """The violations' hive partitions, as text: a robot named 007 stays "007"
-    (pyarrow infers a number otherwise)."""
-    import pyarrow.dataset as ds
-
-    return ds.partitioning(
-        pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
-    )
 
 
 class Writers:

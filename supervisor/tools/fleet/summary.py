@@ -12,7 +12,6 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from urllib.parse import unquote
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -20,8 +19,7 @@ import pyarrow.compute as pc
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
-from supervisor.tools.fleet.dataset import Budget, Dataset, dataset_files, one_line, read_file
-from supervisor.tools.fleet.task import VIOLATIONS
+from supervisor.tools.fleet.dataset import Budget, Dataset
 
 # What one page shows at most; the rest is counted ("N more").
 MAX_REQUIREMENTS = 60
@@ -31,9 +29,6 @@ MAX_LISTED = 25  # violations listed per requirement (and per new/lost list)
 MAX_REASONS = 50  # bags not read whole, with their reason
 MAX_TEXT = 300  # characters of one dataset string shown on the page
 
-# The columns the page reads; ``inputs`` (the largest) is left on disk.
-COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
-_FILE_SCHEMA = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
 HASH = re.compile(r"[0-9a-f]{8,64}")
 
 
@@ -117,39 +112,9 @@ def read_bags(root: Path, budget: Budget) -> pa.Table:
 
 
 def read_violations(root: Path, budget: Budget) -> pa.Table:
-    """Every violation row with its robot and date, read against fleet replay's
-    schema (a file of other columns or types is an error, never a guess), each file
-    decoded only within ``budget`` (dataset.py, ``read_file``)."""
-    where = root / "violations"
-    schema = pa.schema([*_FILE_SCHEMA, ("robot", pa.string()), ("date", pa.string())])
-    if not where.is_dir():
-        return schema.empty_table()
-    tables = []
-    for name in dataset_files(where, ("robot", "date")):
-        path = Path(name)
-        try:
-            table = read_file(path, _FILE_SCHEMA, budget, "violations")
-        except (pa.ArrowException, OSError) as e:
-            raise UserError(
-                f"not a fleet dataset's violations ({one_line(e)})", file=printable(name)
-            ) from None
-        robot, date = (_partition(d, path) for d in (path.parent.parent, path.parent))
-        parts = [pa.repeat(pa.scalar(v, pa.string()), table.num_rows) for v in (robot, date)]
-        budget.take(sum(p.nbytes for p in parts), path)
-        tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
-    return pa.concat_tables(tables) if tables else schema.empty_table()
-
-
-def _partition(directory: Path, path: Path) -> str:
-    """A partition's value (``robot=R``), URI-decoded as Hive partitioning reads it;
-    one of no value (Hive's default partition) is not fleet replay's."""
-    value = unquote(directory.name.partition("=")[2])
-    if value in ("", "__HIVE_DEFAULT_PARTITION__"):
-        raise UserError(
-            "not a fleet dataset's violations (a partition of no value, outside robot=R/date=D)",
-            file=printable(str(path)),
-        )
-    return value
+    """Every violation row with its robot and date, as fleet replay's ``--compare``
+    reads them (dataset.py, ``Dataset.violations``), within ``budget``."""
+    return Dataset(root, make=False).violations(budget)
 
 
 def summarize(root: Path, baseline: str | None) -> Summary:
