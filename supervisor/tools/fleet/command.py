@@ -144,8 +144,8 @@ def _fleet(args: argparse.Namespace) -> int:
     # they take it at their start, while this process compiles the config
     done = Dataset(Path(args.output), make=False).done()
     if (damage := done.damage()) is not None:  # a power loss: those bags run again
+        Dataset(Path(args.output), make=False).drop(done.damaged)  # its error said alone
         print(damage, file=sys.stderr, flush=True)
-        Dataset(Path(args.output), make=False).drop(done.damaged)
     # by content hash too: the same bag under another path is hashed, not replayed
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}

@@ -142,16 +142,8 @@ class Dataset:
         an error: not this dataset's.  ``budget``: what the reading may still decode
         (a new ``Budget`` without it)."""
         budget = budget if budget is not None else Budget()
-        try:
-            mode = self.bags_dir.lstat().st_mode
-        except FileNotFoundError:
+        if not _table_dir(self.bags_dir):
             return BAGS.empty_table()  # nothing finished yet
-        except OSError as e:
-            raise UserError(f"cannot read: {e.strerror or e}", file=_shown(self.bags_dir)) from None
-        if stat.S_ISLNK(mode):  # another dataset's rows, counted as this one's
-            raise UserError(
-                "a link, not a directory fleet replay writes", file=_shown(self.bags_dir)
-            )
         tables = []
         for name in dataset_files(self.bags_dir, ()):
             f = Path(name)
@@ -179,10 +171,19 @@ class Dataset:
         those first: its bag's key may have changed since (its files touched or
         copied), and the next rows are written under the new key, so what was left
         stayed beside them, each violation two rows, and the damaged row for good."""
+        # listed as every reading lists them: a link in them is an error, never
+        # followed to remove another directory's files
+        names = {row.name for row in damaged}
+        listed = (
+            dataset_files(self.violations_dir, ("robot", "date"))
+            if _table_dir(self.violations_dir)
+            else []
+        )
         try:
+            for f in listed:
+                if Path(f).name in names:
+                    Path(f).unlink(missing_ok=True)
             for row in damaged:
-                for f in self.violations_dir.glob(f"robot=*/date=*/{row.name}"):
-                    f.unlink(missing_ok=True)
                 row.unlink(missing_ok=True)
         except OSError as e:
             raise UserError(
@@ -232,7 +233,7 @@ class Dataset:
         never a guess) and decoded only within ``budget`` (``read_file``)."""
         budget = budget if budget is not None else Budget()
         schema = pa.schema([*_READ, ("robot", pa.string()), ("date", pa.string())])
-        if not self.violations_dir.is_dir():
+        if not _table_dir(self.violations_dir):
             return schema.empty_table()
         tables = []
         for name in dataset_files(self.violations_dir, ("robot", "date")):
@@ -248,6 +249,20 @@ class Dataset:
             budget.take(sum(p.nbytes for p in parts), path)
             tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
         return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def _table_dir(path: Path) -> bool:
+    """Whether the table's directory (``bags/``, ``violations/``) is there; a link
+    there (another dataset's rows, counted as this one's) is an error."""
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return False
+    except OSError as e:
+        raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
+    if stat.S_ISLNK(mode):
+        raise UserError("a link, not a directory fleet replay writes", file=_shown(path))
+    return True
 
 
 def _partition(directory: Path, path: Path) -> str:

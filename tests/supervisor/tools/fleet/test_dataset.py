@@ -221,3 +221,25 @@ def test_compare_reads_the_violations_as_fleet_report_does(tmp_path):
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 1 and len(lines) == 1, run.stderr
     assert f"{robot}/loop: a link" in lines[0] and "internal error" not in lines[0]
+
+
+def test_a_damaged_row_is_removed_through_no_link(tmp_path):
+    # Removing a damaged row's violation files (Dataset.drop) lists them as every
+    # other reading does: a partition that is a link to another directory is one
+    # line, and nothing there is removed.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    row = sorted((ds / "bags").glob("*.parquet"))[0]
+    row.write_bytes(b"")  # as a power loss leaves it
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "date=2026-01-01").mkdir(parents=True)
+    kept = elsewhere / "date=2026-01-01" / row.name
+    kept.write_bytes(b"not this dataset's")
+    (ds / "violations" / "robot=zz").symlink_to(elsewhere)
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "robot=zz: a link" in lines[0], run.stderr
+    assert kept.read_bytes() == b"not this dataset's"

@@ -427,6 +427,7 @@ def _read(fd: int) -> bytes:
         ("fifo", ": a FIFO"),  # left out without a word
         ("extra-partition", "extra=1: not a .parquet file here"),  # its rows added to the day's
         ("robot-file", "violations/stray.parquet: not robot=R"),
+        ("table-link", "ds/violations: a link"),  # another dataset's rows, read as this one's
     ],
 )
 def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_path, make, said):
@@ -444,6 +445,9 @@ def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_pa
     elif make == "extra-partition":
         (day / "extra=1").mkdir()
         shutil.copy(next(day.glob("*.parquet")), day / "extra=1" / "x.parquet")
+    elif make == "table-link":
+        shutil.rmtree(ds / "violations")
+        (ds / "violations").symlink_to(fleet["before"] / "violations")
     else:
         shutil.copy(next(day.glob("*.parquet")), ds / "violations" / "stray.parquet")
     run = subprocess.run(
