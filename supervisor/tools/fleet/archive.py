@@ -39,13 +39,15 @@ MAX_BAGS = 1_000_000
 @dataclass(frozen=True)
 class BagRef:
     """One bag of the archive: its path, the robot (None with the reason in
-    ``robot_error``), its files' total size and their fingerprint."""
+    ``robot_error``), its files' total size and their fingerprint; ``shape``: a hash
+    of its files' names and sizes alone, the same for every copy of it (``copies``)."""
 
     path: str
     robot: str | None
     robot_error: str | None
     size: int
     fingerprint: str
+    shape: str = ""
 
 
 def list_archive(archives: list[str], robot_from: str | None = None) -> list[BagRef]:
@@ -95,11 +97,11 @@ def _ref(key: str, root: str, rule: RobotRule | None) -> BagRef:
         return BagRef(shown, None, "its path is not UTF-8: rename it", 0, fp)
     robot, why = _robot(Path(key), Path(os.path.abspath(root)), rule)
     try:
-        size, fp = fingerprint(Path(key))
+        size, fp, shape = _stats(Path(key))
     except OSError as e:  # gone or unreadable since it was listed: its row says so
         fp = hashlib.sha256(key.encode()).hexdigest()  # its row's own key
-        size, robot, why = 0, None, f"cannot read: {e.strerror or e}"
-    return BagRef(key, robot, why, size, fp)
+        size, robot, why, shape = 0, None, f"cannot read: {e.strerror or e}", ""
+    return BagRef(key, robot, why, size, fp, shape)
 
 
 def _identity(path: str) -> tuple[int, int] | None:
@@ -341,14 +343,50 @@ def fingerprint(bag: Path) -> tuple[int, str]:
     """The bag's total size and a hash of its path and its files' names, sizes and
     modification times: a finished bag is known again without reading it (as make
     and rsync do); its content hash is what its results are keyed by."""
+    total, fp, _ = _stats(bag)
+    return total, fp
+
+
+def _stats(bag: Path) -> tuple[int, str, str]:
+    """``fingerprint``, and the bag's shape (``BagRef``), from one stat of each file."""
     h = hashlib.sha256(str(bag).encode() + b"\0")
+    shape = hashlib.sha256()
     total = 0
     for f in bag_files(bag):
         st = f.stat()
         total += st.st_size
         # a name's bytes as they are: a file may be named in any encoding
-        h.update(os.fsencode(f.name) + f"\0{st.st_size}\0{st.st_mtime_ns}\0".encode())
-    return total, h.hexdigest()
+        name = os.fsencode(f.name) + f"\0{st.st_size}\0".encode()
+        h.update(name + f"{st.st_mtime_ns}\0".encode())
+        shape.update(name)
+    return total, h.hexdigest(), shape.hexdigest()
+
+
+def copies(bags: list[BagRef]) -> dict[str, tuple[str, str]]:
+    """Each bag of ``bags`` whose content is that of an earlier one (by path, bags
+    whose robot is known): its path -> (that bag's path, the content hash).  Two
+    copies of a bag in one run were both replayed, each violation two rows; only
+    bags of the same shape are read to compare them (a copy is rare, and a bag's
+    files of the same names and sizes as another's rarer still when it is none)."""
+    by_shape: dict[str, list[BagRef]] = {}
+    for bag in bags:
+        if bag.robot is not None and bag.shape:
+            by_shape.setdefault(bag.shape, []).append(bag)
+    out: dict[str, tuple[str, str]] = {}
+    for group in by_shape.values():
+        if len(group) < 2:
+            continue
+        first: dict[str, str] = {}  # content hash -> the first bag's path
+        for bag in sorted(group, key=lambda b: b.path):
+            try:
+                digest = content_hash(Path(bag.path))
+            except OSError:
+                continue  # its task says why, as for any bag
+            if digest in first:
+                out[bag.path] = (first[digest], digest)
+            else:
+                first[digest] = bag.path
+    return out
 
 
 def content_hash(bag: Path) -> str:

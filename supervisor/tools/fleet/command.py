@@ -144,8 +144,8 @@ def _fleet(args: argparse.Namespace) -> int:
     # they take it at their start, while this process compiles the config
     done = Dataset(Path(args.output), make=False).done()
     if (damage := done.damage()) is not None:  # a power loss: those bags run again
+        Dataset(Path(args.output), make=False).drop(done.damaged)  # its error said alone
         print(damage, file=sys.stderr, flush=True)
-        Dataset(Path(args.output), make=False).drop(done.damaged)
     # by content hash too: the same bag under another path is hashed, not replayed
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
@@ -162,9 +162,9 @@ def _replay(
     done: Any,
     done_contents: set[str],
 ) -> int:
-    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.archive import copies, list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers
-    from supervisor.tools.fleet.task import BagResult, BagTask
+    from supervisor.tools.fleet.task import BagResult, BagTask, copy_of
 
     configs = [Path(args.config).absolute()]
     if args.compare:
@@ -177,7 +177,13 @@ def _replay(
     dataset = Dataset(Path(args.output))
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
-    failed_first: list[BagResult] = []
+    # results known before any task: a bag without its robot, a copy of another bag
+    settled: list[BagResult] = []
+    # among the bags to replay: a copy of a bag done before is the worker's to skip
+    # (``done_contents``), once it has hashed it
+    copied = copies(
+        [b for b in bags if any((s, b.fingerprint) not in done.fingerprints for s in shas)]
+    )
     already = 0
     for bag in bags:
         for c, sha in zip(configs, shas, strict=True):
@@ -186,12 +192,14 @@ def _replay(
                 continue
             task = BagTask(bag.path, bag.robot or "", str(c), sha, namespace, bag.fingerprint)
             if bag.robot is None:
-                failed_first.append(BagResult(task, "failed", bag.robot_error or ""))
+                settled.append(BagResult(task, "failed", bag.robot_error or ""))
+            elif bag.path in copied:
+                settled.append(copy_of(task, *copied[bag.path]))
             else:
                 tasks.append(task)
         where[bag.path] = (bag.robot or "", bag.fingerprint, bag.size)
     line = Line("fleet", on=False if args.quiet else None)
-    progress = Progress(len(failed_first) + len(tasks), sum(where[t.bag][2] for t in tasks), line)
+    progress = Progress(len(settled) + len(tasks), sum(where[t.bag][2] for t in tasks), line)
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
     results = engine.results(tasks, done_contents)
     try:
@@ -203,7 +211,7 @@ def _replay(
                     progress.add(w, where[w.task.bag][2])
                     progress.draw()
 
-            for result in _chain(failed_first, results):
+            for result in _chain(settled, results):
                 if result.written is not None:  # its worker wrote its files (LocalEngine)
                     count([result])
                     continue

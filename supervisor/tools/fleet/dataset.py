@@ -30,7 +30,9 @@ not finished, and the next run says so in one line and replays it (``done``).
 from __future__ import annotations
 
 import hashlib
+import os
 import re
+import stat
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -38,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 from typing import Any
+from urllib.parse import unquote
 
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -46,7 +49,7 @@ import pyarrow.parquet as pq
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.files import sync_filesystem, write_whole
-from supervisor.tools.fleet.task import BagResult
+from supervisor.tools.fleet.task import VIOLATIONS, BagResult
 
 BAGS = pa.schema(
     [
@@ -89,6 +92,19 @@ class Done:
         )
 
 
+MAX_ERROR = 300  # characters of a reader's error in a line about a dataset's file
+# What one reading of a dataset (fleet report, with its baseline; fleet replay's
+# resume) decodes at most: its columns in memory, about 18 million violations.  A
+# file of a few KB can hold gigabytes of repeated text (dictionary-encoded), so this
+# is checked before each file is decoded (``Budget``, docs/reference/fleet.md).
+# A violation decoded takes about 230 bytes with a bag path of 70 characters.
+MAX_DECODED_BYTES = 4 * 2**30
+# The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
+# prefix-encoded text that decodes to far more than it stores, is not its file.
+ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
+# The violations' columns read back (``Dataset.violations``): ``inputs`` stays on disk.
+COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
+_READ = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
 KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
 
 
@@ -117,23 +133,37 @@ class Dataset:
                 contents.add((row["config_sha256"], row["bag_sha256"]))
         return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
-    def bags(self, damaged: list[Path] | None = None) -> pa.Table:
-        """The bags table: one row per bag and config.  A row file of this dataset's
-        naming that a power loss left empty or cut short is left out (its bag is not
-        finished) and added to ``damaged``; any other unreadable file is an error."""
-        files = sorted(self.bags_dir.glob("*.parquet")) if self.bags_dir.is_dir() else []
+    def bags(self, damaged: list[Path] | None = None, budget: Budget | None = None) -> pa.Table:
+        """The bags table: one row per bag and config, from the files of
+        ``dataset_files`` (anything else in ``bags/`` is one error).  A row file of
+        this dataset's naming that a power loss left empty or cut short is added to
+        ``damaged`` and left out (its bag is not finished); without ``damaged``
+        (``fleet report``) it is one error naming it.  Any other unreadable file is
+        an error: not this dataset's.  ``budget``: what the reading may still decode
+        (a new ``Budget`` without it)."""
+        budget = budget if budget is not None else Budget()
+        if not _table_dir(self.bags_dir):
+            return BAGS.empty_table()  # nothing finished yet
         tables = []
-        for f in files:
+        for name in dataset_files(self.bags_dir, ()):
+            f = Path(name)
             try:
-                table = _row_file(f, self.bags_dir)
+                table = _row_file(f, budget)
             except FileNotFoundError as e:  # taken away while it was listed
                 raise UserError(
-                    f"not a fleet dataset's bags table ({e.strerror or e})", file=str(f)
+                    f"not a fleet dataset's bags table ({e.strerror or e})", file=_shown(f)
                 ) from None
             if table is not None:
                 tables.append(table)
             elif damaged is not None:
                 damaged.append(f)
+            else:
+                raise UserError(
+                    "a bag's row is empty or cut short, as a power loss before the dataset's "
+                    "sync leaves it",
+                    file=_shown(f),
+                    hint="run the same fleet replay again: it removes that row and replays its bag",
+                )
         return pa.concat_tables(tables) if tables else BAGS.empty_table()
 
     def drop(self, damaged: tuple[Path, ...]) -> None:
@@ -141,10 +171,19 @@ class Dataset:
         those first: its bag's key may have changed since (its files touched or
         copied), and the next rows are written under the new key, so what was left
         stayed beside them, each violation two rows, and the damaged row for good."""
+        # listed as every reading lists them: a link in them is an error, never
+        # followed to remove another directory's files
+        names = {row.name for row in damaged}
+        listed = (
+            dataset_files(self.violations_dir, ("robot", "date"))
+            if _table_dir(self.violations_dir)
+            else []
+        )
         try:
+            for f in listed:
+                if Path(f).name in names:
+                    Path(f).unlink(missing_ok=True)
             for row in damaged:
-                for f in self.violations_dir.glob(f"robot=*/date=*/{row.name}"):
-                    f.unlink(missing_ok=True)
                 row.unlink(missing_ok=True)
         except OSError as e:
             raise UserError(
@@ -173,7 +212,7 @@ class Dataset:
         loss damaged, ``bags``)."""
         path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
         try:
-            table = _row_file(path, self.bags_dir)
+            table = _row_file(path, Budget())
         except FileNotFoundError:
             return None
         if table is None:
@@ -187,20 +226,55 @@ class Dataset:
         """``K``, the name of a bag's files under one config."""
         return hashlib.sha256(f"{config_sha256}\0{fingerprint}".encode()).hexdigest()[:32]
 
-    def violations(self) -> pa.Table:
-        """The whole violations dataset, its partitions as columns."""
-        if not self.violations_dir.is_dir():
-            return pa.table({})
-        import pyarrow.dataset as ds
+    def violations(self, budget: Budget | None = None) -> pa.Table:
+        """Every violation row with its robot and date (``COLUMNS``: ``inputs``, the
+        largest, is left on disk), from the files of ``dataset_files``, each read
+        against fleet replay's schema (a file of other columns or types is an error,
+        never a guess) and decoded only within ``budget`` (``read_file``)."""
+        budget = budget if budget is not None else Budget()
+        schema = pa.schema([*_READ, ("robot", pa.string()), ("date", pa.string())])
+        if not _table_dir(self.violations_dir):
+            return schema.empty_table()
+        tables = []
+        for name in dataset_files(self.violations_dir, ("robot", "date")):
+            path = Path(name)
+            try:
+                table = read_file(path, _READ, budget, "violations")
+            except (pa.ArrowException, OSError) as e:
+                raise UserError(
+                    f"not a fleet dataset's violations ({one_line(e)})", file=_shown(path)
+                ) from None
+            robot, date = (_partition(d, path) for d in (path.parent.parent, path.parent))
+            parts = [pa.repeat(pa.scalar(v, pa.string()), table.num_rows) for v in (robot, date)]
+            budget.take(sum(p.nbytes for p in parts), path)
+            tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
+        return pa.concat_tables(tables) if tables else schema.empty_table()
 
-        try:
-            found = ds.dataset(self.violations_dir, format="parquet", partitioning=partitions())
-            return found.to_table()
-        except (pa.ArrowException, OSError) as e:
-            raise UserError(
-                f"not a fleet dataset's violations ({printable(str(e))})",
-                file=str(self.violations_dir),
-            ) from None
+
+def _table_dir(path: Path) -> bool:
+    """Whether the table's directory (``bags/``, ``violations/``) is there; a link
+    there (another dataset's rows, counted as this one's) is an error."""
+    try:
+        mode = path.lstat().st_mode
+    except FileNotFoundError:
+        return False
+    except OSError as e:
+        raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
+    if stat.S_ISLNK(mode):
+        raise UserError("a link, not a directory fleet replay writes", file=_shown(path))
+    return True
+
+
+def _partition(directory: Path, path: Path) -> str:
+    """A partition's value (``robot=R``), URI-decoded as Hive partitioning reads it;
+    one of no value (Hive's default partition) is not fleet replay's."""
+    value = unquote(directory.name.partition("=")[2])
+    if value in ("", "__HIVE_DEFAULT_PARTITION__"):
+        raise UserError(
+            "not a fleet dataset's violations (a partition of no value, outside robot=R/date=D)",
+            file=_shown(path),
+        )
+    return value
 
 
 class Commits:
@@ -262,14 +336,63 @@ class Commits:
         _write(self.dataset.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
 
 
-def partitions() -> Any:
-    """The violations' hive partitions, as text: a robot named 007 stays "007"
-    (pyarrow infers a number otherwise)."""
-    import pyarrow.dataset as ds
+def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
+    """The Parquet files under ``where`` as fleet replay lays them out: a directory
+    per level (``robot=``, ``date=``), then ``*.parquet`` files.  Anything else is an
+    error naming it: a link (pyarrow's discovery followed a loop without end, or
+    counted another dataset's rows), a FIFO or device, a directory or file where
+    the layout has none (its rows were added, or left out, without a word).  Hidden
+    and ``_`` names are skipped, as pyarrow does (an interrupted write's temporary)."""
+    out: list[str] = []
+    todo = [(where, 0)]
+    while todo:
+        d, depth = todo.pop()
+        try:
+            with os.scandir(d) as it:
+                entries = sorted(it, key=lambda e: e.name)
+        except OSError as e:
+            raise UserError(f"cannot list: {e.strerror or e}", file=str(d)) from None
+        for entry in entries:
+            if entry.name.startswith((".", "_")):
+                continue
+            path = Path(entry.path)
+            try:
+                mode = entry.stat(follow_symlinks=False).st_mode
+            except OSError as e:
+                raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
+            what = _kind(mode)
+            if what is not None:
+                raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path))
+            if depth < len(levels):
+                if not (stat.S_ISDIR(mode) and entry.name.startswith(f"{levels[depth]}=")):
+                    raise UserError(
+                        f"not {levels[depth]}={levels[depth][0].upper()}: not fleet replay's "
+                        "layout",
+                        file=_shown(path),
+                    )
+                todo.append((path, depth + 1))
+            elif stat.S_ISREG(mode) and entry.name.endswith(".parquet"):
+                out.append(entry.path)
+            else:
+                raise UserError(
+                    "not a .parquet file here: not fleet replay's layout", file=_shown(path)
+                )
+    return sorted(out)
 
-    return ds.partitioning(
-        pa.schema([("robot", pa.string()), ("date", pa.string())]), flavor="hive"
-    )
+
+def _kind(mode: int) -> str | None:
+    """What an entry is, when no dataset of fleet replay holds one."""
+    if stat.S_ISLNK(mode):
+        return "a link"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        return None
+    return "a device or socket"
+
+
+def _shown(path: Path) -> str:
+    return printable(str(path))
 
 
 class Writers:
@@ -346,21 +469,112 @@ def _write(path: Path, table: pa.Table) -> None:
         raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None
 
 
-def _row_file(path: Path, where: Path) -> pa.Table | None:
+class Budget:
+    """What one reading of a dataset may still decode (``MAX_DECODED_BYTES``),
+    shared by the files it reads."""
+
+    def __init__(self, limit: int = MAX_DECODED_BYTES) -> None:
+        self.limit = limit
+        self.left = limit
+
+    def check(self, n: int, path: Path) -> None:
+        if n > self.left:
+            raise UserError(
+                f"with this file the dataset decodes to more than {self.limit / 2**30:g} GiB, "
+                "the most it is read to: not read",
+                file=_shown(path),
+                hint="a dataset this large is for DuckDB (docs/reference/fleet.md)",
+            )
+
+    def take(self, n: int, path: Path) -> None:
+        self.check(n, path)
+        self.left -= n
+
+
+def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Table:
+    """One of the dataset's Parquet files, ``schema``'s columns of ``schema``'s types,
+    decoded only once ``budget`` has room for it.  From its footer (its rows and its
+    columns' sizes), a bound: no value is longer than its column's bytes, so a column
+    decodes to at most its bytes, or, dictionary-encoded, its bytes once per row.  The
+    usual file fits it and is read at once; one that does not is read first with its
+    text columns as dictionary codes (each distinct value once), so that their
+    decoded size is known exactly before they are decoded.  A file of other columns,
+    types or encodings: not this dataset's."""
+
+    def wrong(why: str) -> UserError:
+        return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
+
+    footer = pq.ParquetFile(path)
+    found = footer.schema_arrow
+    for f in schema:
+        i = found.get_field_index(f.name)
+        if i < 0:
+            raise wrong(f"no column {f.name}")
+        if found.field(i).type != f.type:
+            raise wrong(f"column {f.name} is {found.field(i).type}, not {f.type}")
+    meta = footer.metadata
+    names = set(schema.names)
+    stored = bound = 0
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        for c in range(group.num_columns):
+            column = group.column(c)
+            if column.path_in_schema not in names:
+                continue
+            if not set(column.encodings) <= ENCODINGS:
+                odd = ", ".join(sorted(set(column.encodings) - ENCODINGS))
+                raise wrong(f"column {column.path_in_schema} encoded as {odd}")
+            size, rows = column.total_uncompressed_size, column.num_values
+            stored += size
+            coded = any("DICTIONARY" in e for e in column.encodings)
+            bound += rows * (size + 8) if coded else size + 8 * rows
+    if bound <= budget.left:
+        table = footer.read(columns=schema.names, use_threads=False)
+        budget.take(table.nbytes, path)
+        return table
+    # the codes and fixed-width values take at most 8 bytes a row and column
+    budget.check(stored + meta.num_rows * 8 * len(schema), path)
+    text = [f.name for f in schema if pa.types.is_string(f.type)]
+    coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta).read(
+        columns=schema.names, use_threads=False
+    )
+    budget.take(_decoded(coded), path)
+    return coded.cast(schema)
+
+
+def _decoded(table: pa.Table) -> int:
+    """The bytes ``table`` takes once its dictionary columns are decoded."""
+    n = 0
+    for column in table.columns:
+        if not pa.types.is_dictionary(column.type):
+            n += column.nbytes
+            continue
+        for chunk in column.chunks:
+            lengths = pc.binary_length(chunk.dictionary)
+            n += (pc.sum(pc.take(lengths, chunk.indices)).as_py() or 0) + 4 * (len(chunk) + 1)
+    return n
+
+
+def _row_file(path: Path, budget: Budget) -> pa.Table | None:
     """A row file read against ``BAGS``; None for one of this dataset's names that a
     power loss left empty or cut short (module docstring).  Any other file that is
     not a row is one error: not this dataset's."""
     ours = KEY.fullmatch(path.name) is not None
     try:
-        return pq.read_table(path, schema=BAGS)
+        return read_file(path, BAGS, budget, "bags table")
     except FileNotFoundError:
         raise
     except (pa.ArrowException, OSError) as e:
         if ours and _cut(path):
             return None
         raise UserError(
-            f"not a fleet dataset's bags table ({printable(str(e))})", file=str(where)
+            f"not a fleet dataset's bags table ({one_line(e)})", file=_shown(path)
         ) from None
+
+
+def one_line(e: BaseException) -> str:
+    """An error's text as one printable line of a bounded length."""
+    return printable(" ".join(str(e).split()))[:MAX_ERROR]
 
 
 def _cut(path: Path) -> bool:

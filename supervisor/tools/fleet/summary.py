@@ -9,20 +9,17 @@ writes, and anything else is one ``UserError``.
 
 from __future__ import annotations
 
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.dataset as ds
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
-from supervisor.tools.fleet.dataset import BAGS, partitions
-from supervisor.tools.fleet.task import VIOLATIONS
+from supervisor.tools.fleet.dataset import Budget, Dataset
 
 # What one page shows at most; the rest is counted ("N more").
 MAX_REQUIREMENTS = 60
@@ -32,9 +29,6 @@ MAX_LISTED = 25  # violations listed per requirement (and per new/lost list)
 MAX_REASONS = 50  # bags not read whole, with their reason
 MAX_TEXT = 300  # characters of one dataset string shown on the page
 
-# The columns the page reads; ``inputs`` (the largest) is left on disk.
-COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
-_FILE_SCHEMA = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
 HASH = re.compile(r"[0-9a-f]{8,64}")
 
 
@@ -110,126 +104,28 @@ def check_dataset(root: Path) -> None:
         )
 
 
-def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
-    """The Parquet files under ``where`` as fleet replay lays them out: a directory
-    per level (``robot=``, ``date=``), then ``*.parquet`` files.  Anything else is an
-    error naming it: a link (pyarrow's discovery followed a loop without end, or
-    counted another dataset's rows), a FIFO or device, a directory or file where
-    the layout has none (its rows were added, or left out, without a word).  Hidden
-    and ``_`` names are skipped, as pyarrow does (an interrupted write's temporary)."""
-    import stat
-
-    out: list[str] = []
-    todo = [(where, 0)]
-    while todo:
-        d, depth = todo.pop()
-        try:
-            with os.scandir(d) as it:
-                entries = sorted(it, key=lambda e: e.name)
-        except OSError as e:
-            raise UserError(f"cannot list: {e.strerror or e}", file=str(d)) from None
-        for entry in entries:
-            if entry.name.startswith((".", "_")):
-                continue
-            path = Path(entry.path)
-            try:
-                mode = entry.stat(follow_symlinks=False).st_mode
-            except OSError as e:
-                raise UserError(f"cannot read: {e.strerror or e}", file=_shown(path)) from None
-            what = _kind(mode)
-            if what is not None:
-                raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path))
-            if depth < len(levels):
-                if not (stat.S_ISDIR(mode) and entry.name.startswith(f"{levels[depth]}=")):
-                    raise UserError(
-                        f"not {levels[depth]}={levels[depth][0].upper()}: not fleet replay's "
-                        "layout",
-                        file=_shown(path),
-                    )
-                todo.append((path, depth + 1))
-            elif stat.S_ISREG(mode) and entry.name.endswith(".parquet"):
-                out.append(entry.path)
-            else:
-                raise UserError(
-                    "not a .parquet file here: not fleet replay's layout", file=_shown(path)
-                )
-    return sorted(out)
+def read_bags(root: Path, budget: Budget) -> pa.Table:
+    """The bags table, read as fleet replay's resume reads it (dataset.py): a row a
+    power loss damaged is one line naming it, as the page would count its bag as
+    not finished without a word."""
+    return Dataset(root, make=False).bags(budget=budget)
 
 
-def _kind(mode: int) -> str | None:
-    """What an entry is, when no dataset of fleet replay holds one."""
-    import stat
-
-    if stat.S_ISLNK(mode):
-        return "a link"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
-        return None
-    return "a device or socket"
-
-
-def _shown(path: Path) -> str:
-    return printable(str(path))
-
-
-def read_bags(root: Path) -> pa.Table:
-    files = dataset_files(root / "bags", ())
-    if not files:
-        return BAGS.empty_table()
-    try:
-        return ds.dataset(files, format="parquet", schema=BAGS).to_table()
-    except (pa.ArrowException, OSError) as e:
-        raise UserError(
-            f"not a fleet dataset's bags table ({_one_line(e)})", file=str(root / "bags")
-        ) from None
-
-
-def read_violations(root: Path) -> pa.Table:
-    """Every violation row with its robot and date, read against fleet replay's
-    schema (a file of other columns or types is an error, never a guess)."""
-    where = root / "violations"
-    schema = pa.schema([*_FILE_SCHEMA, ("robot", pa.string()), ("date", pa.string())])
-    if not where.is_dir():
-        return schema.empty_table()
-    files = dataset_files(where, ("robot", "date"))
-    if not files:
-        return schema.empty_table()
-    try:
-        found = ds.dataset(
-            files,
-            format="parquet",
-            partitioning=partitions(),
-            partition_base_dir=str(where),
-            schema=schema,
-        )
-        table = found.to_table(columns=[*COLUMNS, "robot", "date"])
-    except (pa.ArrowException, OSError) as e:
-        raise UserError(
-            f"not a fleet dataset's violations ({_one_line(e)})", file=str(where)
-        ) from None
-    # a partition of no value (hive's default partition): not fleet replay's
-    nulls = pc.sum(pc.or_(pc.is_null(table["robot"]), pc.is_null(table["date"]))).as_py()
-    if nulls:
-        raise UserError(
-            f"not a fleet dataset's violations ({nulls} row(s) outside robot=R/date=D)",
-            file=str(where),
-        )
-    return table
-
-
-def _one_line(e: BaseException) -> str:
-    return printable(" ".join(str(e).split()))[:MAX_TEXT]
+def read_violations(root: Path, budget: Budget) -> pa.Table:
+    """Every violation row with its robot and date, as fleet replay's ``--compare``
+    reads them (dataset.py, ``Dataset.violations``), within ``budget``."""
+    return Dataset(root, make=False).violations(budget)
 
 
 def summarize(root: Path, baseline: str | None) -> Summary:
     check_dataset(root)
-    bags = read_bags(root)
-    table = read_violations(root)
+    budget = Budget()  # the dataset's and the baseline's, all they decode
+    bags = read_bags(root, budget)
+    table = read_violations(root, budget)
     configs = sorted(set(table.column("config_sha256").to_pylist()) | set(_configs(bags)))
     changes = None
     if baseline is not None:
-        changes = _changes(root, table, bags, configs, baseline)
+        changes = _changes(root, table, bags, configs, baseline, budget)
     maps = _maps(table)
     statuses = {s: 0 for s in ("read", "skipped", "damaged", "failed")}
     per_robot: dict[str, dict[str, int]] = {}
@@ -362,15 +258,15 @@ def _top(per_bag: pa.Table) -> list[Violation]:
 
 
 def _changes(
-    root: Path, table: pa.Table, bags: pa.Table, configs: list[str], baseline: str
+    root: Path, table: pa.Table, bags: pa.Table, configs: list[str], baseline: str, budget: Budget
 ) -> Changes:
     """The baseline: another dataset (one config each), or the hash (a prefix of 8
     or more hex digits) of one of this dataset's two configs (fleet replay --compare)."""
     other = Path(baseline)
     if other.is_dir():
         check_dataset(other)
-        obags = read_bags(other)
-        otable = read_violations(other)
+        obags = read_bags(other, budget)
+        otable = read_violations(other, budget)
         mine = _one_config(root, table, bags)
         theirs = _one_config(other, otable, obags)
         # relabelled: two datasets may hold the same config (a re-run, another archive)

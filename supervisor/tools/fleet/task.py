@@ -10,7 +10,6 @@ anything a bag or the config holds: that is the result's status and reason.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import time
@@ -105,22 +104,22 @@ class _Records(DiscardingLog):
 # This worker's configs compiled (config path -> its bytes' SHA-256 and the compiled
 # config): a worker replays many bags with one or two configs, and compiling took
 # most of a small bag's task (docs/BENCHMARKS.md, "Fleet").  Keyed by the bytes read
-# for each task, so a config edited during the run is compiled again.
+# once for each task and compiled from those same bytes, so a config edited during
+# the run is compiled again, never kept under another version's key.
 _prepared: dict[str, tuple[str, Any]] = {}
 
 
 def _compiled(config: str) -> Any:
-    from monitors.untrusted import Untrusted, read_regular
-    from supervisor.config.limits import MAX_CONFIG_BYTES
+    """The config compiled, from this worker's cache when its bytes are unchanged; a
+    ``UserError`` for a config that cannot be read (bounded: a FIFO or /dev/zero is
+    one line, not a hang) or compiled."""
+    from supervisor.config import read_config
     from supervisor.tools.replay.session import prepare
 
-    try:  # bounded: a FIFO or /dev/zero is said by prepare's own read, not a hang
-        sha = hashlib.sha256(read_regular(config, max_bytes=MAX_CONFIG_BYTES)).hexdigest()
-    except Untrusted:
-        return None  # replay says why, as for any bag
+    source = read_config(config)
     kept = _prepared.get(config)
-    if kept is None or kept[0] != sha:
-        kept = _prepared[config] = (sha, prepare(Path(config)))
+    if kept is None or kept[0] != source.sha256:
+        kept = _prepared[config] = (source.sha256, prepare(source))
     return kept[1]
 
 
@@ -130,12 +129,10 @@ def compile_config(config: str) -> str | tuple[str, str, int | None, int | None,
     nothing (docs/BENCHMARKS.md, "Fleet").  The config's identity (``Config.identity``,
     what the dataset is keyed by); a bad config: its error's parts, as a
     ``UserError`` does not cross processes whole (its fields are keyword-only)."""
-    from supervisor.tools.replay.session import loaded, prepare
+    from supervisor.tools.replay.session import loaded
 
     try:
         prepared = _compiled(config)
-        if prepared is None:  # unreadable: prepare says why, as in the parent before
-            prepared = prepare(Path(config))
         with loaded(Path(config), prepared):
             pass  # the monitor built or found in the cache, then kept for the tasks
     except UserError as e:
@@ -193,6 +190,14 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
         outcome.messages,
         time.perf_counter() - t0,
         _table(task, digest, records.rows),
+    )
+
+
+def copy_of(task: BagTask, first: str, digest: str) -> BagResult:
+    """The result of a bag whose content is that of ``first``, another bag of the
+    run (archive.py, ``copies``): skipped, not replayed twice."""
+    return BagResult(
+        task, "skipped", _reason(f"the same content as {first}, replayed with this config"), digest
     )
 
 

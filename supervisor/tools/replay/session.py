@@ -15,7 +15,7 @@ from monitors.backends.load import LoadedMonitor, load_monitor
 from monitors.ir.formula import use_parser_cache
 from monitors.ir.spec import MonitorSpec
 from supervisor.cache import Cache
-from supervisor.config import load_config
+from supervisor.config import ConfigSource, load_config
 from supervisor.daemon.session import Session, build_session
 from supervisor.pipeline import build_project, monitor_library
 from supervisor.tools.replay.engine import Outcome, replay
@@ -42,8 +42,10 @@ class Prepared:
     spare: list[LoadedMonitor] = field(default_factory=list, compare=False)
 
 
-def prepare(config: Path) -> Prepared:
-    """The config loaded and compiled, the monitor's cache key computed."""
+def prepare(config: Path | ConfigSource) -> Prepared:
+    """The config loaded and compiled, the monitor's cache key computed; from its
+    bytes already read when given them (``ConfigSource``: fleet replay's worker keys
+    its compiles by those bytes)."""
     cache = Cache.open_user()
     if cache is not None:
         # the requirement parsers' tables too: most of a cold parse (formula.py)

@@ -166,3 +166,80 @@ def test_a_damaged_row_of_a_bag_whose_files_changed_leaves_no_duplicates(tmp_pat
         timeout=300,
     )
     assert report.returncode == 0, report.stderr
+
+
+@pytest.mark.parametrize(
+    "make, said",
+    [
+        ("link", "zz.parquet: a link"),  # another dataset's row, counted as finished here
+        ("fifo", "zz.parquet: a FIFO"),
+        ("directory", "zz: not a .parquet file here"),
+    ],
+)
+def test_resume_refuses_what_fleet_replay_never_writes_in_the_bags_table(tmp_path, make, said):
+    # The bags table is read one way by fleet replay's resume and by fleet report
+    # (dataset.py, ``dataset_files``): a link, a FIFO or a stray directory is one line.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    other, ds = tmp_path / "other", tmp_path / "ds"
+    fleet(cfg, root, "-o", other, "--jobs", "1", ok=(0,))
+    (ds / "bags").mkdir(parents=True)
+    if make == "link":
+        (ds / "bags" / "zz.parquet").symlink_to(next((other / "bags").iterdir()))
+    elif make == "fifo":
+        os.mkfifo(ds / "bags" / "zz.parquet")
+    else:
+        (ds / "bags" / "zz").mkdir()
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1"],
+        capture_output=True, text=True, timeout=120,  # a FIFO's wait fails here
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1 and said in lines[0], run.stderr
+    assert str(ds / "bags") in lines[0] and "internal error" not in lines[0]
+    assert not (ds / "violations").exists()  # said before any bag was replayed
+
+
+def test_compare_reads_the_violations_as_fleet_report_does(tmp_path):
+    # --compare's counts come from the dataset's violations, read by the same reader
+    # as fleet report's (dataset.py, ``Dataset.violations``): a link in them is one
+    # line, where pyarrow's discovery walked a loop without end.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    a, b = config(tmp_path, "a.yaml", limit=2.0), config(tmp_path, "b.yaml", limit=2.3)
+    ds = tmp_path / "ds"
+    fleet(a, root, "-o", ds, "--compare", b, "--jobs", "1", ok=(0,))
+    robot = next((ds / "violations").iterdir())
+    (robot / "loop").symlink_to("..")
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(a), str(root), "-o",
+         str(ds), "--compare", str(b), "--jobs", "1"],
+        capture_output=True, text=True, timeout=120,  # a walk without end fails here
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert f"{robot}/loop: a link" in lines[0] and "internal error" not in lines[0]
+
+
+def test_a_damaged_row_is_removed_through_no_link(tmp_path):
+    # Removing a damaged row's violation files (Dataset.drop) lists them as every
+    # other reading does: a partition that is a link to another directory is one
+    # line, and nothing there is removed.
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    row = sorted((ds / "bags").glob("*.parquet"))[0]
+    row.write_bytes(b"")  # as a power loss leaves it
+    elsewhere = tmp_path / "elsewhere"
+    (elsewhere / "date=2026-01-01").mkdir(parents=True)
+    kept = elsewhere / "date=2026-01-01" / row.name
+    kept.write_bytes(b"not this dataset's")
+    (ds / "violations" / "robot=zz").symlink_to(elsewhere)
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "robot=zz: a link" in lines[0], run.stderr
+    assert kept.read_bytes() == b"not this dataset's"

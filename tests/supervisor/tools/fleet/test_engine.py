@@ -853,8 +853,10 @@ def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
 
     root = tmp_path / "fleet"
     first = write_bag(root / "robot-a" / "b00", messages(7, 20000))
-    for i in range(1, CALLS_OF_8):  # copies: each path a task of its own
+    for i in range(1, CALLS_OF_8):  # copies, each a content of its own: a task each
         shutil.copytree(first, root / "robot-a" / f"b{i:02d}")
+        # (an exact copy is skipped as one, archive.py's ``copies``)
+        (root / "robot-a" / f"b{i:02d}" / "copy.txt").write_text(f"{i}\n")
     cfg, ds = config(tmp_path), tmp_path / "ds"
     proc = subprocess.Popen(
         [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",

@@ -423,3 +423,30 @@ def test_compare_with_a_fifo_or_a_device_is_one_line_not_a_hang(tmp_path, other)
     )
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode in (1, 2) and len(lines) == 1 and other in lines[0], run.stderr
+
+
+def test_two_copies_of_a_bag_in_one_run_are_replayed_once(tmp_path):
+    # The same content under two robots' paths in one run: the first (by path) is
+    # replayed, the other is a skipped row naming it, so no violation is two rows.
+    root = tmp_path / "fleet"
+    first = write_bag(root / "robot-a" / "b1", messages(1, 500))
+    write_bag(root / "robot-a" / "b2", messages(2, 500))
+    copy = root / "robot-b" / "b1"
+    shutil.copytree(first, copy)  # other inodes and times, the same bytes
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    run = fleet(cfg, root, "-o", ds, "--jobs", "2", ok=(0,))
+    assert "3 bags (2 read, 1 skipped, 0 damaged, 0 failed), 0 done before" in run.stdout
+    rows = {bag: (status, reason) for bag, status, reason in query(
+        f"SELECT bag, status, reason FROM {BAGS.format(ds)}"
+    )}  # fmt: skip
+    assert rows[str(first)] == ("read", "")
+    assert rows[str(copy)][0] == "skipped" and str(first) in rows[str(copy)][1]
+    (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
+    assert robots == ["robot-a"]
+    (shas,) = query(
+        f"SELECT count(*) FROM {BAGS.format(ds)} GROUP BY config_sha256, bag_sha256, status "
+        "ORDER BY 1 DESC LIMIT 1"
+    )[0]
+    assert shas == 1  # each content read once per config
+    again = fleet(cfg, root, "-o", ds, "--jobs", "2", ok=(0,))
+    assert "0 bags (0 read, 0 skipped, 0 damaged, 0 failed), 3 done before" in again.stdout

@@ -427,6 +427,7 @@ def _read(fd: int) -> bytes:
         ("fifo", ": a FIFO"),  # left out without a word
         ("extra-partition", "extra=1: not a .parquet file here"),  # its rows added to the day's
         ("robot-file", "violations/stray.parquet: not robot=R"),
+        ("table-link", "ds/violations: a link"),  # another dataset's rows, read as this one's
     ],
 )
 def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_path, make, said):
@@ -444,6 +445,9 @@ def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_pa
     elif make == "extra-partition":
         (day / "extra=1").mkdir()
         shutil.copy(next(day.glob("*.parquet")), day / "extra=1" / "x.parquet")
+    elif make == "table-link":
+        shutil.rmtree(ds / "violations")
+        (ds / "violations").symlink_to(fleet["before"] / "violations")
     else:
         shutil.copy(next(day.glob("*.parquet")), ds / "violations" / "stray.parquet")
     run = subprocess.run(
@@ -464,3 +468,66 @@ def test_a_dataset_of_links_fifos_or_other_directories_is_one_line(fleet, tmp_pa
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 1 and len(lines) == 1 and said in lines[0], run.stderr
     assert str(ds) in lines[0] and "internal error" not in lines[0]
+
+
+@pytest.mark.parametrize("damage", ["empty", "cut"])
+def test_a_row_a_power_loss_damaged_is_one_line_naming_its_file(fleet, tmp_path, damage):
+    # fleet report reads the bags table as fleet replay's resume does (dataset.py):
+    # a row file a power loss left empty or cut short is named, with what to do.
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    row = sorted((ds / "bags").glob("*.parquet"))[2]
+    whole = row.read_bytes()
+    row.write_bytes(b"" if damage == "empty" else whole[: len(whole) // 2])
+    run = report(ds, "-o", tmp_path / "f.html", ok=(1,))
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and str(row) in lines[0], run.stderr
+    assert "empty or cut short" in lines[0] and "fleet replay" in lines[0]
+
+
+def _bomb(path: Path, config_sha256: str, rows: int, text: int) -> None:
+    """A violations file of ``rows`` rows whose ``bag`` is one string of ``text``
+    bytes: dictionary-encoded, it is stored once, and decodes to rows × text."""
+    from supervisor.tools.fleet.task import VIOLATIONS as SCHEMA
+
+    bag = pa.DictionaryArray.from_arrays(pa.array([0] * rows, pa.int32()), pa.array(["x" * text]))
+    columns = {"bag": bag}  # kept as dictionary codes here: decoded, it is the bomb
+    for f in SCHEMA:
+        if f.name not in ("bag", "date"):
+            value = {"tick": 1, "recorded_ts": 1_780_272_000 * 10**9}.get(f.name, "{}")
+            columns[f.name] = pa.array([value] * rows, f.type)
+    columns["config_sha256"] = pa.array([config_sha256] * rows, pa.string())
+    # as fleet replay's files are read: their Arrow types are Parquet's own (string)
+    pq.write_table(pa.table(columns), path, compression="zstd", store_schema=False)
+
+
+def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path):
+    # 6 GiB decoded from a file of a few hundred KB, more than the dataset's bound
+    # (dataset.py, MAX_DECODED_BYTES): refused before it is decoded.  Run under an
+    # address-space limit, so that a report that decodes it fails here at once
+    # instead of taking the machine's memory.
+    import resource
+
+    from supervisor.tools.fleet.dataset import MAX_DECODED_BYTES
+
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    (sha,) = set(pq.read_table(ds / "bags").column("config_sha256").to_pylist())
+    day = ds / "violations" / "robot=robot-a" / "date=2026-06-01"
+    bomb = day / ("b" * 32 + ".parquet")
+    _bomb(bomb, sha, rows=6 * 1024, text=2**20)
+    assert bomb.stat().st_size < 1_000_000 and 6 * 2**30 > MAX_DECODED_BYTES
+    limit = 3 * 2**30
+
+    def capped() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
+         str(tmp_path / "f.html")],
+        capture_output=True, text=True, timeout=300, preexec_fn=capped,
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert str(bomb) in lines[0] and "decode" in lines[0], lines[0]
+    assert "internal error" not in lines[0] and "Traceback" not in run.stderr

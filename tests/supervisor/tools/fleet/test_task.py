@@ -80,3 +80,52 @@ def test_a_worker_loads_the_monitor_library_once_and_resets_it_for_each_bag(tmp_
     for bag, result in zip(bags, [first, *rest], strict=True):
         assert result.status == "read"
         assert _per_requirement(result) == _replayed(cfg, bag) != {}
+
+
+# A worker's compile of a config that an audit hook (real opens, observed, nothing
+# replaced) rewrites just before any second open of it: read twice, the bytes hashed
+# for the cache's key and the bytes compiled would be two versions of the file.
+_EDITED_BETWEEN_READS = """
+import json, os, sys
+from pathlib import Path
+from supervisor.tools.fleet import task
+
+cfg, edited = sys.argv[1], Path(sys.argv[2]).read_bytes()
+opens, editing = 0, False
+
+def hook(event, args):
+    global opens, editing
+    if event != "open" or editing or not isinstance(args[0], (str, bytes, os.PathLike)):
+        return
+    if os.fsdecode(args[0]) != cfg:
+        return
+    opens += 1
+    if opens == 2:
+        editing = True
+        Path(cfg).write_bytes(edited)
+        editing = False
+
+sys.addaudithook(hook)
+prepared = task._compiled(cfg)
+print(json.dumps({"opens": opens, "key": task._prepared[cfg][0],
+                  "compiled": prepared.project.config.sha256}))
+"""
+
+
+def test_a_worker_reads_its_config_once_and_keys_its_compile_by_those_bytes(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    cfg = config(tmp_path, limit=2.0)
+    edited = config(tmp_path, "edited.yaml", limit=2.3)
+    run = subprocess.run(
+        [sys.executable, "-c", _EDITED_BETWEEN_READS, str(cfg), str(edited)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    seen = json.loads(run.stdout)
+    assert seen["opens"] == 1
+    assert seen["key"] == seen["compiled"]
