@@ -122,15 +122,20 @@ class Dataset:
         self.violations_dir = root / "violations"
 
     def done(self) -> Done:
-        """Every bag finished (any status but failed) in an earlier run."""
+        """Every bag finished (any status but failed) in an earlier run; and the
+        contents replayed: only a row that holds its content's results (``read``,
+        ``damaged``) stands for its content.  A copy's ``skipped`` row is written
+        before or without its first's (a run stopped between them), so it vouched
+        for a content no row held, and the first was skipped for good."""
         fps: set[tuple[str, str]] = set()
         contents: set[tuple[str, str]] = set()
         damaged: list[Path] = []
         table = self.bags(damaged)
         finished = table.filter(pc.not_equal(table["status"], "failed"))
-        for row in finished.select(["config_sha256", "fingerprint", "bag_sha256"]).to_pylist():
+        columns = ["config_sha256", "fingerprint", "bag_sha256", "status"]
+        for row in finished.select(columns).to_pylist():
             fps.add((row["config_sha256"], row["fingerprint"]))
-            if row["bag_sha256"]:
+            if row["bag_sha256"] and row["status"] in ("read", "damaged"):
                 contents.add((row["config_sha256"], row["bag_sha256"]))
         return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
