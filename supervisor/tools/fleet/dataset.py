@@ -99,6 +99,7 @@ MAX_ERROR = 300  # characters of a reader's error in a line about a dataset's fi
 # is checked before each file is decoded (``Budget``, docs/reference/fleet.md).
 # A violation decoded takes about 230 bytes with a bag path of 70 characters.
 MAX_DECODED_BYTES = 4 * 2**30
+BATCH_ROWS = 65_536  # rows of a file decoded at a time, each batch within the budget
 # The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
 # prefix-encoded text that decodes to far more than it stores, is not its file.
 ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
@@ -121,15 +122,20 @@ class Dataset:
         self.violations_dir = root / "violations"
 
     def done(self) -> Done:
-        """Every bag finished (any status but failed) in an earlier run."""
+        """Every bag finished (any status but failed) in an earlier run; and the
+        contents replayed: only a row that holds its content's results (``read``,
+        ``damaged``) stands for its content.  A copy's ``skipped`` row is written
+        before or without its first's (a run stopped between them), so it vouched
+        for a content no row held, and the first was skipped for good."""
         fps: set[tuple[str, str]] = set()
         contents: set[tuple[str, str]] = set()
         damaged: list[Path] = []
         table = self.bags(damaged)
         finished = table.filter(pc.not_equal(table["status"], "failed"))
-        for row in finished.select(["config_sha256", "fingerprint", "bag_sha256"]).to_pylist():
+        columns = ["config_sha256", "fingerprint", "bag_sha256", "status"]
+        for row in finished.select(columns).to_pylist():
             fps.add((row["config_sha256"], row["fingerprint"]))
-            if row["bag_sha256"]:
+            if row["bag_sha256"] and row["status"] in ("read", "damaged"):
                 contents.add((row["config_sha256"], row["bag_sha256"]))
         return Done(frozenset(fps), frozenset(contents), tuple(damaged))
 
@@ -493,13 +499,12 @@ class Budget:
 
 def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Table:
     """One of the dataset's Parquet files, ``schema``'s columns of ``schema``'s types,
-    decoded only once ``budget`` has room for it.  From its footer (its rows and its
-    columns' sizes), a bound: no value is longer than its column's bytes, so a column
-    decodes to at most its bytes, or, dictionary-encoded, its bytes once per row.  The
-    usual file fits it and is read at once; one that does not is read first with its
-    text columns as dictionary codes (each distinct value once), so that their
-    decoded size is known exactly before they are decoded.  A file of other columns,
-    types or encodings: not this dataset's."""
+    each batch of rows decoded only once ``budget`` has room for it.  Its text columns
+    are read as dictionary codes first (each distinct value once), so that a batch's
+    decoded size is known exactly before it is decoded.  The footer's sizes and row
+    counts are never the bound: they are the file's word, and pyarrow decodes what
+    the pages hold whatever the footer says.  A file of other columns, types or
+    encodings: not this dataset's."""
 
     def wrong(why: str) -> UserError:
         return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
@@ -514,32 +519,21 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
             raise wrong(f"column {f.name} is {found.field(i).type}, not {f.type}")
     meta = footer.metadata
     names = set(schema.names)
-    stored = bound = 0
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
         for c in range(group.num_columns):
             column = group.column(c)
-            if column.path_in_schema not in names:
-                continue
-            if not set(column.encodings) <= ENCODINGS:
+            if column.path_in_schema in names and not set(column.encodings) <= ENCODINGS:
                 odd = ", ".join(sorted(set(column.encodings) - ENCODINGS))
                 raise wrong(f"column {column.path_in_schema} encoded as {odd}")
-            size, rows = column.total_uncompressed_size, column.num_values
-            stored += size
-            coded = any("DICTIONARY" in e for e in column.encodings)
-            bound += rows * (size + 8) if coded else size + 8 * rows
-    if bound <= budget.left:
-        table = footer.read(columns=schema.names, use_threads=False)
-        budget.take(table.nbytes, path)
-        return table
-    # the codes and fixed-width values take at most 8 bytes a row and column
-    budget.check(stored + meta.num_rows * 8 * len(schema), path)
     text = [f.name for f in schema if pa.types.is_string(f.type)]
-    coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta).read(
-        columns=schema.names, use_threads=False
-    )
-    budget.take(_decoded(coded), path)
-    return coded.cast(schema)
+    coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta)
+    tables = []
+    for batch in coded.iter_batches(BATCH_ROWS, columns=schema.names, use_threads=False):
+        table = pa.Table.from_batches([batch]).select(schema.names)
+        budget.take(_decoded(table), path)
+        tables.append(table.cast(schema))
+    return pa.concat_tables(tables) if tables else schema.empty_table()
 
 
 def _decoded(table: pa.Table) -> int:

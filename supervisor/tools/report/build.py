@@ -82,13 +82,23 @@ def build(
         from supervisor.config import load_config
         from supervisor.pipeline import build_project
 
-        loaded = load_config(cfg_path)
-        changed = changed_imports(data, loaded.sha256, loaded.import_digests)
+        loaded: Config | None
+        try:
+            loaded = load_config(cfg_path)
+        except UserError as e:
+            if config is not None or bags:
+                raise
+            # found beside the log, the log's bytes: what fails now is what it imports
+            # (gone, or edited), so it is not the log's config, as an edited import
+            loaded, cfg_path, no_config = None, None, str(e)
+        changed = None
+        if loaded is not None:
+            changed = changed_imports(data, loaded.sha256, loaded.import_digests)
         if changed is not None and (config is not None or bags):
             raise UserError(f"{changed}; give the files as they were", file=str(cfg_path))
         if changed is not None:  # found beside the log: the report goes on without it
             cfg_path, no_config = None, f"{cfg_path}: {changed}"
-        else:
+        elif loaded is not None:
             project = build_project(loaded, ros=False)
     cfg = project.config if project is not None else None
     notes: list[str] = []

@@ -131,23 +131,27 @@ def config_hash(data: LogData) -> str | None:
 def changed_imports(data: LogData, sha256: str, digests: dict[str, str]) -> str | None:
     """How the imports of a config whose file is the log's (``sha256``) differ from
     those its start, reload or replay records name, if they do: an edited FRET export
-    under an unchanged config judges with other requirements.  A log that names no
-    imports (an older writer's) is not checked."""
-    for r in reversed(data.records):
-        logged = r.get("imports")
-        if r.get("event") != "supervisor" or r.get("config_sha256") != sha256:
-            continue
-        if not isinstance(logged, dict) or logged == digests:
-            continue
-        for name in sorted(set(logged) | set(digests)):
-            was, now = logged.get(name), digests.get(name)
-            if was != now:
-                return (
-                    f"its import {printable(name)} is not the one the log was written with "
-                    f"(SHA-256 {printable(str(was or 'none')[:12])}... then, "
-                    f"{(now or 'none')[:12]}... now)"
-                )
-    return None
+    under an unchanged config judges with other requirements.  Files that any of
+    them names are the log's, as a config file among the records' hashes is: an
+    import edited and reloaded (or replayed again) between runs leaves records of
+    both versions.  A log that names no imports (an older writer's) is not checked."""
+    named = [
+        r["imports"]
+        for r in data.records
+        if r.get("event") == "supervisor"
+        and r.get("config_sha256") == sha256
+        and isinstance(r.get("imports"), dict)
+    ]
+    if not named or digests in named:
+        return None
+    logged = named[-1]  # the differences from the latest
+    name = next(n for n in sorted(set(logged) | set(digests)) if logged.get(n) != digests.get(n))
+    was, now = logged.get(name), digests.get(name)
+    return (
+        f"its import {printable(name)} is not the one the log was written with "
+        f"(SHA-256 {printable(str(was or 'none')[:12])}... then, "
+        f"{(now or 'none')[:12]}... now)"
+    )
 
 
 def _candidates(data: LogData, bags: list[str]) -> list[Path]:

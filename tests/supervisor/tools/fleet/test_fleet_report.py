@@ -501,11 +501,40 @@ def _bomb(path: Path, config_sha256: str, rows: int, text: int) -> None:
     pq.write_table(pa.table(columns), path, compression="zstd", store_schema=False)
 
 
-def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path):
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while True:
+        low, n = n & 0x7F, n >> 7
+        out.append(low | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def _lie(path: Path, size: int) -> None:
+    """The footer of ``path`` says every column chunk of ``size`` bytes, as a hostile
+    file may: each i64 of that value (Thrift's compact protocol: a zigzag varint) is
+    made 100, padded to its length, which pyarrow reads and never checks."""
+    data = bytearray(path.read_bytes())
+    start = len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+    was, now = _varint(size << 1), bytearray(_varint(100 << 1))
+    while len(now) < len(was):
+        now[-1] |= 0x80
+        now.append(0)
+    at = data.find(was, start)
+    assert at > 0
+    while at > 0:
+        data[at : at + len(was)] = now
+        at = data.find(was, at + 1)
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("footer", ["true", "lying"])
+def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path, footer):
     # 6 GiB decoded from a file of a few hundred KB, more than the dataset's bound
-    # (dataset.py, MAX_DECODED_BYTES): refused before it is decoded.  Run under an
-    # address-space limit, so that a report that decodes it fails here at once
-    # instead of taking the machine's memory.
+    # (dataset.py, MAX_DECODED_BYTES): refused before it is decoded, also when its
+    # footer says its columns are small.  Run under an address-space limit, so that
+    # a report that decodes it fails here at once instead of taking the machine's
+    # memory.
     import resource
 
     from supervisor.tools.fleet.dataset import MAX_DECODED_BYTES
@@ -517,6 +546,11 @@ def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path):
     bomb = day / ("b" * 32 + ".parquet")
     _bomb(bomb, sha, rows=6 * 1024, text=2**20)
     assert bomb.stat().st_size < 1_000_000 and 6 * 2**30 > MAX_DECODED_BYTES
+    if footer == "lying":
+        column = pq.ParquetFile(bomb).metadata.row_group(0).column(0)
+        assert column.path_in_schema == "bag"
+        _lie(bomb, column.total_uncompressed_size)
+        assert pq.ParquetFile(bomb).metadata.row_group(0).column(0).total_uncompressed_size == 100
     limit = 3 * 2**30
 
     def capped() -> None:
@@ -529,5 +563,5 @@ def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path):
     )  # fmt: skip
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 1 and len(lines) == 1, run.stderr
-    assert str(bomb) in lines[0] and "decode" in lines[0], lines[0]
+    assert str(bomb) in lines[0] and "decodes to more than" in lines[0], lines[0]
     assert "internal error" not in lines[0] and "Traceback" not in run.stderr
