@@ -7,6 +7,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -71,6 +72,16 @@ def pytest_make_collect_report(collector: pytest.Collector) -> Any:
     report = yield
     _fail_required_skip(report)
     return report
+
+
+@pytest.fixture(autouse=True)
+def _no_daemon_outlives_its_test() -> Iterator[None]:
+    """A daemon a failed test left running would hold its domain's control socket,
+    and the worker's later daemon tests would all fail to start (rosutil._OPEN)."""
+    yield
+    rosutil = sys.modules.get("rosutil")
+    if rosutil is not None:
+        rosutil.close_leftovers()
 
 
 @pytest.fixture

@@ -28,6 +28,19 @@ _WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or
 DOMAIN_ID = random.randrange(1 + _WORKER % _WORKERS, 201, _WORKERS)
 ROS_ENV = ros_vars(DOMAIN_ID)
 SROBOT = data.example("srobot.yaml")
+# Daemons started and not closed yet.  A test that fails between starting one and
+# closing it must not leave it running: it would hold the domain's control socket,
+# and every later daemon test of this worker would fail to start (conftest.py
+# closes what is left after each test).
+_OPEN: set[Daemon] = set()
+
+
+def close_leftovers() -> int:
+    """Close the daemons the finished test left running; how many there were."""
+    left = list(_OPEN)
+    for d in left:
+        d.close()
+    return len(left)
 
 
 def wait_until(
@@ -69,6 +82,7 @@ class Daemon:
         self.stderr = tmp / "daemon.stderr"
         self.child = Child("daemon", argv, env=env, cwd=cwd, stderr=self.stderr)
         self.proc = self.child.proc
+        _OPEN.add(self)
         # (monotonic time received, datagram)
         self.notifications: list[tuple[float, str]] = []
 
@@ -136,6 +150,7 @@ class Daemon:
     def close(self) -> None:
         self.child.kill()
         self.notify.close()
+        _OPEN.discard(self)
 
 
 @contextmanager

@@ -115,6 +115,22 @@ def test_report_from_the_log_alone(logged: tuple[Path, Path, Path], tmp_path: Pa
     assert html.count('class="mk violation"') == 3
 
 
+SPEED_LINE = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
+
+
+def _speed_from_import(config: Path) -> Path:
+    """The config's ``speed`` input moved to ``variables_from: v.txt`` beside it:
+    the same inputs, read from an import; the import's path."""
+    text = config.read_text()
+    assert SPEED_LINE in text
+    config.write_text(
+        text.replace(SPEED_LINE, "").replace("variables:\n", "variables_from: v.txt\nvariables:\n")
+    )
+    imported = config.parent / "v.txt"
+    imported.write_text('("speed","double","/speed","double")\n')
+    return imported
+
+
 def test_an_import_edited_since_the_log_is_not_read_as_the_logs_config(
     logged: tuple[Path, Path, Path], tmp_path: Path
 ) -> None:
@@ -123,14 +139,7 @@ def test_an_import_edited_since_the_log_is_not_read_as_the_logs_config(
     names the imports' hashes, and the report does not read the log with the edited
     ones: without ``--config`` it goes on without a config, with it it refuses."""
     config, trace, _log = logged
-    speed = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
-    text = config.read_text()
-    assert speed in text
-    config.write_text(
-        text.replace(speed, "").replace("variables:\n", "variables_from: v.txt\nvariables:\n")
-    )
-    imported = tmp_path / "v.txt"
-    imported.write_text('("speed","double","/speed","double")\n')
+    imported = _speed_from_import(config)
     log = tmp_path / "imports.jsonl"
     assert run("replay", str(config), str(trace), "-o", str(log), "--quiet").returncode == 0
     start = next(r for r in iter_records(str(log)) if r.get("what") == "replay")
@@ -155,14 +164,7 @@ def test_a_config_whose_imports_the_last_run_names_reads_logs_of_an_earlier_vers
     files as the last run had them are the log's config, as a config file among the
     records' hashes is, never refused for the earlier run's."""
     config, trace, _log = logged
-    speed = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
-    config.write_text(
-        config.read_text()
-        .replace(speed, "")
-        .replace("variables:\n", "variables_from: v.txt\nvariables:\n")
-    )
-    imported = tmp_path / "v.txt"
-    imported.write_text('("speed","double","/speed","double")\n')
+    imported = _speed_from_import(config)
     first, second = tmp_path / "first.jsonl", tmp_path / "second.jsonl"
     assert run("replay", str(config), str(trace), "-o", str(first), "--quiet").returncode == 0
     imported.write_text('("speed","double","/speed","double")\n\n')  # same inputs, new bytes
@@ -180,14 +182,7 @@ def test_a_config_found_beside_the_log_whose_import_is_gone_is_not_used(
     found beside the log is not used and the report goes on without it, as for an
     edited one; with ``--config`` it is one line naming the file."""
     config, trace, _log = logged
-    speed = "  speed: {type: double, topic: /speed, msg: std_msgs/msg/Float64}\n"
-    config.write_text(
-        config.read_text()
-        .replace(speed, "")
-        .replace("variables:\n", "variables_from: v.txt\nvariables:\n")
-    )
-    imported = tmp_path / "v.txt"
-    imported.write_text('("speed","double","/speed","double")\n')
+    imported = _speed_from_import(config)
     log = tmp_path / "imports.jsonl"
     assert run("replay", str(config), str(trace), "-o", str(log), "--quiet").returncode == 0
     imported.unlink()
