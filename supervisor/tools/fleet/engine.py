@@ -436,10 +436,10 @@ def _run_ray(tasks: list[BagTask], done: Collection[str]) -> bytes:
     and this process milliseconds of their CPU, as much as a small bag's replay
     (docs/BENCHMARKS.md, "Fleet").  The results, their Arrow tables with them, are
     pickled here by the standard library's pickler, as the pool's are, and handed to
-    Ray as bytes: Ray's own serializer (cloudpickle's Python hook on every object)
-    took 10 times as long for the same results, a fifth of a small bag's replay
-    (docs/BENCHMARKS.md, "Fleet").  ``_ray_results`` unpickles them: what Ray would
-    have unpickled, from the same workers."""
+    Ray as bytes: Ray's own serializer took 10 times as long for the same results,
+    1.5 ms a bag, a seventh of a small bag's replay (docs/BENCHMARKS.md, "Fleet").
+    ``_ray_results`` unpickles them: what Ray would have unpickled, from the same
+    workers."""
     return pickle.dumps([_one(task, done) for task in tasks], protocol=pickle.HIGHEST_PROTOCOL)
 
 
