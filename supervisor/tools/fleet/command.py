@@ -124,7 +124,7 @@ def _fleet(args: argparse.Namespace) -> int:
         from supervisor.tools.fleet.report import cmd_report
 
         return cmd_report(args)
-    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.dataset import Dataset, only_writer
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.replay.command import checked_namespace
 
@@ -139,20 +139,33 @@ def _fleet(args: argparse.Namespace) -> int:
         # the pool's workers write their bags' files: the parent only coordinates
         else LocalEngine(args.jobs, Path(args.output))
     )
-    namespace = checked_namespace(args.namespace, "fleet replay")
-    # what an earlier run finished, read (nothing made yet) before the workers start:
-    # they take it at their start, while this process compiles the config
-    done = Dataset(Path(args.output), make=False).done()
-    if (damage := done.damage()) is not None:  # a power loss: those bags run again
-        Dataset(Path(args.output), make=False).drop(done.damaged)  # its error said alone
-        print(damage, file=sys.stderr, flush=True)
-    # by content hash too: the same bag under another path is hashed, not replayed
-    # (a task's key is its config's hash and its content: other configs' never match)
-    done_contents = {f"{s}:{h}" for s, h in done.contents}
     try:
-        return _replay(args, engine, namespace, done, done_contents)
+        namespace = checked_namespace(args.namespace, "fleet replay")
+        output = Path(args.output)
+        with only_writer(output) as removed:
+            try:
+                if removed:
+                    print(
+                        f"fleet replay: {output}: removed {removed} unfinished file"
+                        f"{'s' if removed != 1 else ''} of an interrupted run",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                # what an earlier run finished, read before the workers start: they
+                # take it at their start, while this process compiles the config
+                done = Dataset(output, make=False).done()
+                if (damage := done.damage()) is not None:  # a power loss: run them again
+                    Dataset(output, make=False).drop(done.damaged)  # its error said alone
+                    print(damage, file=sys.stderr, flush=True)
+                # by content hash too: the same bag under another path is hashed, not
+                # replayed (a task's key is its config's hash and its content: other
+                # configs' never match)
+                done_contents = {f"{s}:{h}" for s, h in done.contents}
+                return _replay(args, engine, namespace, done, done_contents)
+            finally:
+                engine.close()  # within the lock: no worker writes after it is let go
     finally:
-        engine.close()  # started, and not taken by a run stopped by an error
+        engine.close()  # also when the dataset could not be locked
 
 
 def _replay(

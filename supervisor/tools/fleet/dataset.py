@@ -29,12 +29,15 @@ not finished, and the next run says so in one line and replays it (``done``).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import os
 import re
 import stat
 import time
 from collections import deque
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,6 +110,10 @@ ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BI
 COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
 _READ = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
 KEY = re.compile(r"[0-9a-f]{32}\.parquet")  # the name of a file this dataset writes
+# A file write_whole had not renamed yet (supervisor/files.py): ``.K.parquet.XXXX.tmp``.
+TEMPORARY = re.compile(r"\.[0-9a-f]{32}\.parquet\.[a-z0-9_]+\.tmp")
+# The run's lock on its dataset: hidden, so no reader lists it (``dataset_files``).
+LOCK = ".fleet-replay.lock"
 
 
 class Dataset:
@@ -255,6 +262,69 @@ class Dataset:
             budget.take(sum(p.nbytes for p in parts), path)
             tables.append(table.append_column("robot", parts[0]).append_column("date", parts[1]))
         return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+@contextlib.contextmanager
+def only_writer(root: Path) -> Iterator[int]:
+    """This run the dataset's only writer while the block runs: an exclusive lock
+    on its lock file (made if need be, never through a link).  Two runs writing one
+    dataset would replay every bag twice, and a run would take the other's
+    unfinished files for an interrupted run's.  Then those are removed: the hidden
+    temporary files of writes a killed run had not renamed (``TEMPORARY``), which
+    nothing else would ever remove.  Yields how many were removed."""
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot make the dataset: {e.strerror or e}", file=str(root)) from None
+    try:
+        fd = os.open(root / LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    except OSError as e:
+        raise UserError(f"cannot lock the dataset: {e.strerror or e}", file=str(root)) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UserError(
+                "the dataset is being written by another fleet replay",
+                file=str(root),
+                hint="wait for it to end, or give this one another -o",
+            ) from None
+        except OSError as e:
+            raise UserError(f"cannot lock the dataset: {e.strerror or e}", file=str(root)) from None
+        yield _remove_temporaries(root)
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _remove_temporaries(root: Path) -> int:
+    """The ``TEMPORARY`` files in the dataset's directories, removed; links and
+    anything else left to the readers (``dataset_files`` names them)."""
+    removed = 0
+    todo = [d for d in (root / "bags", root / "violations") if _table_dir(d)]
+    while todo:
+        d = todo.pop()
+        try:
+            with os.scandir(d) as it:
+                entries = list(it)
+        except (FileNotFoundError, NotADirectoryError):
+            continue
+        except OSError as e:
+            raise UserError(f"cannot list: {e.strerror or e}", file=_shown(d)) from None
+        for entry in entries:
+            if entry.is_dir(follow_symlinks=False) and "=" in entry.name:
+                todo.append(Path(entry.path))
+            elif TEMPORARY.fullmatch(entry.name) and entry.is_file(follow_symlinks=False):
+                try:
+                    os.unlink(entry.path)
+                except FileNotFoundError:
+                    continue
+                except OSError as e:
+                    raise UserError(
+                        f"cannot write the dataset: {e.strerror or e}",
+                        file=_shown(Path(entry.path)),
+                    ) from None
+                removed += 1
+    return removed
 
 
 def _table_dir(path: Path) -> bool:

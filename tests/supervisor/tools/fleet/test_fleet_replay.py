@@ -304,6 +304,63 @@ def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
     assert all(n == distinct for _, _, n, distinct in want)
 
 
+def test_a_second_run_on_a_dataset_being_written_is_one_line(tmp_path):
+    """Two runs writing one dataset would replay every bag twice, and each would
+    take the other's unfinished files for an interrupted run's: the second is one
+    line and writes nothing, the first goes on to a whole dataset."""
+    from rosutil import wait_until
+
+    root, cfg, clean, ds = four_bags_and_a_clean_run(tmp_path)
+    first = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(ds), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        wait_until("a worker reading a bag", lambda: _reading_a_bag(first.pid), 120)
+        second = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(1,))
+        out, err = first.communicate(timeout=300)
+    finally:
+        first.kill()
+        first.wait()
+    lines = [line for line in second.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "being written by another fleet replay" in lines[0], lines
+    assert str(ds) in lines[0] and second.stdout == ""
+    assert first.returncode == 0 and "4 bags (4 read, 0 skipped" in out, err
+    per_bag = "SELECT bag, requirement, count(*) FROM {} GROUP BY ALL ORDER BY ALL"
+    assert query(per_bag.format(VIOLATIONS.format(ds))) == query(
+        per_bag.format(VIOLATIONS.format(clean))
+    )
+
+
+def test_an_interrupted_runs_unfinished_files_are_removed_by_the_next(tmp_path):
+    """A writer killed between its temporary file and the rename (supervisor/files.py)
+    leaves a hidden ``.K.parquet.XXXX.tmp`` that no reader lists and nothing else
+    would remove: the next run removes those, and only those."""
+    import tempfile
+
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 500))
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    fleet(cfg, tmp_path / "fleet", "-o", ds, ok=(0,))
+    (row,) = (ds / "bags").glob("*.parquet")
+    (part,) = (ds / "violations").glob("robot=*/date=*/*.parquet")
+    left = []
+    for done in (row, part):  # as files._write names them, a killed writer's
+        fd, name = tempfile.mkstemp(dir=done.parent, prefix=f".{done.name}.", suffix=".tmp")
+        os.write(fd, b"PAR1 half a file")
+        os.close(fd)
+        left.append(Path(name))
+    kept = [ds / "bags" / ".notes.tmp", ds / "bags" / ".keep"]
+    for k in kept:
+        k.write_text("not fleet replay's")
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, ok=(0,))
+    assert "removed 2 unfinished files of an interrupted run" in run.stderr, run.stderr
+    assert not any(f.exists() for f in left) and all(k.exists() for k in kept)
+    assert "0 bags (0 read, 0 skipped, 0 damaged, 0 failed), 1 done before" in run.stdout
+    again = fleet(cfg, tmp_path / "fleet", "-o", ds, ok=(0,))
+    assert "removed" not in again.stderr
+
+
 def test_a_bag_of_other_topics_and_a_copy_of_a_finished_bag_are_skipped(tmp_path):
     root = tmp_path / "fleet"
     first = write_bag(root / "robot-a" / "b1", messages(1, 500))
