@@ -101,6 +101,10 @@ class _Records(DiscardingLog):
         return True
 
 
+CHANGED = (
+    "the config or a file it imports changed during the run: this bag was not replayed "
+    "with the config the run began with (run fleet replay again)"
+)
 # This worker's configs compiled (config path -> its bytes' SHA-256 and the compiled
 # config): a worker replays many bags with one or two configs, and compiling took
 # most of a small bag's task (docs/BENCHMARKS.md, "Fleet").  Keyed by the bytes read
@@ -163,6 +167,11 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
         return BagResult(task, "skipped", "already replayed with this config", digest)
     records = _Records()
     try:
+        prepared = _compiled(task.config)
+        if str(prepared.project.config.identity) != task.config_sha256:
+            # the config or an import edited since the run began: its rows would name
+            # the identity the run began with and hold what another version judged
+            return BagResult(task, "failed", CHANGED, digest, seconds=time.perf_counter() - t0)
         run = run_one(
             Path(task.config),
             [Path(task.bag)],
@@ -170,7 +179,7 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
             None,
             namespace=task.namespace,
             sink=records,
-            prepared=_compiled(task.config),
+            prepared=prepared,
         )
     except NothingToJudge as e:
         return BagResult(task, "skipped", _reason(str(e)), digest, seconds=time.perf_counter() - t0)

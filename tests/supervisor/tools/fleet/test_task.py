@@ -129,3 +129,23 @@ def test_a_worker_reads_its_config_once_and_keys_its_compile_by_those_bytes(tmp_
     seen = json.loads(run.stdout)
     assert seen["opens"] == 1
     assert seen["key"] == seen["compiled"]
+
+
+def test_a_config_edited_during_the_run_is_a_failed_bag_not_rows_under_the_old_identity(
+    tmp_path,
+):
+    """The run keys its rows by the config's identity taken as it began: a worker
+    that compiles the edited file (its first task, or one after the edit) would
+    write what the new version judged under the old version's identity.  The bag is
+    failed instead, with the reason, and the next run replays it under the new one."""
+    bag = write_bag(tmp_path / "b", messages(20, 3000))
+    cfg = config(tmp_path, limit=2.0)
+    began = _sha(cfg)
+    task._prepared.clear()
+    assert run_task(BagTask(str(bag), "r", str(cfg), began)).status == "read"
+    cfg.write_text(cfg.read_text().replace("speed <= 2.0", "speed <= 2.3"))
+    result = run_task(BagTask(str(bag), "r", str(cfg), began))
+    assert result.status == "failed" and result.violations.num_rows == 0
+    assert "changed during the run" in result.reason
+    again = run_task(BagTask(str(bag), "r", str(cfg), _sha(cfg)))  # the next run's
+    assert again.status == "read" and _per_requirement(again) == _replayed(cfg, bag)
