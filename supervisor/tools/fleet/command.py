@@ -6,6 +6,7 @@ it comes, a progress line on a terminal and one summary line
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -124,7 +125,7 @@ def _fleet(args: argparse.Namespace) -> int:
         from supervisor.tools.fleet.report import cmd_report
 
         return cmd_report(args)
-    from supervisor.tools.fleet.dataset import Dataset, only_writer
+    from supervisor.tools.fleet.dataset import Dataset
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.replay.command import checked_namespace
 
@@ -139,33 +140,20 @@ def _fleet(args: argparse.Namespace) -> int:
         # the pool's workers write their bags' files: the parent only coordinates
         else LocalEngine(args.jobs, Path(args.output))
     )
+    namespace = checked_namespace(args.namespace, "fleet replay")
+    # what an earlier run finished, read (nothing made yet) before the workers start:
+    # they take it at their start, while this process compiles the config
+    done = Dataset(Path(args.output), make=False).done()
+    if (damage := done.damage()) is not None:  # a power loss: those bags run again
+        Dataset(Path(args.output), make=False).drop(done.damaged)  # its error said alone
+        print(damage, file=sys.stderr, flush=True)
+    # by content hash too: the same bag under another path is hashed, not replayed
+    # (a task's key is its config's hash and its content: other configs' never match)
+    done_contents = {f"{s}:{h}" for s, h in done.contents}
     try:
-        namespace = checked_namespace(args.namespace, "fleet replay")
-        output = Path(args.output)
-        with only_writer(output) as removed:
-            try:
-                if removed:
-                    print(
-                        f"fleet replay: {output}: removed {removed} unfinished file"
-                        f"{'s' if removed != 1 else ''} of an interrupted run",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                # what an earlier run finished, read before the workers start: they
-                # take it at their start, while this process compiles the config
-                done = Dataset(output, make=False).done()
-                if (damage := done.damage()) is not None:  # a power loss: run them again
-                    Dataset(output, make=False).drop(done.damaged)  # its error said alone
-                    print(damage, file=sys.stderr, flush=True)
-                # by content hash too: the same bag under another path is hashed, not
-                # replayed (a task's key is its config's hash and its content: other
-                # configs' never match)
-                done_contents = {f"{s}:{h}" for s, h in done.contents}
-                return _replay(args, engine, namespace, done, done_contents)
-            finally:
-                engine.close()  # within the lock: no worker writes after it is let go
+        return _replay(args, engine, namespace, done, done_contents)
     finally:
-        engine.close()  # also when the dataset could not be locked
+        engine.close()  # started, and not taken by a run stopped by an error
 
 
 def _replay(
@@ -176,7 +164,7 @@ def _replay(
     done_contents: set[str],
 ) -> int:
     from supervisor.tools.fleet.archive import copies, list_archive
-    from supervisor.tools.fleet.dataset import Dataset, Writers
+    from supervisor.tools.fleet.dataset import Dataset, Writers, only_writer
     from supervisor.tools.fleet.task import BagResult, BagTask, copy_of
 
     configs = [Path(args.config).absolute()]
@@ -187,7 +175,16 @@ def _replay(
     # each compiles the configs as it starts (either engine)
     engine.start(done_contents, len(bags) * len(configs), tuple(map(str, configs)))
     shas = _config_shas(configs, engine)
-    dataset = Dataset(Path(args.output))
+    output = Path(args.output)
+    dataset = Dataset(output)  # made once the configs compiled, not for a bad one
+    held = contextlib.ExitStack()  # let go once the pool has stopped, in the finally
+    if removed := held.enter_context(only_writer(output)):
+        print(
+            f"fleet replay: {output}: removed {removed} unfinished "
+            f"file{'s' if removed != 1 else ''} of an interrupted run",
+            file=sys.stderr,
+            flush=True,
+        )
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
     # results known before any task: a bag without its robot, a copy of another bag
@@ -237,6 +234,7 @@ def _replay(
     finally:
         results.close()  # an error stops the pool too (engine.py)
         progress.end()
+        held.close()
     print(progress.summary(counts, already, Path(args.output)), flush=True)
     if args.compare:
         _compare(dataset, shas, {fp for _, fp, _ in where.values()})

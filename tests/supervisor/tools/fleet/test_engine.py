@@ -460,7 +460,7 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     }
     assert server != os.getpid()
     seen: set[int] = set()
-    tasks = [BagTask(str(b), "r", str(cfg), "c" * 64) for b in bags]
+    tasks = [BagTask(str(b), "r", str(cfg), _identity(cfg)) for b in bags]
     for result in engine.results(tasks, frozenset()):
         assert result.status == "read", result.reason
         seen |= {p.pid for p in multiprocessing.active_children()}
@@ -474,6 +474,12 @@ def test_the_local_pools_workers_start_before_the_tasks_and_run_them(tmp_path):
     assert not Path(f"/proc/{server}").exists()  # the server stopped too: nothing outlives a run
     idle.start(frozenset(), 0)  # nothing to run: nothing started
     assert not idle.warm and not multiprocessing.active_children()
+
+
+def _identity(cfg: Path) -> str:
+    """The config's identity as the run takes it (it imports nothing: its bytes'
+    SHA-256), which a task must carry to be replayed (task.py, ``CHANGED``)."""
+    return hashlib.sha256(cfg.read_bytes()).hexdigest()
 
 
 class _Taken(list):  # type: ignore[type-arg]
@@ -497,7 +503,7 @@ def test_the_local_pool_keeps_a_window_of_tasks_in_flight_not_the_archive(tmp_pa
     cfg = config(tmp_path)
     bag = write_bag(tmp_path / "b", messages(1, 200))
     # one bag under many paths: each path is a task of its own
-    tasks = _Taken(BagTask(str(bag), "r", str(cfg), "c" * 64) for _ in range(30))
+    tasks = _Taken(BagTask(str(bag), "r", str(cfg), _identity(cfg)) for _ in range(30))
     paths = []
     for i, result in enumerate(LocalEngine(1).results(tasks, frozenset())):
         assert result.status == "read", result.reason
@@ -554,7 +560,7 @@ def test_a_worker_killed_between_a_bags_violations_and_its_row_leaves_it_to_the_
     clean, killed = tmp_path / "clean", tmp_path / "killed"
     fleet(cfg, root, "-o", clean, "--jobs", "1", ok=(0,))
     (bag,) = list_archive([str(root)], None)
-    key = Dataset.key(hashlib.sha256(cfg.read_bytes()).hexdigest(), bag.fingerprint)
+    key = Dataset.key(_identity(cfg), bag.fingerprint)
     row = killed / "bags" / f"{key}.parquet"
     hold = "mkdir,mkdirat"
     proc = subprocess.Popen(
@@ -648,7 +654,7 @@ def _rows(ds: Path, cfg: Path, root: Path) -> dict[str, Path]:
     from supervisor.tools.fleet.archive import list_archive
     from supervisor.tools.fleet.dataset import Dataset
 
-    sha = hashlib.sha256(cfg.read_bytes()).hexdigest()
+    sha = _identity(cfg)
     return {
         Path(b.path).name: ds / "bags" / f"{Dataset.key(sha, b.fingerprint)}.parquet"
         for b in list_archive([str(root)], None)
