@@ -10,7 +10,7 @@ import contextlib
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 from monitors.errors import UserError
 from supervisor.progress import Line
@@ -129,6 +129,9 @@ def _fleet(args: argparse.Namespace) -> int:
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.replay.command import checked_namespace
 
+    # the run's summary goes here: while on a Ray cluster, sys.stdout is Ray's notes'
+    # (engine.py, ``RayNotes``)
+    out = sys.stdout
     if args.address is not None and args.engine != "ray":
         raise UserError("--address is the Ray cluster's: give --engine ray", file="fleet replay")
     if args.engine == "ray":
@@ -151,7 +154,7 @@ def _fleet(args: argparse.Namespace) -> int:
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
     try:
-        return _replay(args, engine, namespace, done, done_contents)
+        return _replay(args, engine, namespace, done, done_contents, out)
     finally:
         engine.close()  # started, and not taken by a run stopped by an error
 
@@ -162,6 +165,7 @@ def _replay(
     namespace: str | None,
     done: Any,
     done_contents: set[str],
+    out: TextIO,
 ) -> int:
     from supervisor.tools.fleet.archive import copies, list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers, only_writer
@@ -235,9 +239,9 @@ def _replay(
         results.close()  # an error stops the pool too (engine.py)
         progress.end()
         held.close()
-    print(progress.summary(counts, already, Path(args.output)), flush=True)
+    print(progress.summary(counts, already, Path(args.output)), file=out, flush=True)
     if args.compare:
-        _compare(dataset, shas, {fp for _, fp, _ in where.values()})
+        _compare(dataset, shas, {fp for _, fp, _ in where.values()}, out)
     # a damaged bag was judged only up to its damage: as replay, that is not a success
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
 
@@ -274,7 +278,7 @@ def _chain(first: list[Any], rest: Any) -> Any:
     yield from rest
 
 
-def _compare(dataset: Any, shas: list[str], fingerprints: set[str]) -> None:
+def _compare(dataset: Any, shas: list[str], fingerprints: set[str], out: TextIO) -> None:
     import pyarrow.compute as pc
 
     from supervisor.tools.fleet.compare import compare, lines
@@ -282,10 +286,10 @@ def _compare(dataset: Any, shas: list[str], fingerprints: set[str]) -> None:
     bags = dataset.bags()
     mine = bags.filter(pc.is_in(bags["fingerprint"], _strings(fingerprints)))
     contents = {h for h in mine.column("bag_sha256").to_pylist() if h}
-    print(f"A = config {shas[0][:12]}, B = config {shas[1][:12]}")
+    print(f"A = config {shas[0][:12]}, B = config {shas[1][:12]}", file=out)
     for line in lines(compare(dataset.violations(), shas[0], shas[1], contents)):
-        print(line)
-    sys.stdout.flush()
+        print(line, file=out)
+    out.flush()
 
 
 def _strings(values: set[str]) -> Any:

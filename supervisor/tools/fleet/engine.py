@@ -15,15 +15,19 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import io
 import itertools
 import logging
 import multiprocessing.forkserver as forkserver
 import os
 import pickle
+import re
 import shutil
 import signal
 import socket
+import sys
 import tempfile
+import threading
 import time
 from collections import deque
 from collections.abc import Collection, Iterator
@@ -36,7 +40,7 @@ from concurrent.futures import (
 )
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TextIO
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
@@ -427,6 +431,38 @@ REACH_S = 10.0  # a cluster's head that has not answered by then is not there
 
 RAY_BATCH = 16  # bags per Ray task at most: Ray's own cost is per task, milliseconds
 RAY_WINDOW_PER_CPU = 4  # Ray tasks in flight per CPU of the cluster
+RAY_NOTE_CHARS = 500  # of one of Ray's messages, as a line on stderr
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+class RayNotes(io.TextIOBase):
+    """What Ray's driver prints on ``sys.stdout`` while it is on a cluster: the
+    raylet's errors pushed to it (a worker's death, the task's retry), in colour,
+    even into a pipe.  Standard output holds the run's one summary line
+    (docs/reference/fleet.md), so while the engine is on a cluster they go to stderr
+    instead, one plain, bounded line each."""
+
+    def __init__(self, err: TextIO) -> None:
+        self.err = err
+        self._part = ""
+        self._lock = threading.Lock()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        with self._lock:  # Ray's threads print
+            *lines, part = (self._part + text).split("\n")
+            self._part = part[: 4 * RAY_NOTE_CHARS]  # a line's start is what is shown
+            for line in lines:
+                if plain := _ANSI.sub("", line).strip():
+                    self.err.write(f"fleet replay: ray: {printable(plain)[:RAY_NOTE_CHARS]}\n")
+            if lines:
+                self.err.flush()
+        return len(text)
+
+    def flush(self) -> None:
+        self.err.flush()
 
 
 def _run_ray(tasks: list[BagTask], done: Collection[str]) -> bytes:
@@ -459,6 +495,7 @@ class RayEngine:
         self._ray: Any = None  # the module, once this engine is on a cluster
         self._owns = False  # ... one it joined or started: left by close()
         self._temp: str | None = None  # a local cluster's sockets and logs
+        self._stdout: TextIO | None = None  # while on a cluster (``RayNotes``)
         # the started workers' compiles of the configs (ObjectRefs of ``_warm``)
         self.warm: list[Any] = []
 
@@ -500,6 +537,8 @@ class RayEngine:
         if self._temp is not None:
             shutil.rmtree(self._temp, ignore_errors=True)
             self._temp = None
+        if self._stdout is not None:  # Ray's threads are stopped: its notes are done
+            sys.stdout, self._stdout = self._stdout, None
 
     def _connect(self) -> Any:
         """``ray``, on the cluster this engine joined or started (once)."""
@@ -515,6 +554,9 @@ class RayEngine:
                 self.close()
                 raise
             self._owns = True
+        # after its init, which may look at the real stdout: Ray's listener thread
+        # looks sys.stdout up at each message
+        self._stdout, sys.stdout = sys.stdout, RayNotes(sys.stderr)
         self._ray = ray
         return ray
 
