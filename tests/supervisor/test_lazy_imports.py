@@ -130,8 +130,9 @@ def test_a_fleet_worker_loads_no_action_backend(tmp_path: Path) -> None:
         "from supervisor.tools.fleet import server\n"
         "for m in server.PRELOAD: importlib.import_module(m)\n"
         "from supervisor.tools.fleet.task import BagTask, compile_config, run_task\n"
-        f"assert isinstance(compile_config({str(cfg)!r}), str)\n"
-        f"r = run_task(BagTask({str(bag)!r}, 'r', {str(cfg)!r}, 'c'))\n"
+        f"identity = compile_config({str(cfg)!r})\n"
+        "assert isinstance(identity, str)\n"
+        f"r = run_task(BagTask({str(bag)!r}, 'r', {str(cfg)!r}, identity))\n"
         "assert r.status == 'read' and r.violations.num_rows > 0, (r.status, r.reason)\n"
     )
     # numpy is pyarrow's own import, which the dataset needs

@@ -453,7 +453,7 @@ def split(config: Path, bags: list[Path], where: Path) -> dict[str, Any]:
         except UserError:
             continue  # a damaged bag: its time is not a task's usual
         t2 = time.process_time()
-        result = run_task(BagTask(str(bag), "r", str(config), cfg.sha256))
+        result = run_task(BagTask(str(bag), "r", str(config), cfg.identity))
         t3 = time.process_time()
         dataset.write(result, "r", fingerprint(bag)[1])
         t4 = time.process_time()

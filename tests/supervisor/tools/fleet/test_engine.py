@@ -769,7 +769,7 @@ args = argparse.Namespace(config=cfg, compare=None, archives=[root], robot_from=
 # a fresh bag, which may be the next one that kills its worker
 engine = LocalEngine(2, Path(ds), batch=1, window=1)
 try:
-    sys.exit(_replay(args, engine, None, Dataset(Path(ds), make=False).done(), set()))
+    sys.exit(_replay(args, engine, None, Dataset(Path(ds), make=False).done(), set(), sys.stdout))
 finally:
     engine.close()
     server.stop()
@@ -827,7 +827,7 @@ def test_the_local_pool_with_the_parent_writing_gives_the_workers_dataset(tmp_pa
     )  # fmt: skip
     engine = LocalEngine(2, writes_to=None)
     try:
-        code = _replay(args, engine, None, Dataset(by_parent, make=False).done(), set())
+        code = _replay(args, engine, None, Dataset(by_parent, make=False).done(), set(), sys.stdout)
     finally:
         engine.close()
         server.stop()
