@@ -278,15 +278,20 @@ def four_bags_and_a_clean_run(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
     return root, cfg, clean, killed
 
 
+def started(cfg: Path, root: Path, out: Path) -> subprocess.Popen[str]:
+    """``fleet replay --jobs 1`` running in the background, its output piped."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
+         str(out), "--jobs", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+
+
 def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
     from rosutil import wait_until
 
     root, cfg, clean, killed = four_bags_and_a_clean_run(tmp_path)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(killed), "--jobs", "1"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    proc = started(cfg, root, killed)
     try:
         victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid), 120)
         os.kill(victim, 9)
@@ -311,11 +316,7 @@ def test_a_second_run_on_a_dataset_being_written_is_one_line(tmp_path):
     from rosutil import wait_until
 
     root, cfg, clean, ds = four_bags_and_a_clean_run(tmp_path)
-    first = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(ds), "--jobs", "1"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    first = started(cfg, root, ds)
     try:
         wait_until("a worker reading a bag", lambda: _reading_a_bag(first.pid), 120)
         second = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(1,))
