@@ -283,6 +283,9 @@ def _session(sid: int, *, zombies: bool = False) -> list[int]:
     return out
 
 
+SAMPLE_S = 0.1  # the run's workers and their peak RSS, sampled this often
+
+
 def run_fleet(
     config: Path,
     archive: Path,
@@ -318,26 +321,31 @@ def run_fleet(
     # the tasks (a resume's finished bags differ) shows more processes over the run
     most = 0
     killed = False
-    # the sampling period; finer when a kill waits for the bags finished: a small
-    # archive's second half can take less than 0.1 s
+    # the workers sampled every 0.1 s; a kill that waits for the bags finished looks
+    # at the dataset every 5 ms, before any sampling (a scan of /proc): a small
+    # archive's second half can take less than 0.1 s, and the kill came after it
     period = 0.1 if stop_after is None else 0.005
+    sample_at = 0.0
     try:
         while True:
             try:
                 proc.wait(timeout=period)
                 break
             except subprocess.TimeoutExpired:  # still running
+                if stop_after is not None and _finished(dataset) >= stop_after:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+                    killed = True
+                    break
+                if time.monotonic() < sample_at:
+                    continue
+                sample_at = time.monotonic() + SAMPLE_S
                 alive = _workers(proc.pid, head)
                 if head:
                     cluster_cpu.update(_session_cpu(head))
                 most = max(most, len(alive))
                 for pid, kb in alive.items():
                     peaks[pid] = max(peaks.get(pid, 0), kb)
-                if stop_after is not None and _finished(dataset) >= stop_after:
-                    os.killpg(proc.pid, signal.SIGKILL)
-                    proc.wait()
-                    killed = True
-                    break
     finally:  # the bench stopped (Ctrl-C): the run with it, before its cluster
         if proc.poll() is None:
             with contextlib.suppress(ProcessLookupError):
