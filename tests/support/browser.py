@@ -3,6 +3,7 @@ downloaded browser), for the tests of ``report`` and ``ui``."""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -30,3 +31,15 @@ def open_page(url: str) -> tuple[Any, Any, list[str], list[str]]:
     page.on("request", lambda r: requests.append(r.url))
     page.goto(url)
     return pw, page, console, requests
+
+
+def eval_all(page: Any, selector: str, fn: str) -> Any:
+    """``fn`` (JavaScript, a function of an array of elements) applied to the page's
+    matches of ``selector``, queried and read in one task of the page.
+
+    A live page redraws as events arrive; playwright's ``eval_on_selector_all`` queries
+    and then evaluates in a second round trip, so it can be handed an element a redraw
+    has already detached (``closest('tr')`` is then null).
+    """
+    query = f"Array.from(document.querySelectorAll({json.dumps(selector)}))"
+    return page.evaluate(f"() => ({fn})({query})")

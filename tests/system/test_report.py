@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import CHROMIUM, open_page
+from browser import CHROMIUM, eval_all, open_page
 
 from mitigations.violationlog.reader import iter_records
 from supervisor.cli import main
@@ -291,12 +291,14 @@ def check_page(path: Path, log: Path) -> Any:
     violated = {r["requirement"] for r in records if r["event"] == "violation"}
     pw, page, console, requests = open_page(path.as_uri())
     try:
-        rows = page.eval_on_selector_all(
-            ".req-row", "rs => rs.map(r => [r.dataset.requirement, +r.dataset.violations])"
+        rows = eval_all(
+            page, ".req-row", "rs => rs.map(r => [r.dataset.requirement, +r.dataset.violations])"
         )
         assert violated <= {rid for rid, n in rows if n > 0}
-        markers = page.eval_on_selector_all(
-            "#timeline .mk.violation", "ms => ms.map(m => [m.dataset.requirement, +m.dataset.tick])"
+        markers = eval_all(
+            page,
+            "#timeline .mk.violation",
+            "ms => ms.map(m => [m.dataset.requirement, +m.dataset.tick])",
         )
         want = [(r["requirement"], r["tick"]) for r in records if r["event"] == "violation"]
         assert sorted(map(tuple, markers)) == sorted(want)

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import open_page
+from browser import eval_all, open_page
 
 from supervisor.tools.ui.hub import Hub
 from supervisor.tools.ui.server import UiServer, reset_availability
@@ -225,7 +225,8 @@ def test_a_short_or_missing_token_file_is_one_line(tmp_path: Path) -> None:
 def requirement_rows(page: Any) -> dict[str, dict[str, Any]]:
     return {
         r[0]: {"state": r[1], "violations": r[2]}
-        for r in page.eval_on_selector_all(
+        for r in eval_all(
+            page,
             "tr.req",
             "rs => rs.map(r => [r.dataset.requirement, r.dataset.state, +r.dataset.violations])",
         )
@@ -242,7 +243,7 @@ def wait_js(page: Any, expression: str, timeout: float = 5.0) -> None:
 
 
 def ages(page: Any) -> list[str]:
-    return page.eval_on_selector_all(".age", "es => es.map(e => e.textContent)")
+    return eval_all(page, ".age", "es => es.map(e => e.textContent)")
 
 
 @pytest.mark.slow

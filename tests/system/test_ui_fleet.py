@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import open_page
+from browser import eval_all, open_page
 
 from monitors.errors import UserError
 from supervisor.tools.ui.fleet import Fleet, RobotSpec, load_fleet, local_reset_availability
@@ -272,7 +272,8 @@ def urllib_request(url: str) -> tuple[int, str]:
 def fleet_rows(page: Any) -> dict[str, dict[str, Any]]:
     return {
         r[0]: {"state": r[1], "open": r[2], "text": r[3]}
-        for r in page.eval_on_selector_all(
+        for r in eval_all(
+            page,
             "tr.robot",
             "rs => rs.map(r => [r.dataset.robot, r.dataset.state, +r.dataset.open, r.innerText])",
         )

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import open_page
+from browser import eval_all, open_page
 
 from tests.system.test_ui import TOKEN, UiProcess, free_port, wait_js
 
@@ -99,7 +99,7 @@ def test_an_incident_on_the_page_with_the_real_daemon(tmp_path: Path, robot_node
         wait_js(page, "document.querySelector('#feed li.restart') !== null", 20)
         assert f"pid {pid}" in page.inner_text("#feed li.restart")
         # the old daemon's violation is below the mark
-        order = page.eval_on_selector_all("#feed li", "ls => ls.map(l => l.dataset.event)")
+        order = eval_all(page, "#feed li", "ls => ls.map(l => l.dataset.event)")
         assert order.index("restart") < order.index("violation"), order
         # the previous daemon's violation is still held on the page after the restart
         assert rows(page)[0] == ["limit", "violated"], rows(page)
@@ -116,6 +116,4 @@ def test_an_incident_on_the_page_with_the_real_daemon(tmp_path: Path, robot_node
 
 
 def rows(page: Any) -> list[list[str]]:
-    return page.eval_on_selector_all(
-        "tr.req", "rs => rs.map(r => [r.dataset.requirement, r.dataset.state])"
-    )
+    return eval_all(page, "tr.req", "rs => rs.map(r => [r.dataset.requirement, r.dataset.state])")

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import open_page
+from browser import eval_all, open_page
 
 from tests.system.test_ui import TOKEN, UiProcess, free_port
 
@@ -87,7 +87,8 @@ def test_the_page_shows_the_published_margins_and_a_prediction(
         doc = ui.state()["status"]
         for r in doc["requirements"]:
             assert r["margin"] is not None, r
-        gauges = page.eval_on_selector_all(
+        gauges = eval_all(
+            page,
             "tr.req .margin",
             "es => es.map(e => [e.closest('tr').dataset.requirement, e.dataset.margin])",
         )

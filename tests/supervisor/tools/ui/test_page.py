@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from browser import open_page
+from browser import eval_all, open_page
 
 from supervisor.tools.ui.hub import Hub, value_text
 from supervisor.tools.ui.server import UiServer, reset_availability
@@ -87,7 +87,8 @@ def feeding(hub: Hub, sock: str, reqs: list[dict[str, Any]]) -> Iterator[None]:
 
 def rows(page: Any) -> list[tuple[str, str, str]]:
     """The requirements as listed: (id, state shown, state's background colour)."""
-    found = page.eval_on_selector_all(
+    found = eval_all(
+        page,
         "tr.req",
         "rs => rs.map(r => [r.dataset.requirement, r.dataset.state, "
         "getComputedStyle(r.querySelector('.state')).backgroundColor])",
@@ -251,7 +252,8 @@ def test_the_page_shows_values_at_their_types_precision(tmp_path: Path) -> None:
     ]  # fmt: skip
     doc = status_doc(sock, now=iso(datetime.now(UTC)), inputs=inputs)
     with page_of(tmp_path, doc) as (hub, page, _console, _requests, _sock):
-        shown = page.eval_on_selector_all(
+        shown = eval_all(
+            page,
             "tr.input",
             "rs => rs.map(r => [r.dataset.input, r.querySelector('.value').textContent])",
         )
@@ -364,8 +366,8 @@ def test_the_page_shows_a_daemon_restart_in_the_feed(tmp_path: Path) -> None:
         ]
         hub.on_status(status_doc(sock, pid=200, started="2026-11-27T10:05:00.000000Z", events=ev2))
         page.wait_for_selector("#feed li[data-requirement='new']")
-        feed = page.eval_on_selector_all(
-            "#feed li", "ls => ls.map(l => [l.dataset.event, l.dataset.requirement])"
+        feed = eval_all(
+            page, "#feed li", "ls => ls.map(l => [l.dataset.event, l.dataset.requirement])"
         )
         assert feed == [["violation", "new"], ["restart", ""], ["violation", "old"]]  # newest first
         mark = page.locator("#feed li.restart")
@@ -468,3 +470,25 @@ def test_the_margins_are_gauges_with_unit_trend_and_prediction(tmp_path: Path) -
                       ".dataset.margin === '1'")  # fmt: skip
         near = gauge("near")
         assert near["width"] == 19.5 and near["predicted"] is None
+
+
+@pytest.mark.slow
+def test_the_tests_read_a_redrawing_page_in_one_task() -> None:
+    """``eval_all`` (tests/support/browser.py) never hands the reading a detached
+    element: the page below replaces its gauge on every tick, as a redraw can."""
+    pw, page, console, _requests = open_page("about:blank")
+    try:
+        page.set_content(
+            "<table><tr class='req' data-requirement='a'><td id='c'></td></tr></table>"
+            "<script>setInterval(() => { document.getElementById('c').innerHTML ="
+            " \"<div class='margin' data-margin='1'>m</div>\"; }, 0);</script>"
+        )
+        page.wait_for_selector("tr.req .margin")
+        for _ in range(300):
+            got = eval_all(
+                page, "tr.req .margin", "es => es.map(e => [e.closest('tr').dataset.requirement])"
+            )
+            assert got == [["a"]], got
+        assert console == [], console
+    finally:
+        pw.stop()
