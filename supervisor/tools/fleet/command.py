@@ -146,10 +146,8 @@ def _fleet(args: argparse.Namespace) -> int:
     namespace = checked_namespace(args.namespace, "fleet replay")
     # what an earlier run finished, read (nothing made yet) before the workers start:
     # they take it at their start, while this process compiles the config
+    # (a power loss's damaged rows are left out of it: those bags run again)
     done = Dataset(Path(args.output), make=False).done()
-    if (damage := done.damage()) is not None:  # a power loss: those bags run again
-        Dataset(Path(args.output), make=False).drop(done.damaged)  # its error said alone
-        print(damage, file=sys.stderr, flush=True)
     # by content hash too: the same bag under another path is hashed, not replayed
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
@@ -189,6 +187,9 @@ def _replay(
             file=sys.stderr,
             flush=True,
         )
+    if (damage := done.damage()) is not None:  # removed by the writer only (only_writer)
+        dataset.drop(done.damaged)  # its error said alone
+        print(damage, file=sys.stderr, flush=True)
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size
     # results known before any task: a bag without its robot, a copy of another bag

@@ -134,6 +134,33 @@ def test_a_row_a_power_loss_damaged_is_one_line_and_its_bag_is_replayed(tmp_path
     assert f"0 bags (0 read, 0 skipped, 0 damaged, 0 failed), {n} done before" in again.stdout
 
 
+def test_a_run_refused_at_the_lock_leaves_a_damaged_row_to_the_writer(tmp_path):
+    # The damaged rows are the dataset's writer's to remove (Dataset.drop): a run
+    # refused because another holds the lock writes nothing, that row included.
+    import fcntl
+
+    from supervisor.tools.fleet.dataset import LOCK
+
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    row = sorted((ds / "bags").glob("*.parquet"))[0]
+    row.write_bytes(b"")  # as a power loss leaves it
+    before = sorted(str(p.relative_to(ds)) for p in ds.rglob("*.parquet"))
+    fd = os.open(ds / LOCK, os.O_RDWR)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # another run, writing
+        run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(1,))
+    finally:
+        os.close(fd)
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "being written by another fleet replay" in lines[0], lines
+    assert row.exists() and row.stat().st_size == 0
+    assert sorted(str(p.relative_to(ds)) for p in ds.rglob("*.parquet")) == before
+
+
 def test_a_damaged_row_of_a_bag_whose_files_changed_leaves_no_duplicates(tmp_path):
     # The damaged row's bag is now under another key (its files touched, as a copy
     # without -p leaves them): its old violation files were left beside the new ones
