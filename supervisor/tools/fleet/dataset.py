@@ -106,6 +106,13 @@ BATCH_ROWS = 65_536  # rows of a file decoded at a time, each batch within the b
 # The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
 # prefix-encoded text that decodes to far more than it stores, is not its file.
 ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
+# Its codecs (pyarrow's default, snappy, and none).  A page is decompressed whole
+# before any of its rows is decoded and counted, and zstd or gzip expand a few KB
+# to gigabytes; snappy at most about 21 times (a 3-byte copy of 64 bytes,
+# https://github.com/google/snappy/blob/main/format_description.txt), so a file is
+# read only if the budget has room for ``EXPANDS`` times its size.
+CODECS = frozenset({"SNAPPY", "UNCOMPRESSED"})
+EXPANDS = 22
 # The violations' columns read back (``Dataset.violations``): ``inputs`` stays on disk.
 COLUMNS = ["bag", "bag_sha256", "requirement", "tick", "recorded_ts", "config_sha256"]
 _READ = pa.schema([VIOLATIONS.field(c) for c in COLUMNS])
@@ -573,13 +580,16 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
     are read as dictionary codes first (each distinct value once), so that a batch's
     decoded size is known exactly before it is decoded.  The footer's sizes and row
     counts are never the bound: they are the file's word, and pyarrow decodes what
-    the pages hold whatever the footer says.  A file of other columns, types or
-    encodings: not this dataset's."""
+    the pages hold whatever the footer says.  Its pages' decompression is bounded by
+    the file's size (``CODECS``).  A file of other columns, types, encodings or
+    codecs: not this dataset's."""
 
     def wrong(why: str) -> UserError:
         return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
 
     footer = pq.ParquetFile(path)
+    # the file's size, not its footer's word: what its pages can decompress to
+    budget.check(EXPANDS * path.stat().st_size, path)
     found = footer.schema_arrow
     for f in schema:
         i = found.get_field_index(f.name)
@@ -596,6 +606,8 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
             if column.path_in_schema in names and not set(column.encodings) <= ENCODINGS:
                 odd = ", ".join(sorted(set(column.encodings) - ENCODINGS))
                 raise wrong(f"column {column.path_in_schema} encoded as {odd}")
+            if column.path_in_schema in names and column.compression not in CODECS:
+                raise wrong(f"column {column.path_in_schema} compressed as {column.compression}")
     text = [f.name for f in schema if pa.types.is_string(f.type)]
     coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta)
     tables = []

@@ -497,8 +497,9 @@ def _bomb(path: Path, config_sha256: str, rows: int, text: int) -> None:
             value = {"tick": 1, "recorded_ts": 1_780_272_000 * 10**9}.get(f.name, "{}")
             columns[f.name] = pa.array([value] * rows, f.type)
     columns["config_sha256"] = pa.array([config_sha256] * rows, pa.string())
-    # as fleet replay's files are read: their Arrow types are Parquet's own (string)
-    pq.write_table(pa.table(columns), path, compression="zstd", store_schema=False)
+    # as fleet replay's files are read: their Arrow types are Parquet's own (string);
+    # its codec, snappy, stores the string in about a twentieth of its size
+    pq.write_table(pa.table(columns), path, compression="snappy", store_schema=False)
 
 
 def _varint(n: int) -> bytes:
@@ -565,3 +566,34 @@ def test_a_parquet_decode_bomb_is_one_line_naming_it(fleet, tmp_path, footer):
     assert run.returncode == 1 and len(lines) == 1, run.stderr
     assert str(bomb) in lines[0] and "decodes to more than" in lines[0], lines[0]
     assert "internal error" not in lines[0] and "Traceback" not in run.stderr
+
+
+def test_a_file_of_another_codec_is_not_the_datasets(fleet, tmp_path):
+    # zstd or gzip expand a page of a few KB to gigabytes before any row of it is
+    # counted: a file compressed other than as fleet replay writes it is refused.
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    victim = next((ds / "violations").rglob("*.parquet"))
+    pq.write_table(pq.read_table(victim), victim, compression="zstd")
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
+         str(tmp_path / "f.html")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert str(victim) in lines[0] and "compressed as ZSTD" in lines[0], lines[0]
+
+
+def test_a_file_is_read_only_if_the_budget_has_room_for_its_size_decompressed(fleet):
+    # snappy expands a page at most about 21 times: that much of the file's size
+    # must fit in what the reading may still decode, before a page is decompressed
+    from monitors.errors import UserError
+    from supervisor.tools.fleet.dataset import _READ, EXPANDS, Budget, read_file
+
+    victim = next((fleet["after"] / "violations").rglob("*.parquet"))
+    room = EXPANDS * victim.stat().st_size
+    assert read_file(victim, _READ, Budget(room), "violations table").num_rows > 0
+    with pytest.raises(UserError, match="decodes to more than") as e:
+        read_file(victim, _READ, Budget(room - 1), "violations table")
+    assert e.value.file == str(victim)
