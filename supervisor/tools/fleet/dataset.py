@@ -104,7 +104,10 @@ MAX_ERROR = 300  # characters of a reader's error in a line about a dataset's fi
 MAX_DECODED_BYTES = 4 * 2**30
 BATCH_ROWS = 65_536  # rows of a file decoded at a time, each batch within the budget
 # The Parquet encodings fleet replay's files use (pyarrow's defaults): any other, a
-# prefix-encoded text that decodes to far more than it stores, is not its file.
+# prefix-encoded text that decodes to far more than it stores, is not its file.  The
+# footer's list is the file's word (pyarrow decodes each page by its own header); what
+# holds against a page that is prefix-encoded all the same is that text is read as
+# dictionary codes, which pyarrow does not build from such a page (read_file).
 ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BIT_PACKED"})
 # Its codecs (pyarrow's default, snappy, and none).  A page is decompressed whole
 # before any of its rows is decoded and counted, and zstd or gzip expand a few KB

@@ -597,3 +597,37 @@ def test_a_file_is_read_only_if_the_budget_has_room_for_its_size_decompressed(fl
     with pytest.raises(UserError, match="decodes to more than") as e:
         read_file(victim, _READ, Budget(room - 1), "violations table")
     assert e.value.file == str(victim)
+
+
+def test_a_prefix_encoded_text_behind_a_footer_that_says_plain_is_one_line(fleet, tmp_path):
+    # A prefix encoding (DELTA_BYTE_ARRAY: each value the previous one's prefix and a
+    # suffix) decodes to far more than it stores.  The footer's list of encodings is
+    # the file's word and pyarrow decodes each page by its own header, so a footer
+    # that says PLAIN does not make it one: the text columns are read as dictionary
+    # codes (dataset.py, read_file), which pyarrow cannot build from such pages.
+    from supervisor.tools.fleet.task import VIOLATIONS as SCHEMA
+
+    ds = tmp_path / "ds"
+    shutil.copytree(fleet["after"], ds)
+    victim = next((ds / "violations").rglob("*.parquet"))
+    table = pq.read_table(victim)
+    text = [f.name for f in SCHEMA if f.name in table.column_names and f.name != "bag"]
+    pq.write_table(table, victim, use_dictionary=text, column_encoding={"bag": "DELTA_BYTE_ARRAY"})
+    chunk = pq.ParquetFile(victim).metadata.row_group(0).column(0)
+    assert chunk.path_in_schema == "bag" and "DELTA_BYTE_ARRAY" in chunk.encodings
+    # Thrift's compact protocol: the list<i32> (RLE, DELTA_BYTE_ARRAY), made (RLE, PLAIN)
+    data = bytearray(victim.read_bytes())
+    start = len(data) - 8 - int.from_bytes(data[-8:-4], "little")
+    at = data.index(bytes([0x25, 3 << 1, 7 << 1]), start)
+    data[at + 2] = 0
+    victim.write_bytes(bytes(data))
+    chunk = pq.ParquetFile(victim).metadata.row_group(0).column(0)
+    assert set(chunk.encodings) == {"RLE", "PLAIN"}, chunk.encodings
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
+         str(tmp_path / "f.html")],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, run.stderr
+    assert str(victim) in lines[0] and "not a fleet dataset's violations" in lines[0], lines[0]
