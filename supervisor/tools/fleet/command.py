@@ -167,7 +167,7 @@ def _replay(
 ) -> int:
     from supervisor.tools.fleet.archive import copies, list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers, only_writer
-    from supervisor.tools.fleet.task import BagResult, BagTask, copy_of
+    from supervisor.tools.fleet.task import BagResult, BagTask, copy_of, vouched
 
     configs = [Path(args.config).absolute()]
     if args.compare:
@@ -199,6 +199,7 @@ def _replay(
     copied = copies(
         [b for b in bags if any((s, b.fingerprint) not in done.fingerprints for s in shas)]
     )
+    copied_results: list[BagResult] = []
     already = 0
     for bag in bags:
         for c, sha in zip(configs, shas, strict=True):
@@ -209,12 +210,23 @@ def _replay(
             if bag.robot is None:
                 settled.append(BagResult(task, "failed", bag.robot_error or ""))
             elif bag.path in copied:
-                settled.append(copy_of(task, *copied[bag.path]))
+                copied_results.append(copy_of(task, *copied[bag.path]))
             else:
                 tasks.append(task)
         where[bag.path] = (bag.robot or "", bag.fingerprint, bag.size)
+    # a copy whose first is replayed in this run waits for the first's result (its
+    # content may have changed since it was hashed: ``vouched``)
+    tasked = {(t.bag, t.config_sha256) for t in tasks}
+    waiting: dict[tuple[str, str], list[BagResult]] = {}
+    for r in copied_results:
+        first = (copied[r.task.bag][0], r.task.config_sha256)
+        if first in tasked:
+            waiting.setdefault(first, []).append(r)
+        else:
+            settled.append(r)
     line = Line("fleet", on=False if args.quiet else None)
-    progress = Progress(len(settled) + len(tasks), sum(where[t.bag][2] for t in tasks), line)
+    total = len(settled) + sum(map(len, waiting.values())) + len(tasks)
+    progress = Progress(total, sum(where[t.bag][2] for t in tasks), line)
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
     results = engine.results(tasks, done_contents)
     try:
@@ -226,12 +238,17 @@ def _replay(
                     progress.add(w, where[w.task.bag][2])
                     progress.draw()
 
-            for result in _chain(settled, results):
+            def take(result: BagResult) -> None:
                 if result.written is not None:  # its worker wrote its files (LocalEngine)
                     count([result])
-                    continue
+                    return
                 robot, fp, _size = where[result.task.bag]
                 count(writers.put(result, robot, fp))
+
+            for result in _chain(settled, results):
+                take(result)
+                for copy in waiting.pop((result.task.bag, result.task.config_sha256), []):
+                    take(vouched(copy, result))
             count(writers.drain())
         # every bag's files durable, the pool's (a dead worker's too) and the writers':
         # the groups' syncs leave the last rows to this one (dataset.py)

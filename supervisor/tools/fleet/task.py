@@ -210,6 +210,18 @@ def copy_of(task: BagTask, first: str, digest: str) -> BagResult:
     )
 
 
+def vouched(copy: BagResult, first: BagResult) -> BagResult:
+    """A copy's result (``copy_of``) once its first's is in: skipped only if the first
+    was replayed (or skipped) with the content the copy was found to share.  A first
+    rewritten between the hash that found the copy and its task, or failed, holds the
+    copy's content in no row: the copy is failed, and the next run replays it."""
+    if first.status != "failed" and first.bag_sha256 == copy.bag_sha256:
+        return copy
+    what = "failed" if first.status == "failed" else "changed during the run"
+    why = f"the same content as {first.task.bag}, which {what}: not replayed"
+    return BagResult(copy.task, "failed", _reason(why), copy.bag_sha256)
+
+
 def _table(task: BagTask, digest: str, rows: list[tuple[str, int, int, str]]) -> pa.Table:
     n = len(rows)
     return pa.table(

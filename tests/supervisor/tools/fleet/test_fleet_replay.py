@@ -487,34 +487,49 @@ def test_compare_with_a_fifo_or_a_device_is_one_line_not_a_hang(tmp_path, other)
 
 
 def test_copies_skipped_before_their_firsts_were_replayed_do_not_lose_that_content(tmp_path):
-    # A run killed after the copies' skipped rows were written (the parent writes them
-    # in groups of Writers.GROUP) and before the first copies (by path) were replayed
-    # (the worker held stopped in an earlier bag, as a slow archive would hold it):
-    # the next run replays the firsts, as their content's violations are in no row
-    # yet, never skips them as "already replayed with this config".
-    import pyarrow.parquet as pq
-    from rosutil import wait_until
-
-    from supervisor.tools.fleet.dataset import Writers
+    # A run stopped after the copies' skipped rows were durable and before their firsts'
+    # (the parent writes a copy's row after its first's result, but the two commit on
+    # their own): the next run replays the firsts, as their content's violations are
+    # in no row yet, never skips them as "already replayed with this config".  The
+    # copies' rows are written here as that run left them.
+    from supervisor.tools.fleet.archive import content_hash, list_archive
+    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.task import BagTask, copy_of
+    from tests.supervisor.tools.fleet.test_engine import _identity
 
     root = tmp_path / "fleet"
-    slow = write_bag(root / "robot-a" / "a", messages(99, 40000))  # long enough to stop in
-    firsts = [
-        write_bag(root / "robot-a" / f"z{i:02d}", messages(10 + i, 300))
-        for i in range(Writers.GROUP)
-    ]
+    firsts = [write_bag(root / "robot-a" / f"z{i:02d}", messages(10 + i, 300)) for i in range(3)]
     copies = [root / "robot-b" / f.name for f in firsts]
     for f, c in zip(firsts, copies, strict=True):
         shutil.copytree(f, c)
     cfg, ds = config(tmp_path), tmp_path / "ds"
+    refs = {b.path: b for b in list_archive([str(root)])}
+    for f, c in zip(firsts, copies, strict=True):
+        fp = refs[str(c)].fingerprint
+        task = BagTask(str(c), "robot-b", str(cfg), _identity(cfg), None, fp)
+        Dataset(ds).write(copy_of(task, str(f), content_hash(c)), "robot-b", fp)
+    run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert "3 bags (3 read, 0 skipped, 0 damaged, 0 failed), 3 done before" in run.stdout
+    done = dict(query(f"SELECT bag, status FROM {BAGS.format(ds)}"))
+    assert {done[str(f)] for f in firsts} == {"read"}, done
+    (n,) = query(f"SELECT count(DISTINCT bag) FROM {VIOLATIONS.format(ds)}")[0]
+    assert n == len(firsts)
 
-    def rows() -> set[str]:
-        found = set()
-        for f in (ds / "bags").glob("*.parquet"):
-            with contextlib.suppress(OSError, ValueError):  # one being written
-                found.update(pq.read_table(f, columns=["bag"]).column("bag").to_pylist())
-        return found
 
+def test_a_copy_whose_first_changed_during_the_run_is_failed_and_replayed_next(tmp_path):
+    # A copy is found by its content's hash before any task, and skipped as replayed
+    # with its first (by path).  Its first rewritten in between (the worker held
+    # stopped in an earlier bag): the first is replayed as it is now, so the copy's
+    # content is in no row; the copy is failed, not skipped, and the next run
+    # replays it.
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    slow = write_bag(root / "robot-a" / "a", messages(99, 40000))  # long enough to stop in
+    first = write_bag(root / "robot-a" / "z", messages(1, 300))
+    copy = root / "robot-b" / "z"
+    shutil.copytree(first, copy)
+    cfg, ds = config(tmp_path), tmp_path / "ds"
     proc = subprocess.Popen(
         [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
          str(ds), "--jobs", "1", "--quiet"],
@@ -522,18 +537,26 @@ def test_copies_skipped_before_their_firsts_were_replayed_do_not_lose_that_conte
     )  # fmt: skip
     try:
         victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid, slow), 120)
-        os.kill(victim, signal.SIGSTOP)  # in the first bag's task
-        wait_until("the copies' rows", lambda: {str(c) for c in copies} <= rows(), 60)
+        os.kill(victim, signal.SIGSTOP)  # in the slow bag's task, the first's to come
+        shutil.rmtree(first)
+        write_bag(first, messages(2, 300))  # other content, at the first's path
+        os.kill(victim, signal.SIGCONT)
+        out, err = proc.communicate(timeout=300)
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
-        proc.communicate()
-    assert not {str(f) for f in firsts} & rows()
-    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
-    done = dict(query(f"SELECT bag, status FROM {BAGS.format(ds)}"))
-    assert {done[str(f)] for f in firsts} == {"read"}, done
-    (n,) = query(f"SELECT count(DISTINCT bag) FROM {VIOLATIONS.format(ds)}")[0]
-    assert n == 1 + len(firsts)
+        proc.wait()
+    assert proc.returncode == 1 and "Traceback" not in err, err
+    assert "3 bags (2 read, 0 skipped, 0 damaged, 1 failed)" in out, out
+    rows = {bag: (status, reason) for bag, status, reason in query(
+        f"SELECT bag, status, reason FROM {BAGS.format(ds)}"
+    )}  # fmt: skip
+    assert rows[str(copy)][0] == "failed" and "changed" in rows[str(copy)][1], rows
+    again = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    # the copy read; the first, under a new fingerprint, skipped: its content is done
+    assert "2 bags (1 read, 1 skipped, 0 damaged, 0 failed), 1 done before" in again.stdout
+    (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
+    assert robots == ["robot-a", "robot-b"]
 
 
 def test_two_copies_of_a_bag_in_one_run_are_replayed_once(tmp_path):
