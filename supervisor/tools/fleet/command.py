@@ -187,8 +187,9 @@ def _replay(
             file=sys.stderr,
             flush=True,
         )
-    if (damage := done.damage()) is not None:  # removed by the writer only (only_writer)
-        dataset.drop(done.damaged)  # its error said alone
+    # removed by the writer only (only_writer), as they are now: read before the lock
+    if done.damaged and (damage := (now := dataset.still_damaged(done)).damage()) is not None:
+        dataset.drop(now.damaged)  # its error said alone
         print(damage, file=sys.stderr, flush=True)
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size

@@ -39,7 +39,7 @@ import time
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -113,7 +113,8 @@ ENCODINGS = frozenset({"PLAIN", "RLE", "RLE_DICTIONARY", "PLAIN_DICTIONARY", "BI
 # before any of its rows is decoded and counted, and zstd or gzip expand a few KB
 # to gigabytes; snappy at most about 21 times (a 3-byte copy of 64 bytes,
 # https://github.com/google/snappy/blob/main/format_description.txt), so a file is
-# read only if the budget has room for ``EXPANDS`` times its size.
+# read only if the budget has room for ``EXPANDS`` times the columns it reads of a
+# row group, as stored.
 CODECS = frozenset({"SNAPPY", "UNCOMPRESSED"})
 EXPANDS = 22
 # The violations' columns read back (``Dataset.violations``): ``inputs`` stays on disk.
@@ -188,6 +189,17 @@ class Dataset:
                     hint="run the same fleet replay again: it removes that row and replays its bag",
                 )
         return pa.concat_tables(tables) if tables else BAGS.empty_table()
+
+    def still_damaged(self, done: Done) -> Done:
+        """``done`` with only the damaged rows that are damaged still: read again by
+        the dataset's writer (``only_writer``), since another run may have replayed
+        and rewritten a row between ``done`` and the lock (a row's name is its key)."""
+        still = []
+        for row in done.damaged:
+            with contextlib.suppress(FileNotFoundError):  # removed by that other run
+                if _row_file(row, Budget()) is None:
+                    still.append(row)
+        return replace(done, damaged=tuple(still))
 
     def drop(self, damaged: tuple[Path, ...]) -> None:
         """Each damaged row (``Done.damaged``) taken away with its violation files,
@@ -591,8 +603,6 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
         return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
 
     footer = pq.ParquetFile(path)
-    # the file's size, not its footer's word: what its pages can decompress to
-    budget.check(EXPANDS * path.stat().st_size, path)
     found = footer.schema_arrow
     for f in schema:
         i = found.get_field_index(f.name)
@@ -602,8 +612,13 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
             raise wrong(f"column {f.name} is {found.field(i).type}, not {f.type}")
     meta = footer.metadata
     names = set(schema.names)
+    stored = 0  # the most a row group's columns read hold, compressed
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
+        chunks = [group.column(c) for c in range(group.num_columns)]
+        stored = max(
+            stored, sum(k.total_compressed_size for k in chunks if k.path_in_schema in names)
+        )
         for c in range(group.num_columns):
             column = group.column(c)
             if column.path_in_schema in names and not set(column.encodings) <= ENCODINGS:
@@ -611,6 +626,9 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
                 raise wrong(f"column {column.path_in_schema} encoded as {odd}")
             if column.path_in_schema in names and column.compression not in CODECS:
                 raise wrong(f"column {column.path_in_schema} compressed as {column.compression}")
+    # A page is read from its column chunk's bytes, which pyarrow keeps within the
+    # file: so the chunks' sizes (the footer's word) are bounded by the file's.
+    budget.check(EXPANDS * min(stored, path.stat().st_size), path)
     text = [f.name for f in schema if pa.types.is_string(f.type)]
     coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta)
     tables = []

@@ -5,6 +5,7 @@ groups (``Commits``), and a row a power loss damaged replayed with one line."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import subprocess
@@ -159,6 +160,49 @@ def test_a_run_refused_at_the_lock_leaves_a_damaged_row_to_the_writer(tmp_path):
     assert len(lines) == 1 and "being written by another fleet replay" in lines[0], lines
     assert row.exists() and row.stat().st_size == 0
     assert sorted(str(p.relative_to(ds)) for p in ds.rglob("*.parquet")) == before
+
+
+def test_a_damaged_row_another_run_rewrote_before_the_lock_is_kept(tmp_path):
+    # What an earlier run finished is read before the lock (the workers take it as they
+    # start); a run with another config held there (its worker's compile stopped) while
+    # a run of the first config replays the damaged row's bag and rewrites that row
+    # (a row's name is its key): the held run, once it has the lock, removes only rows
+    # that are damaged still, and the first config's row stays.
+    import signal
+
+    from rosutil import wait_until
+
+    from tests.supervisor.tools.fleet.test_fleet_replay import _workers
+
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    other = tmp_path / "other.yaml"
+    other.write_text(cfg.read_text() + "# another config: another identity\n")
+    ds = tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    row = sorted((ds / "bags").glob("*.parquet"))[0]
+    row.write_bytes(b"")  # as a power loss leaves it
+    held = subprocess.Popen(
+        [sys.executable, "-m", "supervisor", "fleet", "replay", str(other), str(root), "-o",
+         str(ds), "--jobs", "1", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        (worker,) = wait_until("the held run's worker", lambda: _workers(held.pid), 60)
+        os.kill(worker, signal.SIGSTOP)  # the held run waits for its compile, before the lock
+        first = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+        assert "replayed" in first.stderr and row.stat().st_size > 0, first.stderr
+        os.kill(worker, signal.SIGCONT)
+        out, err = held.communicate(timeout=300)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(held.pid, signal.SIGKILL)
+        held.wait()
+    assert held.returncode == 0 and err.strip() == "", err
+    assert row.stat().st_size > 0
+    (n,) = query(f"SELECT count(*) FROM {BAGS.format(ds)} WHERE status = 'read'")[0]
+    assert n == 4  # two bags, two configs
 
 
 def test_a_damaged_row_of_a_bag_whose_files_changed_leaves_no_duplicates(tmp_path):
