@@ -5,7 +5,6 @@ groups (``Commits``), and a row a power loss damaged replayed with one line."""
 
 from __future__ import annotations
 
-import contextlib
 import os
 import shutil
 import subprocess
@@ -109,6 +108,19 @@ def _returned(line: str) -> bool:
     return " = " in line and "unfinished" not in line
 
 
+def _one_row_damaged(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
+    """Two bags replayed, then one's row emptied as a power loss leaves it: the
+    archive, the config, the dataset and that row."""
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    row = sorted((ds / "bags").glob("*.parquet"))[0]
+    row.write_bytes(b"")
+    return root, cfg, ds, row
+
+
 def test_a_row_a_power_loss_damaged_is_one_line_and_its_bag_is_replayed(tmp_path):
     # A power loss before a group's sync can leave a row file empty or cut short
     # (dataset.py): the next run says so in one line and replays those bags alone.
@@ -142,13 +154,7 @@ def test_a_run_refused_at_the_lock_leaves_a_damaged_row_to_the_writer(tmp_path):
 
     from supervisor.tools.fleet.dataset import LOCK
 
-    root = tmp_path / "fleet"
-    _small_fleet(root, 2)
-    cfg = config(tmp_path)
-    ds = tmp_path / "ds"
-    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
-    row = sorted((ds / "bags").glob("*.parquet"))[0]
-    row.write_bytes(b"")  # as a power loss leaves it
+    root, cfg, ds, row = _one_row_damaged(tmp_path)
     before = sorted(str(p.relative_to(ds)) for p in ds.rglob("*.parquet"))
     fd = os.open(ds / LOCK, os.O_RDWR)
     try:
@@ -168,37 +174,22 @@ def test_a_damaged_row_another_run_rewrote_before_the_lock_is_kept(tmp_path):
     # a run of the first config replays the damaged row's bag and rewrites that row
     # (a row's name is its key): the held run, once it has the lock, removes only rows
     # that are damaged still, and the first config's row stays.
-    import signal
 
-    from rosutil import wait_until
+    from tests.supervisor.tools.fleet.test_fleet_replay import _workers, started, while_stopped
 
-    from tests.supervisor.tools.fleet.test_fleet_replay import _workers
-
-    root = tmp_path / "fleet"
-    _small_fleet(root, 2)
-    cfg = config(tmp_path)
+    root, cfg, ds, row = _one_row_damaged(tmp_path)
     other = tmp_path / "other.yaml"
     other.write_text(cfg.read_text() + "# another config: another identity\n")
-    ds = tmp_path / "ds"
-    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
-    row = sorted((ds / "bags").glob("*.parquet"))[0]
-    row.write_bytes(b"")  # as a power loss leaves it
-    held = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(other), str(root), "-o",
-         str(ds), "--jobs", "1", "--quiet"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-    )  # fmt: skip
-    try:
-        (worker,) = wait_until("the held run's worker", lambda: _workers(held.pid), 60)
-        os.kill(worker, signal.SIGSTOP)  # the held run waits for its compile, before the lock
+    held = started(other, root, ds)
+
+    def first_config_run() -> None:  # the held run waits for its compile, before the lock
         first = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
         assert "replayed" in first.stderr and row.stat().st_size > 0, first.stderr
-        os.kill(worker, signal.SIGCONT)
-        out, err = held.communicate(timeout=300)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(held.pid, signal.SIGKILL)
-        held.wait()
+
+    def worker() -> int | None:
+        return next(iter(_workers(held.pid)), None)
+
+    _out, err = while_stopped(held, worker, first_config_run)
     assert held.returncode == 0 and err.strip() == "", err
     assert row.stat().st_size > 0
     (n,) = query(f"SELECT count(*) FROM {BAGS.format(ds)} WHERE status = 'read'")[0]
@@ -298,13 +289,7 @@ def test_a_damaged_row_is_removed_through_no_link(tmp_path):
     # Removing a damaged row's violation files (Dataset.drop) lists them as every
     # other reading does: a partition that is a link to another directory is one
     # line, and nothing there is removed.
-    root = tmp_path / "fleet"
-    _small_fleet(root, 2)
-    cfg = config(tmp_path)
-    ds = tmp_path / "ds"
-    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
-    row = sorted((ds / "bags").glob("*.parquet"))[0]
-    row.write_bytes(b"")  # as a power loss leaves it
+    root, cfg, ds, row = _one_row_damaged(tmp_path)
     elsewhere = tmp_path / "elsewhere"
     (elsewhere / "date=2026-01-01").mkdir(parents=True)
     kept = elsewhere / "date=2026-01-01" / row.name

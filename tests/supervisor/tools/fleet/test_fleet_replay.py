@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -279,12 +280,33 @@ def four_bags_and_a_clean_run(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
 
 
 def started(cfg: Path, root: Path, out: Path) -> subprocess.Popen[str]:
-    """``fleet replay --jobs 1`` running in the background, its output piped."""
+    """``fleet replay --jobs 1`` running in the background, its output piped, in a
+    session of its own (``os.killpg`` stops it and its workers)."""
     return subprocess.Popen(
         [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
          str(out), "--jobs", "1"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
+
+
+def while_stopped(
+    proc: subprocess.Popen[str], worker: Callable[[], int | None], meanwhile: Callable[[], None]
+) -> tuple[str, str]:
+    """``meanwhile`` done while the worker ``worker`` finds is stopped (SIGSTOP), then
+    the run (``started``) let go on to its end: its stdout and stderr.  The run's
+    session is killed whatever happens."""
+    from rosutil import wait_until
+
+    try:
+        pid = wait_until("the worker", worker, 120)
+        os.kill(pid, signal.SIGSTOP)
+        meanwhile()
+        os.kill(pid, signal.SIGCONT)
+        return proc.communicate(timeout=300)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
 
 
 def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
@@ -522,7 +544,6 @@ def test_a_copy_whose_first_changed_during_the_run_is_failed_and_replayed_next(t
     # stopped in an earlier bag): the first is replayed as it is now, so the copy's
     # content is in no row; the copy is failed, not skipped, and the next run
     # replays it.
-    from rosutil import wait_until
 
     root = tmp_path / "fleet"
     slow = write_bag(root / "robot-a" / "a", messages(99, 40000))  # long enough to stop in
@@ -530,22 +551,13 @@ def test_a_copy_whose_first_changed_during_the_run_is_failed_and_replayed_next(t
     copy = root / "robot-b" / "z"
     shutil.copytree(first, copy)
     cfg, ds = config(tmp_path), tmp_path / "ds"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root), "-o",
-         str(ds), "--jobs", "1", "--quiet"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-    )  # fmt: skip
-    try:
-        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid, slow), 120)
-        os.kill(victim, signal.SIGSTOP)  # in the slow bag's task, the first's to come
+    proc = started(cfg, root, ds)
+
+    def rewrite() -> None:  # other content at the first's path, before its task
         shutil.rmtree(first)
-        write_bag(first, messages(2, 300))  # other content, at the first's path
-        os.kill(victim, signal.SIGCONT)
-        out, err = proc.communicate(timeout=300)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+        write_bag(first, messages(2, 300))
+
+    out, err = while_stopped(proc, lambda: _reading_a_bag(proc.pid, slow), rewrite)
     assert proc.returncode == 1 and "Traceback" not in err, err
     assert "3 bags (2 read, 0 skipped, 0 damaged, 1 failed)" in out, out
     rows = {bag: (status, reason) for bag, status, reason in query(

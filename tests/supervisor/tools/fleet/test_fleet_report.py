@@ -575,14 +575,8 @@ def test_a_file_of_another_codec_is_not_the_datasets(fleet, tmp_path):
     shutil.copytree(fleet["after"], ds)
     victim = next((ds / "violations").rglob("*.parquet"))
     pq.write_table(pq.read_table(victim), victim, compression="zstd")
-    run = subprocess.run(
-        [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
-         str(tmp_path / "f.html")],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert run.returncode == 1 and len(lines) == 1, run.stderr
-    assert str(victim) in lines[0] and "compressed as ZSTD" in lines[0], lines[0]
+    line = _refused(ds, tmp_path)
+    assert str(victim) in line and "compressed as ZSTD" in line, line
 
 
 def test_a_file_is_read_only_if_the_budget_has_room_for_its_columns_decompressed(fleet):
@@ -630,6 +624,12 @@ def test_a_prefix_encoded_text_behind_a_footer_that_says_plain_is_one_line(fleet
     victim.write_bytes(bytes(data))
     chunk = pq.ParquetFile(victim).metadata.row_group(0).column(0)
     assert set(chunk.encodings) == {"RLE", "PLAIN"}, chunk.encodings
+    line = _refused(ds, tmp_path)
+    assert str(victim) in line and "not a fleet dataset's violations" in line, line
+
+
+def _refused(ds: Path, tmp_path: Path) -> str:
+    """``fleet report`` of ``ds``'s one line, exit 1."""
     run = subprocess.run(
         [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
          str(tmp_path / "f.html")],
@@ -637,4 +637,4 @@ def test_a_prefix_encoded_text_behind_a_footer_that_says_plain_is_one_line(fleet
     )  # fmt: skip
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert run.returncode == 1 and len(lines) == 1, run.stderr
-    assert str(victim) in lines[0] and "not a fleet dataset's violations" in lines[0], lines[0]
+    return lines[0]
