@@ -538,13 +538,24 @@ def test_copies_skipped_before_their_firsts_were_replayed_do_not_lose_that_conte
     assert n == len(firsts)
 
 
-def test_a_copy_whose_first_changed_during_the_run_is_failed_and_replayed_next(tmp_path):
+@pytest.mark.parametrize(
+    ("first_is", "said", "run", "again"),
+    [
+        # the copy read; the first, under a new fingerprint, skipped: its content is done
+        ("rewritten", "changed during the run", "2 read, 0 skipped, 0 damaged, 1 failed",
+         "2 bags (1 read, 1 skipped, 0 damaged, 0 failed), 1 done before"),
+        ("removed", "which failed", "1 read, 0 skipped, 0 damaged, 2 failed",
+         "1 bags (1 read, 0 skipped, 0 damaged, 0 failed), 1 done before"),
+    ],
+    ids=["rewritten", "removed"],
+)  # fmt: skip
+def test_a_copy_whose_first_changed_or_failed_during_the_run_is_failed_and_replayed_next(
+    tmp_path, first_is, said, run, again
+):
     # A copy is found by its content's hash before any task, and skipped as replayed
-    # with its first (by path).  Its first rewritten in between (the worker held
-    # stopped in an earlier bag): the first is replayed as it is now, so the copy's
-    # content is in no row; the copy is failed, not skipped, and the next run
-    # replays it.
-
+    # with its first (by path).  Its first rewritten or removed in between (the worker
+    # held stopped in an earlier bag): the copy's content is in no row; the copy is
+    # failed, not skipped, and the next run replays it.
     root = tmp_path / "fleet"
     slow = write_bag(root / "robot-a" / "a", messages(99, 40000))  # long enough to stop in
     first = write_bag(root / "robot-a" / "z", messages(1, 300))
@@ -553,20 +564,20 @@ def test_a_copy_whose_first_changed_during_the_run_is_failed_and_replayed_next(t
     cfg, ds = config(tmp_path), tmp_path / "ds"
     proc = started(cfg, root, ds)
 
-    def rewrite() -> None:  # other content at the first's path, before its task
+    def change() -> None:  # the first's path changed before its task
         shutil.rmtree(first)
-        write_bag(first, messages(2, 300))
+        if first_is == "rewritten":
+            write_bag(first, messages(2, 300))
 
-    out, err = while_stopped(proc, lambda: _reading_a_bag(proc.pid, slow), rewrite)
+    out, err = while_stopped(proc, lambda: _reading_a_bag(proc.pid, slow), change)
     assert proc.returncode == 1 and "Traceback" not in err, err
-    assert "3 bags (2 read, 0 skipped, 0 damaged, 1 failed)" in out, out
+    assert f"3 bags ({run})" in out, out
     rows = {bag: (status, reason) for bag, status, reason in query(
         f"SELECT bag, status, reason FROM {BAGS.format(ds)}"
     )}  # fmt: skip
-    assert rows[str(copy)][0] == "failed" and "changed" in rows[str(copy)][1], rows
-    again = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
-    # the copy read; the first, under a new fingerprint, skipped: its content is done
-    assert "2 bags (1 read, 1 skipped, 0 damaged, 0 failed), 1 done before" in again.stdout
+    assert rows[str(copy)][0] == "failed" and said in rows[str(copy)][1], rows
+    second = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert again in second.stdout, second.stdout
     (robots,) = query(f"SELECT list(DISTINCT robot ORDER BY robot) FROM {VIOLATIONS.format(ds)}")[0]
     assert robots == ["robot-a", "robot-b"]
 
