@@ -256,6 +256,21 @@ class Dataset:
         rows = table.set_column(at, "finished_ts", table["finished_ts"].cast(pa.int64()))
         return rows.to_pylist()[0] if rows.num_rows == 1 else None
 
+    def row_id(self, config_sha256: str, fingerprint: str) -> tuple[int, int] | None:
+        """Which file this bag's row is now (device, inode), or None: none.  A row is
+        written whole to a new file renamed over the old (``_write``), so another id
+        is another write, whatever the clock said when it was made."""
+        path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
+        try:
+            st = path.lstat()
+        except FileNotFoundError:
+            return None
+        except OSError as e:
+            raise UserError(
+                f"cannot read the dataset: {e.strerror or e}", file=_shown(path)
+            ) from None
+        return st.st_dev, st.st_ino
+
     @staticmethod
     def key(config_sha256: str, fingerprint: str) -> str:
         """``K``, the name of a bag's files under one config."""

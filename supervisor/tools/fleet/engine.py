@@ -28,7 +28,6 @@ import socket
 import sys
 import tempfile
 import threading
-import time
 from collections import deque
 from collections.abc import Collection, Iterator
 from concurrent.futures import (
@@ -288,9 +287,10 @@ class LocalEngine:
         todo: Iterator[BagTask] = iter(tasks)
         # (task, attempt) of the bags a dead worker's call took down: one bag a call
         retry: deque[tuple[BagTask, int]] = deque()
-        # a bag's row committed by a worker since then is this run's (``_committed``)
-        since = time.time_ns()
         written = Dataset(self.writes_to, make=False) if self.writes_to is not None else None
+        # each bag's row file as it was before its first call: another one since is
+        # this run's commit (``_committed``)
+        before: dict[BagTask, tuple[int, int] | None] = {}
         started, self._started = self._started, None
         if started is not None and (not tasks or started[1] != frozenset(done)):
             started[0].shutdown(wait=True, cancel_futures=True)
@@ -313,6 +313,10 @@ class LocalEngine:
                         batch = self._next(todo, retry, left, running)
                         if not batch:
                             break
+                        if written is not None:
+                            for t, _ in batch:
+                                if t not in before:
+                                    before[t] = written.row_id(t.config_sha256, t.fingerprint)
                         try:
                             running[pool.submit(_run, [t for t, _ in batch])] = batch
                         except BrokenProcessPool:  # a worker died: the next pool runs them
@@ -334,7 +338,7 @@ class LocalEngine:
                             # the call's worker is done with it: its committed rows stand
                             results = []
                             for task, n in batch:
-                                if (r := _committed(written, task, since)) is not None:
+                                if (r := _committed(written, task, before.get(task))) is not None:
                                     results.append(r)
                                 elif len(batch) > 1 and n < ATTEMPTS:
                                     retry.append((task, n + 1))  # alone: its own error
@@ -357,7 +361,7 @@ class LocalEngine:
             retry.extend(unrun)
             for batch in broken:
                 for task, n in batch:
-                    if (r := _committed(written, task, since)) is not None:
+                    if (r := _committed(written, task, before.get(task))) is not None:
                         left -= 1
                         yield r
                     elif n < ATTEMPTS:
@@ -387,14 +391,17 @@ class LocalEngine:
         return [(t, 1) for t in itertools.islice(todo, self._batch(left, running))]
 
 
-def _committed(written: Dataset | None, task: BagTask, since: int) -> BagResult | None:
-    """The bag's row as the worker committed it in this run (its ``finished_ts`` at or
-    after ``since``), as a result the caller counts and does not write again: a row of
-    an earlier run (failed, so replayed again) is not this run's."""
-    if written is None:
+def _committed(
+    written: Dataset | None, task: BagTask, before: tuple[int, int] | None
+) -> BagResult | None:
+    """The bag's row as the worker committed it in this run (a row file other than
+    ``before``, the one it had before its first call), as a result the caller counts
+    and does not write again: a row of an earlier run (failed, so replayed again) is
+    not this run's, whatever the clock said when it was written."""
+    if written is None or written.row_id(task.config_sha256, task.fingerprint) == before:
         return None
     row = written.row(task.config_sha256, task.fingerprint)
-    if row is None or row["finished_ts"] is None or row["finished_ts"] < since:
+    if row is None:
         return None
     return BagResult(
         task,

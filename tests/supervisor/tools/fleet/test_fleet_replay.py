@@ -13,6 +13,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -289,6 +290,21 @@ def started(cfg: Path, root: Path, out: Path) -> subprocess.Popen[str]:
     )  # fmt: skip
 
 
+def worker_killed(proc: subprocess.Popen[str], bag: Path | None = None) -> tuple[str, str]:
+    """The run's (``started``) worker killed (SIGKILL) while it reads a bag (``bag``
+    if given), then the run let go on to its end: its stdout and stderr."""
+    from rosutil import wait_until
+
+    try:
+        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid, bag), 120)
+        os.kill(victim, signal.SIGKILL)
+        return proc.communicate(timeout=300)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
 def while_stopped(
     proc: subprocess.Popen[str], worker: Callable[[], int | None], meanwhile: Callable[[], None]
 ) -> tuple[str, str]:
@@ -310,17 +326,10 @@ def while_stopped(
 
 
 def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
-    from rosutil import wait_until
 
     root, cfg, clean, killed = four_bags_and_a_clean_run(tmp_path)
     proc = started(cfg, root, killed)
-    try:
-        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid), 120)
-        os.kill(victim, 9)
-        out, err = proc.communicate(timeout=300)
-    finally:
-        proc.kill()
-        proc.wait()
+    out, err = worker_killed(proc)
     assert proc.returncode == 0 and "Traceback" not in err, err
     assert "4 bags (4 read, 0 skipped, 0 damaged, 0 failed)" in out
     per_bag = (
@@ -329,6 +338,32 @@ def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
     want = query(per_bag.format(VIOLATIONS.format(clean)))
     assert want and query(per_bag.format(VIOLATIONS.format(killed))) == want
     assert all(n == distinct for _, _, n, distinct in want)
+
+
+def test_an_earlier_runs_row_is_not_taken_for_this_runs_by_its_clock(tmp_path):
+    # A worker killed mid-task: a bag whose row it committed in this run is done, any
+    # other is retried.  An earlier run's failed row, written when the clock read later
+    # than it does now (set back since, as a robot's clock can be), is not this run's:
+    # the bag is retried and read, not counted failed from the old row.
+    from unittest import mock
+
+    from supervisor.tools.fleet.archive import list_archive
+    from supervisor.tools.fleet.dataset import Dataset
+    from supervisor.tools.fleet.task import BagResult, BagTask
+    from tests.supervisor.tools.fleet.test_engine import _identity
+
+    root = tmp_path / "fleet"
+    bag = write_bag(root / "robot-a" / "b", messages(7, 40000))
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    (ref,) = list_archive([str(root)])
+    task = BagTask(str(bag), "robot-a", str(cfg), _identity(cfg), None, ref.fingerprint)
+    later = time.time_ns() + 86_400 * 10**9  # a day ahead of the clock as it is now
+    with mock.patch("time.time_ns", return_value=later):
+        Dataset(ds).write(BagResult(task, "failed", "an earlier run's"), "robot-a", ref.fingerprint)
+    proc = started(cfg, root, ds)
+    out, err = worker_killed(proc, bag)
+    assert proc.returncode == 0, out + err
+    assert "1 bags (1 read, 0 skipped, 0 damaged, 0 failed)" in out, out
 
 
 def test_a_second_run_on_a_dataset_being_written_is_one_line(tmp_path):
