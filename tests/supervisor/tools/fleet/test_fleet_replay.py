@@ -290,39 +290,41 @@ def started(cfg: Path, root: Path, out: Path) -> subprocess.Popen[str]:
     )  # fmt: skip
 
 
-def worker_killed(proc: subprocess.Popen[str], bag: Path | None = None) -> tuple[str, str]:
-    """The run's (``started``) worker killed (SIGKILL) while it reads a bag (``bag``
-    if given), then the run let go on to its end: its stdout and stderr."""
+def with_worker(
+    proc: subprocess.Popen[str], worker: Callable[[], int | None], act: Callable[[int], None]
+) -> tuple[str, str]:
+    """``act`` done to the worker that ``worker`` finds (its pid), then the run
+    (``started``) let go on to its end: its stdout and stderr.  The run's session is
+    killed whatever happens."""
     from rosutil import wait_until
 
     try:
-        victim = wait_until("a worker reading a bag", lambda: _reading_a_bag(proc.pid, bag), 120)
-        os.kill(victim, signal.SIGKILL)
+        act(wait_until("the worker", worker, 120))
         return proc.communicate(timeout=300)
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
+
+
+def worker_killed(proc: subprocess.Popen[str], bag: Path | None = None) -> tuple[str, str]:
+    """The run's worker killed (SIGKILL) while it reads a bag (``bag`` if given)."""
+    return with_worker(
+        proc, lambda: _reading_a_bag(proc.pid, bag), lambda pid: os.kill(pid, signal.SIGKILL)
+    )
 
 
 def while_stopped(
     proc: subprocess.Popen[str], worker: Callable[[], int | None], meanwhile: Callable[[], None]
 ) -> tuple[str, str]:
-    """``meanwhile`` done while the worker ``worker`` finds is stopped (SIGSTOP), then
-    the run (``started``) let go on to its end: its stdout and stderr.  The run's
-    session is killed whatever happens."""
-    from rosutil import wait_until
+    """``meanwhile`` done while the run's worker is stopped (SIGSTOP)."""
 
-    try:
-        pid = wait_until("the worker", worker, 120)
+    def act(pid: int) -> None:
         os.kill(pid, signal.SIGSTOP)
         meanwhile()
         os.kill(pid, signal.SIGCONT)
-        return proc.communicate(timeout=300)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
+
+    return with_worker(proc, worker, act)
 
 
 def test_a_worker_killed_mid_task_is_retried_and_the_dataset_is_whole(tmp_path):
