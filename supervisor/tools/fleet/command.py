@@ -188,8 +188,9 @@ def _replay(
             flush=True,
         )
     # removed by the writer only (only_writer), as they are now: read before the lock
-    if done.damaged and (damage := (now := dataset.still_damaged(done)).damage()) is not None:
-        dataset.drop(now.damaged)  # its error said alone
+    damaged = dataset.still_damaged(done)
+    if (damage := damaged.damage()) is not None:
+        dataset.drop(damaged.damaged)  # its error said alone
         print(damage, file=sys.stderr, flush=True)
     tasks: list[BagTask] = []
     where: dict[str, tuple[str, str, int]] = {}  # bag -> robot, fingerprint, size

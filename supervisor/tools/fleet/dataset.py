@@ -245,7 +245,7 @@ class Dataset:
         """This bag's row under this config (``BAGS``' columns, ``finished_ts`` in ns
         since the epoch), or None: the bag is not finished (no row, or one a power
         loss damaged, ``bags``)."""
-        path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
+        path = self._row_path(config_sha256, fingerprint)
         try:
             table = _row_file(path, Budget())
         except FileNotFoundError:
@@ -260,7 +260,7 @@ class Dataset:
         """Which file this bag's row is now (device, inode), or None: none.  A row is
         written whole to a new file renamed over the old (``_write``), so another id
         is another write, whatever the clock said when it was made."""
-        path = self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
+        path = self._row_path(config_sha256, fingerprint)
         try:
             st = path.lstat()
         except FileNotFoundError:
@@ -270,6 +270,9 @@ class Dataset:
                 f"cannot read the dataset: {e.strerror or e}", file=_shown(path)
             ) from None
         return st.st_dev, st.st_ino
+
+    def _row_path(self, config_sha256: str, fingerprint: str) -> Path:
+        return self.bags_dir / f"{self.key(config_sha256, fingerprint)}.parquet"
 
     @staticmethod
     def key(config_sha256: str, fingerprint: str) -> str:
@@ -611,8 +614,8 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
     decoded size is known exactly before it is decoded.  The footer's sizes and row
     counts are never the bound: they are the file's word, and pyarrow decodes what
     the pages hold whatever the footer says.  Its pages' decompression is bounded by
-    the file's size (``CODECS``).  A file of other columns, types, encodings or
-    codecs: not this dataset's."""
+    what the columns read store (``CODECS``).  A file of other columns, types,
+    encodings or codecs: not this dataset's."""
 
     def wrong(why: str) -> UserError:
         return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
@@ -630,16 +633,14 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
     stored = 0  # the most a row group's columns read hold, compressed
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
-        chunks = [group.column(c) for c in range(group.num_columns)]
-        stored = max(
-            stored, sum(k.total_compressed_size for k in chunks if k.path_in_schema in names)
-        )
-        for c in range(group.num_columns):
-            column = group.column(c)
-            if column.path_in_schema in names and not set(column.encodings) <= ENCODINGS:
+        read = [group.column(c) for c in range(group.num_columns)]
+        read = [k for k in read if k.path_in_schema in names]
+        stored = max(stored, sum(k.total_compressed_size for k in read))
+        for column in read:
+            if not set(column.encodings) <= ENCODINGS:
                 odd = ", ".join(sorted(set(column.encodings) - ENCODINGS))
                 raise wrong(f"column {column.path_in_schema} encoded as {odd}")
-            if column.path_in_schema in names and column.compression not in CODECS:
+            if column.compression not in CODECS:
                 raise wrong(f"column {column.path_in_schema} compressed as {column.compression}")
     # A page is read from its column chunk's bytes, which pyarrow keeps within the
     # file: so the chunks' sizes (the footer's word) are bounded by the file's.
