@@ -22,6 +22,7 @@ import json
 import os
 import shutil
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -565,11 +566,15 @@ def _bench(config: Path, tmp: Path, args: argparse.Namespace, say: Callable[[str
             cluster = stack.enter_context(Cluster())
             head = cluster.head.pid if cluster.head else 0
             out["cluster"] = {"address": cluster.address, "start_s": cluster.start_s, "pid": head}
-        kinds: list[tuple[list[str], Cluster | None]] = [(r, None) for r in runs]
-        if cluster is not None:
+        kinds: list[tuple[list[str], Cluster | None]] = [(r, None) for r in runs[:2]]
+        if cluster is not None:  # beside --jobs 2, the run it is judged against
             kinds.append((["--jobs", "2", "--engine", "ray"], cluster))
-        for n in range(args.rounds):  # interleaved: a slower minute slows every kind
-            for extra, joins in kinds:
+        kinds += [(r, None) for r in runs[2:]]
+        for n in range(args.rounds):
+            # interleaved, every other round backwards (ABBA): the machine's speed drifts
+            # by a third within minutes here (docs/BENCHMARKS.md, "Fleet"), and a ratio
+            # of two neighbours taken both ways round cancels a steady drift
+            for extra, joins in kinds if n % 2 == 0 else kinds[::-1]:
                 say(
                     f"fleet: round {n + 1}: fleet replay {' '.join(extra)}"
                     + " --address" * bool(joins)
@@ -639,6 +644,7 @@ def format_results(out: dict[str, Any]) -> str:
                     f"{said}{label}: {ray['wall_s'] / two['wall_s'] - 1:+.0%} wall time "
                     f"(goal within {GOALS['ray_within']:.0%})"
                 )
+    lines += _over_rounds(out["runs"])
     peak = max((r["peak_worker_mb"] for r in out["runs"]), default=0)
     lines.append(f"largest worker: {peak:.0f} MB (goal <= {GOALS['worker_mb']} MB)")
     res = out.get("resume")
@@ -670,6 +676,39 @@ def format_results(out: dict[str, Any]) -> str:
         cells = " | ".join(f"{out[k]['ns_per_message'][part]:.0f}" for k, _ in names)
         lines.append(f"| {label} | {cells} |")
     return "\n".join(lines)
+
+
+def _over_rounds(runs: list[dict[str, Any]]) -> list[str]:
+    """Each goal's ratio over the rounds: its median, its range and the rounds that met
+    it. One round's ratio carries the minute's speed; the goals ask for it reliably."""
+    rounds = sorted({r.get("round", 1) for r in runs})
+    if len(rounds) < 2:
+        return []
+    by = [{r["args"]: r["wall_s"] for r in runs if r.get("round", 1) == n} for n in rounds]
+    speedups = [b["--jobs 1"] / b["--jobs 2"] for b in by if "--jobs 1" in b and "--jobs 2" in b]
+    rays = [b[RAY_JOINS] / b["--jobs 2"] - 1 for b in by if RAY_JOINS in b and "--jobs 2" in b]
+    lines = []
+    if speedups:
+        lines.append(
+            _spread("speed-up from --jobs 1 to 2", speedups, "{:.2f}x")
+            + f", {sum(x >= GOALS['speedup'] for x in speedups)} of them >= {GOALS['speedup']}x"
+        )
+    if rays:
+        lines.append(
+            _spread("Ray on the running cluster against the pool", rays, "{:+.0%}")
+            + f", {sum(x <= GOALS['ray_within'] for x in rays)} of them within "
+            f"{GOALS['ray_within']:.0%}"
+        )
+    return lines
+
+
+def _spread(label: str, ratios: list[float], form: str) -> str:
+    low, high = min(ratios), max(ratios)
+    median = statistics.median(ratios)
+    return (
+        f"over {len(ratios)} rounds, {label}: median {form.format(median)} "
+        f"({form.format(low)} to {form.format(high)})"
+    )
 
 
 if __name__ == "__main__":

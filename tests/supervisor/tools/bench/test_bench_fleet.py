@@ -29,8 +29,8 @@ def test_a_small_fleet_bench_measures_each_run_and_resumes_without_reading_again
     out = tmp_path / "fleet.json"
     run = subprocess.run(
         [sys.executable, "-m", "supervisor.tools.bench.fleet", "--bags", "50", "--robots", "5",
-         "--messages", "3000", "--split-messages", "20000", "--skip-ray", "--tmp",
-         str(tmp_path), "--json", str(out)],
+         "--messages", "3000", "--split-messages", "20000", "--skip-ray", "--rounds", "2",
+         "--tmp", str(tmp_path), "--json", str(out)],
         capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
@@ -38,7 +38,11 @@ def test_a_small_fleet_bench_measures_each_run_and_resumes_without_reading_again
     assert got["kinds"] == {
         "mcap": 25, "sqlite3": 25, "violating": 10, "compressed": 3, "damaged": 1,
     }  # fmt: skip
-    assert [r["args"] for r in got["runs"]] == ["--jobs 1", "--jobs 2"]
+    # the second round backwards: each ratio is of neighbours, taken both ways round
+    assert [(r["round"], r["args"]) for r in got["runs"]] == [
+        (1, "--jobs 1"), (1, "--jobs 2"), (2, "--jobs 2"), (2, "--jobs 1"),
+    ]  # fmt: skip
+    assert "over 2 rounds, speed-up from --jobs 1 to 2: median " in run.stdout, run.stdout
     for r in got["runs"]:
         assert r["exit"] == 1  # the damaged bag
         assert "50 bags (49 read, 0 skipped, 1 damaged, 0 failed)" in r["summary"]
@@ -96,14 +100,16 @@ def test_the_bench_times_ray_on_a_running_cluster_apart_from_its_start_and_stop(
     stdout, stderr = bench.communicate(timeout=600)
     assert bench.returncode == 0 and "Traceback" not in stderr, stderr
     got = json.loads(out.read_text())
+    joins = "--jobs 2 --engine ray --address (a running cluster)"
+    # the run on the running cluster beside --jobs 2, which it is judged against
     assert [r["args"] for r in got["runs"]] == [
-        "--jobs 1", "--jobs 2", "--jobs 2 --engine ray",
-        "--jobs 2 --engine ray --address (a running cluster)",
+        "--jobs 1", "--jobs 2", joins, "--jobs 2 --engine ray",
     ]  # fmt: skip
     for r in got["runs"]:
         assert "12 bags (12 read, 0 skipped, 0 damaged, 0 failed)" in r["summary"], r
         assert all(_positive(r[k]) for k in ("wall_s", "rate", "cpu_s", "peak_worker_mb")), r
-    assert got["runs"][-1]["workers"] == 2  # the cluster's task workers, not its agents
+    # the cluster's task workers, not its agents
+    assert [r["workers"] for r in got["runs"] if r["args"] == joins] == [2]
     cluster = got["cluster"]
     assert _positive(cluster["start_s"]) and _positive(cluster["stop_s"])
     assert cluster["left"] == 0  # every process of the cluster stopped with its head
