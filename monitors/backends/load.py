@@ -32,18 +32,20 @@ temporary directory and imported again under the same module name.  A new
 fresh static state, and CPython caches extension modules by (path, name), so
 PyInit runs again.  Each such reset costs a file copy and a ``dlopen``
 (milliseconds) and leaves the old copy mapped (Python never unloads extension
-modules); the copies are kept until the process exits so that a reused inode
-number can never make ``dlopen`` hand back an old instance.  The same copy
-mechanism makes every LoadedMonitor own its state even when one library path
-is loaded twice.
+modules).  A copy's file is removed as soon as it is loaded: a process that is
+killed runs no exit handler, and every killed daemon or fleet worker used to leave
+its copies in the temporary directory.  Its inode stays taken while it is mapped,
+that is for the rest of the process, so no later copy can get its number and be
+taken by ``dlopen`` (which knows a loaded file by device and inode) for an old
+instance.  The same copy mechanism makes every LoadedMonitor own its state even
+when one library path is loaded twice.
 """
 
 from __future__ import annotations
 
-import atexit
-import itertools
 import numbers
 import operator
+import os
 import shutil
 import struct
 import tempfile
@@ -69,33 +71,30 @@ _NP_CODES = {"bool": "?", "int64": "=i8", "double": "=f8"}
 
 _lock = threading.Lock()
 _loaded: set[str] = set()  # resolved paths already dlopen'ed in this process
-_copy_dir: Path | None = None
-_copies = itertools.count()
-
-
-def _private_dir() -> Path:
-    global _copy_dir
-    if _copy_dir is None:
-        _copy_dir = Path(tempfile.mkdtemp(prefix="ss-monitor-copies-"))
-        atexit.register(shutil.rmtree, _copy_dir, True)
-    return _copy_dir
 
 
 def _import(path: Path) -> ModuleType:
     """Import the extension at ``path``; a private copy if that file is already loaded."""
-    name = path.name.split(".", 1)[0]
+    name = path.name.split(".", 1)[0]  # PyInit_<name>, whatever the file is called
     with _lock:
         real = str(path.resolve())
-        if real in _loaded:
-            copy_dir = _private_dir() / str(next(_copies))
-            copy_dir.mkdir()
-            path = copy_dir / path.name
-            shutil.copyfile(real, path)  # a new inode: dlopen maps a fresh instance
-            real = str(path.resolve())
-        loader = ExtensionFileLoader(name, real)
-        mod = module_from_spec(spec_from_loader(name, loader))
-        loader.exec_module(mod)
-        _loaded.add(real)
+        if real not in _loaded:
+            mod = _exec(name, real)
+            _loaded.add(real)
+            return mod
+        fd, copy = tempfile.mkstemp(prefix="ss-monitor-copy-", suffix=".so")
+        try:
+            with os.fdopen(fd, "wb") as out, open(real, "rb") as src:
+                shutil.copyfileobj(src, out)  # a new inode: dlopen maps a fresh instance
+            return _exec(name, copy)
+        finally:
+            os.unlink(copy)  # mapped, it needs no name (module docstring)
+
+
+def _exec(name: str, file: str) -> ModuleType:
+    loader = ExtensionFileLoader(name, file)
+    mod = module_from_spec(spec_from_loader(name, loader))
+    loader.exec_module(mod)
     return mod
 
 

@@ -258,6 +258,32 @@ def test_monitor_without_reset_functions_resets_by_fresh_copy(tmp_path) -> None:
         mon.reset_requirement(0)
 
 
+def test_a_fresh_copy_leaves_no_file_behind(tmp_path) -> None:
+    # A copy is mapped for the rest of the process (CPython never unloads an extension),
+    # and a process that is killed runs no exit handler: a copy's file that outlived its
+    # dlopen was left in the temporary directory by every killed daemon and fleet worker.
+    spec = make_spec([parse_formula("Y b0")])
+    c_path, _ = write_c(spec, tmp_path / "src")
+    lib = build_library(spec, [c_path], tmp_path / "src", tmp_path, reset=False, reset_each=False)
+    mon = load_monitor(lib, spec)
+    load_monitor(lib, spec)  # a second instance: a copy
+    mon.reset()  # and a fresh one: another copy
+    assert mon.tick(_row(b0=True)) == b"\x01"  # fresh: Y false at tick 0
+    content = lib.read_bytes()
+    mapped = {
+        line.split(maxsplit=5)[5].rstrip("\n")
+        for line in Path("/proc/self/maps").read_text().splitlines(keepends=True)
+        if len(line.split(maxsplit=5)) == 6
+    }
+    copies = [m for m in mapped if m.endswith("(deleted)") and Path(m).name != lib.name]
+    alive = [
+        m for m in mapped
+        if Path(m) != lib and Path(m).is_file() and Path(m).stat().st_size == len(content)
+        and Path(m).read_bytes() == content
+    ]  # fmt: skip
+    assert len(copies) >= 2 and alive == [], (copies, alive)
+
+
 # ------------------------------------------------------------------ processes, names, linking
 
 
