@@ -26,8 +26,10 @@ monitor's first tick, and a reset leaves them until the next tick), and
 
 Resets: a native monitor has reset functions in C (O(1), no loops).  A
 monitor without them (Copilot generates none) is reset by loading a fresh
-copy of its library: the ``.so`` is copied to a new file in a per-process
-temporary directory and imported again under the same module name.  A new
+copy of its library: the ``.so`` is copied to a new file beside it (in the
+temporary directory when that place is read-only: a hardened robot mounts /tmp
+``noexec``, where a copy could not be mapped) and imported again under the same
+module name.  A new
 ``dlopen`` of a different file (a different inode) maps a new instance with
 fresh static state, and CPython caches extension modules by (path, name), so
 PyInit runs again.  Each such reset costs a file copy and a ``dlopen``
@@ -82,7 +84,10 @@ def _import(path: Path) -> ModuleType:
             mod = _exec(name, real)
             _loaded.add(real)
             return mod
-        fd, copy = tempfile.mkstemp(prefix="ss-monitor-copy-", suffix=".so")
+        try:  # beside the library: a place that can map it, where /tmp may be noexec
+            fd, copy = tempfile.mkstemp(prefix=".ss-copy-", suffix=".so", dir=path.parent)
+        except OSError:  # a read-only place
+            fd, copy = tempfile.mkstemp(prefix="ss-monitor-copy-", suffix=".so")
         try:
             with os.fdopen(fd, "wb") as out, open(real, "rb") as src:
                 shutil.copyfileobj(src, out)  # a new inode: dlopen maps a fresh instance

@@ -13,6 +13,7 @@ import math
 import re
 import shutil
 import subprocess
+import tempfile
 import textwrap
 from pathlib import Path
 
@@ -282,6 +283,50 @@ def test_a_fresh_copy_leaves_no_file_behind(tmp_path) -> None:
         and Path(m).read_bytes() == content
     ]  # fmt: skip
     assert len(copies) >= 2 and alive == [], (copies, alive)
+
+
+def _copilot_like(tmp_path: Path) -> tuple[Path, object]:
+    """A library without reset functions (as Copilot's): its reset loads a fresh copy."""
+    spec = make_spec([parse_formula("Y b0")])
+    c_path, _ = write_c(spec, tmp_path / "src")
+    lib = build_library(spec, [c_path], tmp_path / "src", tmp_path, reset=False, reset_each=False)
+    return lib, spec
+
+
+def test_a_fresh_copy_is_made_beside_its_library_not_in_the_temporary_directory(
+    tmp_path, monkeypatch
+) -> None:
+    # A hardened robot mounts /tmp noexec (and the unit's PrivateTmp keeps that): a copy
+    # there cannot be mapped, so an operator's reset failed. The library's own directory
+    # could map the library itself.
+    lib, spec = _copilot_like(tmp_path)
+    mon = load_monitor(lib, spec)
+    assert mon.tick(_row(b0=True)) == b"\x01"
+    assert mon.tick(_row(b0=True)) == b"\x00"
+    before = sorted(lib.parent.iterdir())
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "no-such-directory"))
+    mon.reset()
+    assert mon.tick(_row(b0=True)) == b"\x01"  # fresh: Y false at tick 0
+    assert sorted(lib.parent.iterdir()) == before  # and the copy's file gone
+
+
+def test_a_fresh_copy_of_a_library_in_a_read_only_place_is_made_in_the_temporary_directory(
+    tmp_path,
+) -> None:
+    lib, spec = _copilot_like(tmp_path)
+    mon = load_monitor(lib, spec)
+    assert mon.tick(_row(b0=True)) == b"\x01"
+    shut = lib.parent
+    shut.chmod(0o555)  # read-only to a user; to root only when immutable as well
+    subprocess.run(["chattr", "+i", str(shut)], capture_output=True, check=False)
+    try:
+        with pytest.raises(OSError):
+            (shut / "probe").touch()
+        mon.reset()
+        assert mon.tick(_row(b0=True)) == b"\x01"  # fresh: Y false at tick 0
+    finally:
+        subprocess.run(["chattr", "-i", str(shut)], capture_output=True, check=False)
+        shut.chmod(0o755)
 
 
 # ------------------------------------------------------------------ processes, names, linking
