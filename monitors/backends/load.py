@@ -98,8 +98,23 @@ def _import(path: Path) -> ModuleType:
 
 def _exec(name: str, file: str) -> ModuleType:
     loader = ExtensionFileLoader(name, file)
-    mod = module_from_spec(spec_from_loader(name, loader))
-    loader.exec_module(mod)
+    try:
+        mod = module_from_spec(spec_from_loader(name, loader))  # the dlopen
+        loader.exec_module(mod)
+    except ImportError:
+        where = os.path.dirname(file)
+        try:
+            noexec = bool(os.statvfs(where).f_flag & os.ST_NOEXEC)
+        except OSError:
+            noexec = False
+        if not noexec:
+            raise  # a library we built wrong: the internal error it is
+        raise UserError(
+            "the monitor library cannot be loaded from here: its filesystem is mounted noexec",
+            file=where,
+            hint="set TMPDIR, --build-dir or -o to a directory whose filesystem allows "
+            "executable mappings (the shipped unit builds in its state directory)",
+        ) from None
     return mod
 
 
