@@ -264,3 +264,26 @@ def test_check_says_what_a_prediction_fits_and_its_second_monitor(tmp_path):
         "  predict r1: fits the margin of ((x <= 10) | p) in a second monitor, "
         "stepped beside the boolean one (0 bytes of margin state)"
     ], r.stdout
+
+
+@pytest.mark.parametrize("command", ["compile", "check"])
+def test_a_build_on_a_noexec_filesystem_is_one_line(tmp_path, command) -> None:
+    # A hardened robot mounts /tmp (so TMPDIR) noexec: a library there cannot be mapped,
+    # and the command ended in an "internal error" (exit 3). The mount lives in a mount
+    # namespace of the command's own (unshare), gone with it.
+    shut = tmp_path / "noexec"
+    shut.mkdir()
+    argv = [sys.executable, "-m", "supervisor", command, str(SROBOT)]
+    if command == "compile":
+        argv += ["-o", str(shut / "out")]
+    script = f"mount -t tmpfs -o noexec tmpfs {shut} && exec " + " ".join(map(str, argv))
+    env = {**os.environ, "TMPDIR": str(shut), "XDG_CACHE_HOME": str(shut / "cache")}
+    env.pop("STATE_DIRECTORY", None)
+    r = subprocess.run(
+        ["unshare", "--mount", "sh", "-c", script], capture_output=True, text=True, env=env,
+        timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = [line for line in r.stderr.splitlines() if "noexec" in line]
+    assert len(said) == 1 and str(shut) in said[0], r.stderr
+    assert "internal error" not in r.stderr and "Traceback" not in r.stderr
