@@ -328,10 +328,23 @@ def _first_error(stderr: str) -> tuple[str, str | None, int | None, int | None]:
     return line.strip(), None, None, None
 
 
+def _start(cmd: list[str]) -> subprocess.Popen[str]:
+    """The compiler ``cmd[0]`` started, or one line: a robot's image often has none."""
+    try:
+        return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except OSError as e:
+        raise UserError(
+            f"cannot run the C compiler: {e.strerror or e}",
+            file=cmd[0],
+            hint="install one (apt-get install gcc) or set CC to a C compiler",
+        ) from None
+
+
 def _run(cmd: list[str], what: str) -> None:
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        msg, file, line, col = _first_error(r.stderr or r.stdout)
+    with _start(cmd) as p:
+        out, err = p.communicate()
+    if p.returncode != 0:
+        msg, file, line, col = _first_error(err or out)
         raise UserError(
             f"C compiler failed on {what}: {msg}", file=file or what, line=line, col=col
         )
@@ -400,10 +413,15 @@ def build_library(
         )
     )
     # Compile in parallel: the Python.h translation unit dominates build time.
-    procs = [
-        (subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True), what)
-        for cmd, what in jobs
-    ]
+    procs: list[tuple[subprocess.Popen[str], str]] = []
+    try:
+        for cmd, what in jobs:
+            procs.append((_start(cmd), what))
+    except UserError:  # none left running behind the error
+        for p, _ in procs:
+            p.kill()
+            p.communicate()
+        raise
     for p, what in procs:
         _, err = p.communicate()
         if p.returncode != 0:

@@ -329,6 +329,20 @@ def test_a_fresh_copy_of_a_library_in_a_read_only_place_is_made_in_the_temporary
         shut.chmod(0o755)
 
 
+@pytest.mark.parametrize("cc", ["no-such-cc", "/nonexistent/cc", "/etc/hostname"])
+def test_a_missing_or_unrunnable_compiler_is_one_clear_error(tmp_path, monkeypatch, cc) -> None:
+    # A robot's image often has no gcc: the build ended in an internal error (exit 3)
+    # from subprocess's FileNotFoundError (or PermissionError for a file that is not a
+    # program).
+    spec = make_spec([parse_formula("Y b0")])
+    c_path, _ = write_c(spec, tmp_path / "src")
+    monkeypatch.setenv("CC", cc)
+    with pytest.raises(UserError) as e:
+        build_library(spec, [c_path], tmp_path / "src", tmp_path, reset=True, reset_each=True)
+    assert e.value.file == cc and "C compiler" in e.value.message, e.value
+    assert e.value.hint and "CC" in e.value.hint
+
+
 # ------------------------------------------------------------------ processes, names, linking
 
 
