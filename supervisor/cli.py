@@ -16,7 +16,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TextIO
 
 from monitors.errors import UserError
 from supervisor.tools.bench.command import add_parser as add_bench_parser
@@ -440,9 +440,44 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    out = _Stdout(sys.stdout)
+    sys.stdout = out  # type: ignore[assignment] - a TextIO in all but name
     try:
+        return _main(argv, out)
+    finally:
+        if sys.stdout is out:
+            sys.stdout = out.stream
+
+
+class _Stdout:
+    """sys.stdout, noting whether a write to it failed: a full disk under a redirect
+    is the user's to hear of, not an internal error."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.failed = False
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except OSError:
+            self.failed = True
+            raise
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError:
+            self.failed = True
+            raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+def _main(argv: list[str] | None, out: _Stdout) -> int:
+    try:
+        args = build_parser().parse_args(argv)  # --help writes to stdout too
         return COMMANDS[args.command](args)
     except UserError as e:
         _err(str(e))
@@ -451,13 +486,29 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         # `safety-supervisor explain ... | head`: the reader left; not an error.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _drop_stdout()
         return 0
+    except OSError as e:
+        if not out.failed:
+            return _internal(e)
+        # a full disk under a redirect (ENOSPC, EIO): the output is lost, and said so
+        _err(f"<stdout>: cannot write the output: {e.strerror or e}")
+        _drop_stdout()
+        return EXIT_FAIL
     except Exception as e:  # noqa: BLE001 - last line of defence: no raw tracebacks for users
-        if os.environ.get("SAFETY_SUPERVISOR_DEBUG"):
-            raise
-        _err(
-            f"safety-supervisor: internal error: {type(e).__name__}: {e} "
-            "(set SAFETY_SUPERVISOR_DEBUG=1 for the traceback and report it)"
-        )
-        return 3
+        return _internal(e)
+
+
+def _internal(e: Exception) -> int:
+    if os.environ.get("SAFETY_SUPERVISOR_DEBUG"):
+        raise e
+    _err(
+        f"safety-supervisor: internal error: {type(e).__name__}: {e} "
+        "(set SAFETY_SUPERVISOR_DEBUG=1 for the traceback and report it)"
+    )
+    return 3
+
+
+def _drop_stdout() -> None:
+    """stdout to /dev/null: the interpreter's flush at exit then has nowhere to fail."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

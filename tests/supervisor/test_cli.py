@@ -287,3 +287,17 @@ def test_a_build_on_a_noexec_filesystem_is_one_line(tmp_path, command) -> None:
     said = [line for line in r.stderr.splitlines() if "noexec" in line]
     assert len(said) == 1 and str(shut) in said[0], r.stderr
     assert "internal error" not in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("command", [["check", str(SROBOT)], ["--help"]])
+def test_output_that_cannot_be_written_is_one_line(command) -> None:
+    # stdout on a full disk (here /dev/full): an internal error (exit 3) before.
+    with open("/dev/full", "w") as full:
+        r = subprocess.run(
+            [sys.executable, "-m", "supervisor", *command], stdout=full, stderr=subprocess.PIPE,
+            text=True, timeout=300,
+        )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    assert r.stderr.splitlines() == [
+        "<stdout>: cannot write the output: No space left on device"
+    ], r.stderr
