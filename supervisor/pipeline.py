@@ -17,7 +17,7 @@ from pathlib import Path
 
 from mitigations.rosmsg import build_message, message_class
 from mitigations.settings import PublishSettings, SshSettings
-from monitors.backends.build import build_library
+from monitors.backends.build import build_library, building
 from monitors.backends.c99 import write_c
 from monitors.backends.copilot import compile_copilot
 from monitors.backends.load import load_monitor
@@ -442,8 +442,9 @@ def monitor_library(
                 lib = cache.get(key, name)
                 if lib is not None:
                     return lib
-    c_path, _ = write_c(spec, build_dir)
-    lib = build_library(spec, [c_path], build_dir, build_dir, reset=True, reset_each=True)
+    with building(build_dir):
+        c_path, _ = write_c(spec, build_dir)
+        lib = build_library(spec, [c_path], build_dir, build_dir, reset=True, reset_each=True)
     if cache is not None and key is not None:
         stored = cache.put(key, lib.name, lib.read_bytes())
         # The name last: an entry without it is a miss, never half a library.
@@ -460,16 +461,17 @@ def compile_project(project: Project, out_dir: Path, *, backend: str = "native")
     """Write the C sources, build the library, load it once (proves it links), and
     write manifest.json.  Returns the manifest."""
     spec = project.spec()
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if backend == "copilot":
-        c_files = compile_copilot(spec, out_dir)
-        sources = [f for f in c_files if f.suffix == ".c"]
-        lib = build_library(spec, sources, out_dir, out_dir, reset=False, reset_each=False)
-    elif backend == "native":
-        c_path, h_path = write_c(spec, out_dir)
-        lib = build_library(spec, [c_path], out_dir, out_dir, reset=True, reset_each=True)
-    else:
+    if backend not in ("copilot", "native"):
         raise UserError(f"unknown backend '{backend}' (native or copilot)")
+    with building(out_dir):
+        out_dir.mkdir(parents=True, exist_ok=True)
+        if backend == "copilot":
+            c_files = compile_copilot(spec, out_dir)
+            sources = [f for f in c_files if f.suffix == ".c"]
+            lib = build_library(spec, sources, out_dir, out_dir, reset=False, reset_each=False)
+        else:
+            c_path, h_path = write_c(spec, out_dir)
+            lib = build_library(spec, [c_path], out_dir, out_dir, reset=True, reset_each=True)
     load_monitor(lib, spec)  # fail here, at compile time, if it does not load
     cfg = project.config
     manifest = {

@@ -59,6 +59,7 @@ import re
 import shutil
 import subprocess
 import sysconfig
+from collections.abc import Iterator
 from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 
@@ -326,6 +327,20 @@ def _first_error(stderr: str) -> tuple[str, str | None, int | None, int | None]:
     if m:
         return m.group(4), m.group(1), int(m.group(2)), int(m.group(3)) if m.group(3) else None
     return line.strip(), None, None, None
+
+
+@contextlib.contextmanager
+def building(where: Path) -> Iterator[None]:
+    """A build's own writes (its C, its objects, its library): a full disk or a place
+    this user cannot write is one line naming the build's directory, not a bug."""
+    try:
+        yield
+    except OSError as e:
+        raise UserError(
+            f"cannot build the monitor here: {e.strerror or e}",
+            file=str(where),
+            hint="TMPDIR, --build-dir or -o: a directory with room that this user can write",
+        ) from None
 
 
 def _start(cmd: list[str]) -> subprocess.Popen[str]:

@@ -33,6 +33,7 @@ from supervisor.tools.replay.storage import (
     open_regular,
     raw_chunk,
     refuse_serialization,
+    temp_room,
 )
 
 # --- sqlite3 storage ------------------------------------------------------------------
@@ -191,9 +192,11 @@ class Sqlite(Source):
             if page < 512 or page & (page - 1):
                 raise UserError(f"not an sqlite3 file (page size {size})", file=self.label)
             pages = os.fstat(f.fileno()).st_size // page
-            fd, name = tempfile.mkstemp(suffix=".db3")
-            self._tmp = Path(name)
-            with os.fdopen(fd, "wb") as out:
+            room = f"copy the damaged {self.path.name}", pages * page
+            with temp_room(*room):
+                fd, name = tempfile.mkstemp(suffix=".db3")
+            self._tmp = Path(name)  # removed by _drop, whole or not
+            with temp_room(*room), os.fdopen(fd, "wb") as out:
                 out.write(head[:28] + struct.pack(">I", pages) + head[32:])
                 left = pages * page - 100
                 while left > 0:

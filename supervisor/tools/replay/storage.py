@@ -3,6 +3,8 @@ chunks of receive times, topic ids and payloads, and where the damage is."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import fcntl
 import os
 import stat
@@ -186,10 +188,11 @@ def inflate_file(path: Path, bounds: Bounds) -> Path:
         limit = int(bounds.ratio * max(size, 1))
         _zstd_whole(f, size)
         f.seek(0)
-        fd, name = tempfile.mkstemp(suffix=path.suffixes[-2] if len(path.suffixes) > 1 else "")
+        with temp_room(f"inflate {path.name}", limit):
+            fd, name = tempfile.mkstemp(suffix=path.suffixes[-2] if len(path.suffixes) > 1 else "")
         out_path = Path(name)
         try:
-            with os.fdopen(fd, "wb") as out:
+            with temp_room(f"inflate {path.name}", limit), os.fdopen(fd, "wb") as out:
                 reader = zstandard.ZstdDecompressor().stream_reader(f, read_across_frames=True)
                 total = 0
                 while block := reader.read(min(_BLOCK, limit + 1 - total)):
@@ -204,6 +207,25 @@ def inflate_file(path: Path, bounds: Bounds) -> Path:
             out_path.unlink(missing_ok=True)
             raise
     return out_path
+
+
+# a temporary file's write that failed for want of room (not a bag's read error)
+_NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+@contextlib.contextmanager
+def temp_room(what: str, size: int) -> Iterator[None]:
+    """A temporary file's writes: a full TMPDIR is one line naming it, not a bug."""
+    try:
+        yield
+    except OSError as e:
+        if e.errno not in _NO_ROOM:
+            raise
+        raise UserError(
+            f"cannot {what} into the temporary directory: {e.strerror}",
+            file=tempfile.gettempdir(),
+            hint=f"set TMPDIR to a directory with room for up to {size:,} bytes",
+        ) from None
 
 
 def _zstd_whole(f: BinaryIO, size: int) -> None:

@@ -9,6 +9,8 @@ import os
 import re
 import shutil
 import sqlite3
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -329,3 +331,41 @@ def test_an_unchunked_mcap_replays_by_log_time_as_the_mcap_reader_says(tmp_path)
         ]
     got = [(t, dict(values)["x"]) for t, _, values in replay([bag], config(tmp_path, INT64_CONFIG))]
     assert got == expected
+
+
+@pytest.mark.parametrize("kind", ["the monitor's build", "zstd per file", "a cut db3"])
+def test_a_full_temporary_directory_is_one_line_naming_it(tmp_path, kind):
+    # The monitor is built, a compressed file inflated and a damaged sqlite3 file copied
+    # in TMPDIR: on a full disk each ended replay in an internal error (exit 3), and a
+    # fleet replay's bag as "failed: internal error". A tmpfs of one page, in a mount
+    # namespace of the command's own (unshare), gone with it.
+    if kind == "a cut db3":
+        src = natural(list((BAGS / "sqlite3" / "message_compression_no_metadata").glob("*.db3")))
+        bag = tmp_path / "cut.db3"
+        bag.write_bytes(src[0].read_bytes()[: src[0].stat().st_size * 2 // 3])
+    else:
+        bag = BAGS / "sqlite3" / "file_compression_no_metadata" / "file_compression_0.db3.zstd"
+    config = tmp_path / "c.yaml"
+    config.write_text(
+        CONFIG + "  - {id: R2, text: Robot shall always satisfy sec >= 0}\n"
+    )  # every variable used, as the command's checks ask
+    replay = [sys.executable, "-m", "supervisor", "replay", str(config), str(bag), "--quiet"]
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    if kind != "the monitor's build":  # built and cached first: the bag's own file then
+        warm = subprocess.run(replay, capture_output=True, text=True, env=env, timeout=300)
+        assert warm.returncode in (0, 1) and "internal error" not in warm.stderr, warm.stderr
+    full = tmp_path / "full"
+    full.mkdir()
+    script = f"mount -t tmpfs -o size=4k tmpfs {full} && exec " + " ".join(replay)
+    r = subprocess.run(
+        ["unshare", "--mount", "sh", "-c", script], capture_output=True, text=True,
+        env={**env, "TMPDIR": str(full)}, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = r.stderr.strip().splitlines()
+    assert len(said) == 1 and said[0].startswith(str(full)), r.stderr
+    assert "No space left on device" in said[0] and "TMPDIR" in said[0], r.stderr
+    if kind == "the monitor's build":
+        assert "cannot build the monitor here" in said[0], r.stderr
+    else:
+        assert said[0].startswith(f"{full}: cannot "), r.stderr
