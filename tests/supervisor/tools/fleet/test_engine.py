@@ -520,17 +520,28 @@ MKDIRS = {83, 258}  # x86_64: mkdir, mkdirat
 
 def _held_in_mkdir(root: int) -> int | None:
     """A thread below ``root`` held by strace at the entry of a mkdir: with ``-P``,
-    only that of the dataset's bags directory, made for the first bag's row."""
-    for task in Path("/proc").glob("[0-9]*/task/[0-9]*"):
-        try:
-            stat = (task / "stat").read_text().rsplit(")", 1)[1].split()
-            number = (task / "syscall").read_text().split()[0]
-        except (OSError, IndexError):
-            continue  # exited meanwhile
-        if stat[0] == "t" and number.isdigit() and int(number) in MKDIRS:
-            if _below(int(task.parent.parent.name), root):
-                return int(task.name)
+    only that of the dataset's bags directory, made for the first bag's row.  Every
+    other mkdir stops at strace too, for as long as strace takes to let it go (under
+    load, long enough to be seen): a thread is held only if it is still there half a
+    second later."""
+    seen = [t for t in Path("/proc").glob("[0-9]*/task/[0-9]*") if _in_mkdir(t)]
+    if not seen:
+        return None
+    time.sleep(0.5)
+    for task in seen:
+        if _in_mkdir(task) and _below(int(task.parent.parent.name), root):
+            return int(task.name)
     return None
+
+
+def _in_mkdir(task: Path) -> bool:
+    """The thread ``task`` (/proc/PID/task/TID) stopped by its tracer in a mkdir."""
+    try:
+        stat = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        number = (task / "syscall").read_text().split()[0]
+    except (OSError, IndexError):
+        return False  # exited meanwhile
+    return stat[0] == "t" and number.isdigit() and int(number) in MKDIRS
 
 
 def _below(pid: int, root: int) -> bool:
