@@ -63,6 +63,21 @@ def _err(text: str) -> None:
 
 # ------------------------------------------------------------------ formalize
 
+STDIN_BYTES = 1 << 20  # requirements on stdin, at most: /dev/zero has no end
+
+
+def _stdin_text() -> str:
+    binary = getattr(sys.stdin, "buffer", None)  # None: a text stream put in its place
+    data = (binary or sys.stdin).read(STDIN_BYTES + 1)
+    if isinstance(data, str):
+        data = data.encode()
+    if len(data) > STDIN_BYTES:
+        raise UserError(f"more than {STDIN_BYTES:,} bytes of requirements", file="<stdin>")
+    try:
+        return data.decode()
+    except UnicodeDecodeError as e:
+        raise UserError(f"not UTF-8 text at byte {e.start}", file="<stdin>") from None
+
 
 def cmd_formalize(args: argparse.Namespace) -> int:
     from monitors.frontend.formalize import formalize
@@ -72,8 +87,11 @@ def cmd_formalize(args: argparse.Namespace) -> int:
     if args.text:
         items = [(t, "<arg>", 1) for t in args.text]
     else:
-        items = [(line.rstrip("\n"), "<stdin>", i) for i, line in enumerate(sys.stdin, 1)]
+        lines = _stdin_text().splitlines()
+        items = [(line, "<stdin>", i) for i, line in enumerate(lines, 1)]
         items = [it for it in items if it[0].strip() and not it[0].lstrip().startswith("#")]
+        if not items:
+            raise UserError("no requirement to formalize", file="<stdin>")
     status = EXIT_OK
     for text, file, line in items:
         try:
@@ -440,6 +458,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # a standard stream closed by the caller (2>&-) is None in Python: what would be
+    # written there is dropped, and what is read there is empty
+    for name, mode in (("stdin", "r"), ("stdout", "w"), ("stderr", "w")):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, mode))  # noqa: SIM115 - for the process
     out = _Stdout(sys.stdout)
     sys.stdout = out  # type: ignore[assignment] - a TextIO in all but name
     try:
@@ -489,6 +512,13 @@ def _main(argv: list[str] | None, out: _Stdout) -> int:
         _drop_stdout()
         return 0
     except OSError as e:
+        if e.filename is not None and not out.failed:
+            # a path the system refused (too long, not permitted, read-only): the
+            # user's to fix, wherever it was met
+            from monitors.untrusted import printable
+
+            _err(f"{printable(str(e.filename))}: {e.strerror or e}")
+            return EXIT_FAIL
         if not out.failed:
             return _internal(e)
         # a full disk under a redirect (ENOSPC, EIO): the output is lost, and said so

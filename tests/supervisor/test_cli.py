@@ -301,3 +301,54 @@ def test_output_that_cannot_be_written_is_one_line(command) -> None:
     assert r.stderr.splitlines() == [
         "<stdout>: cannot write the output: No space left on device"
     ], r.stderr
+
+
+LONG = "a" * 300  # a path part longer than a filesystem's 255 bytes: ENAMETOOLONG
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["replay", str(SROBOT), f"{LONG}.jsonl", "--quiet"],
+        ["logs", f"{LONG}.jsonl"],
+        ["init", LONG],
+        ["fleet", "report", LONG, "-o", "x.html", "--quiet"],
+    ],
+)
+def test_a_path_the_system_refuses_is_one_line_naming_it(tmp_path, command) -> None:
+    # Path.exists() and is_dir() raise on ENAMETOOLONG and EACCES (only "not there"
+    # is False): each such path ended in an internal error (exit 3).
+    r = subprocess.run(
+        [sys.executable, "-m", "supervisor", *command], capture_output=True, text=True,
+        cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = r.stderr.strip().splitlines()
+    assert len(said) == 1 and LONG in said[0] and "File name too long" in said[0], r.stderr
+
+
+@pytest.mark.parametrize(
+    ("command", "code"), [(["check"], 2), (["bogus"], 2), (["check", str(SROBOT)], 0)]
+)
+def test_a_closed_stderr_changes_no_exit_code(command, code) -> None:
+    # argparse and the error line wrote to sys.stderr, None when fd 2 is closed: exit 3.
+    r = subprocess.run(
+        ["sh", "-c", 'exec "$@" 2>&-', "sh", sys.executable, "-m", "supervisor", *command],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == code, (r.returncode, r.stdout)
+    assert "internal error" not in r.stdout
+
+
+@pytest.mark.parametrize(
+    ("stdin", "says"), [("<&-", "no requirement"), ("</dev/zero", "more than")]
+)
+def test_formalize_reads_a_bounded_stdin(stdin, says) -> None:
+    # stdin closed was a TypeError, /dev/zero memory without end (exit 3, or killed).
+    r = subprocess.run(
+        ["sh", "-c", f'ulimit -v 4000000; exec "$@" {stdin}', "sh", sys.executable, "-m", "supervisor", "formalize"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = r.stderr.strip().splitlines()
+    assert len(said) == 1 and said[0].startswith("<stdin>") and says in said[0], r.stderr
