@@ -217,8 +217,10 @@ class ViolationLog:
         retry_interval_s: float = RETRY_INTERVAL_S,
         fsync: bool = True,
         durability: str = DURABILITY,
+        say: Callable[[str], None] | None = None,
     ) -> None:
         """``echo``: True for stderr (looked up at write time), a stream, or False.
+        ``say``: where the log's own reports go (a failed write, a loss); default stderr.
         ``retry_buffer``: records kept in memory while the file cannot be written (>= 1).
         ``fsync``: False for a log written from a recording (``replay``): nothing is at
         stake while it is written, so it is synced once, at close.
@@ -255,6 +257,7 @@ class ViolationLog:
         self._retrier: threading.Thread | None = None
         self._closed = threading.Event()
         self._error = ""  # the last write error: the reason of a loss
+        self._say = say
         self._outage = False
         self._lost: list[list[int]] = []  # dropped seq ranges not yet recorded
         self._lost_events: dict[str, int] = {}
@@ -289,6 +292,11 @@ class ViolationLog:
     def failed_writes(self) -> int:
         """Records that could not be written when they were made (queued or lost)."""
         return self._failed
+
+    @property
+    def write_error(self) -> str:
+        """The last write's error ("" when none failed)."""
+        return self._error
 
     @property
     def pending(self) -> int:
@@ -993,6 +1001,9 @@ class ViolationLog:
             self._print(text)
 
     def _print(self, text: str) -> None:
+        if self._say is not None:
+            self._say(text)
+            return
         try:
             sys.stderr.write(("<3>" if self._journal else "") + text + "\n")
             sys.stderr.flush()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -12,6 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from monitors.backends.load import LoadedMonitor, load_monitor
+from monitors.errors import UserError
 from monitors.ir.formula import use_parser_cache
 from monitors.ir.spec import MonitorSpec
 from supervisor.cache import Cache
@@ -160,6 +162,7 @@ def run_one(
         said_later = set(recording.missing.values())
         notes = [n for n in recording.summary().splitlines() if n not in said_later]
         out: ViolationLog | None = sink
+        said: list[str] = []  # the output log's own reports
         if output is not None and sink is None:
             # structlog and the log writer only when records are written
             from mitigations.violationlog.writer import ViolationLog
@@ -172,6 +175,7 @@ def run_one(
                 echo=False,
                 fsync=False,
                 durability=cfg.log_durability,
+                say=said.append,  # judged at close: one line if records were lost
             )
             out.supervisor(
                 "replay",
@@ -190,6 +194,7 @@ def run_one(
         finally:
             if out is not None and out is not sink:
                 out.close()
+                _judge_output(out, said)
         if outcome.error is None and outcome.messages == 0 and recording.by_topic:
             outcome.error = NothingToJudge(
                 "the recordings hold no message on the config's topics "
@@ -199,6 +204,19 @@ def run_one(
                 "or name in the config the topics the recording has messages on",
             )
         return Run(outcome, notes + outcome.warnings + _counted(warnings), recording.missing)
+
+
+def _judge_output(out: ViolationLog, said: list[str]) -> None:
+    """Records that could not be written fail the replay, in one line: a replay's
+    records are its result, and it has no journal to keep them."""
+    if out.failed_writes:
+        raise UserError(
+            f"{out.failed_writes} records could not be written: {out.write_error}",
+            file=str(out.path),
+            hint="free space there, or give -o another place",
+        )
+    for text in said:
+        print(text, file=sys.stderr)
 
 
 def _counted(warnings: list[str]) -> list[str]:

@@ -369,3 +369,28 @@ def test_a_full_temporary_directory_is_one_line_naming_it(tmp_path, kind):
         assert "cannot build the monitor here" in said[0], r.stderr
     else:
         assert said[0].startswith(f"{full}: cannot "), r.stderr
+
+
+def test_records_that_cannot_be_written_fail_the_replay_in_one_line(tmp_path):
+    # -o on a full disk: the records were lost, stderr had a line per record ("only in
+    # the journal", which replay has not) and the replay exited 0.
+    bag = BAGS / "sqlite3" / "file_compression_no_metadata" / "file_compression_0.db3.zstd"
+    config = tmp_path / "c.yaml"
+    config.write_text(CONFIG + "  - {id: R2, text: Robot shall always satisfy sec >= 0}\n")
+    full = tmp_path / "full"
+    full.mkdir()
+    out = full / "out.jsonl"
+    script = (
+        f"mount -t tmpfs -o size=4k tmpfs {full} && "
+        f"dd if=/dev/zero of={full}/fill bs=4k count=1 2>/dev/null; exec {sys.executable} "
+        f"-m supervisor replay {config} {bag} -o {out} --quiet"
+    )
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    r = subprocess.run(
+        ["unshare", "--mount", "sh", "-c", script], capture_output=True, text=True, env=env,
+        timeout=300,
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = r.stderr.strip().splitlines()
+    assert len(said) == 1 and said[0].startswith(f"{out}: "), r.stderr
+    assert "No space left on device" in said[0] and "journal" not in said[0], r.stderr
