@@ -402,49 +402,52 @@ def build_library(
 
     work = out_dir / f"{module}.{os.getpid()}.build"  # concurrent builders never share files
     work.mkdir(exist_ok=True)
-    (work / "ss_host.c").write_text(host)
-    from cffi import FFI  # only to build: a cached library needs no cffi module
-
-    ffi = FFI()
-    ffi.cdef(cdef)
-    ffi.set_source(module, "#include <stddef.h>\n#include <stdint.h>\n" + cdef)
-    with contextlib.redirect_stdout(io.StringIO()):  # cffi prints "generating ..."
-        ffi.emit_c_code(str(work / f"{module}.c"))
-
-    py_include = sysconfig.get_paths()["include"]
-    objects: list[Path] = []
-    jobs: list[tuple[list[str], str]] = []
-    for src in [*map(Path, c_files), work / "ss_host.c"]:
-        obj = work / (src.stem + f".{len(objects)}.o")
-        objects.append(obj)
-        cmd = [cc, "-std=c99", *_CFLAGS, "-I", str(include_dir), "-c", str(src), "-o", str(obj)]
-        jobs.append((cmd, src.name))
-    obj = work / f"{module}.o"
-    objects.append(obj)
-    jobs.append(
-        (
-            [cc, *_CFLAGS, "-I", py_include, "-c", str(work / f"{module}.c"), "-o", str(obj)],
-            "cffi module",
-        )
-    )
-    # Compile in parallel: the Python.h translation unit dominates build time.
-    procs: list[tuple[subprocess.Popen[str], str]] = []
     try:
-        for cmd, what in jobs:
-            procs.append((_start(cmd), what))
-    except UserError:  # none left running behind the error
-        for p, _ in procs:
-            p.kill()
-            p.communicate()
-        raise
-    for p, what in procs:
-        _, err = p.communicate()
-        if p.returncode != 0:
-            msg, file, line, col = _first_error(err)
-            raise UserError(
-                f"C compiler failed on {what}: {msg}", file=file or what, line=line, col=col
+        (work / "ss_host.c").write_text(host)
+        from cffi import FFI  # only to build: a cached library needs no cffi module
+
+        ffi = FFI()
+        ffi.cdef(cdef)
+        ffi.set_source(module, "#include <stddef.h>\n#include <stdint.h>\n" + cdef)
+        with contextlib.redirect_stdout(io.StringIO()):  # cffi prints "generating ..."
+            ffi.emit_c_code(str(work / f"{module}.c"))
+
+        py_include = sysconfig.get_paths()["include"]
+        objects: list[Path] = []
+        jobs: list[tuple[list[str], str]] = []
+        for src in [*map(Path, c_files), work / "ss_host.c"]:
+            obj = work / (src.stem + f".{len(objects)}.o")
+            objects.append(obj)
+            cmd = [cc, "-std=c99", *_CFLAGS, "-I", str(include_dir), "-c", str(src), "-o", str(obj)]
+            jobs.append((cmd, src.name))
+        obj = work / f"{module}.o"
+        objects.append(obj)
+        jobs.append(
+            (
+                [cc, *_CFLAGS, "-I", py_include, "-c", str(work / f"{module}.c"), "-o", str(obj)],
+                "cffi module",
             )
-    tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
-    _run([cc, *_LDFLAGS, *map(str, objects), "-lm", "-o", str(tmp)], "link")
-    tmp.replace(target)  # atomic: a concurrent loader never sees half a library
-    return target
+        )
+        # Compile in parallel: the Python.h translation unit dominates build time.
+        procs: list[tuple[subprocess.Popen[str], str]] = []
+        try:
+            for cmd, what in jobs:
+                procs.append((_start(cmd), what))
+        except UserError:  # none left running behind the error
+            for p, _ in procs:
+                p.kill()
+                p.communicate()
+            raise
+        for p, what in procs:
+            _, err = p.communicate()
+            if p.returncode != 0:
+                msg, file, line, col = _first_error(err)
+                raise UserError(
+                    f"C compiler failed on {what}: {msg}", file=file or what, line=line, col=col
+                )
+        tmp = target.with_name(f"{target.name}.{os.getpid()}.tmp")
+        _run([cc, *_LDFLAGS, *map(str, objects), "-lm", "-o", str(tmp)], "link")
+        tmp.replace(target)  # atomic: a concurrent loader never sees half a library
+        return target
+    finally:  # its C and objects: the library is the build's one product
+        shutil.rmtree(work, ignore_errors=True)

@@ -22,7 +22,7 @@ from harness import BOOLS, I64_MAX, I64_MIN, INPUTS, INTS, REALS, make_trace, or
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from monitors.backends.build import build_library
+from monitors.backends.build import build_library, host_source
 from monitors.backends.c99 import generate, write_c
 from monitors.backends.load import compile_spec, load_monitor
 from monitors.errors import UserError
@@ -343,6 +343,14 @@ def test_a_missing_or_unrunnable_compiler_is_one_clear_error(tmp_path, monkeypat
     assert e.value.hint and "CC" in e.value.hint
 
 
+def test_a_build_leaves_its_library_and_not_its_work(tmp_path) -> None:
+    # compile -o DIR left the cffi module's C and every object file in DIR
+    spec = make_spec([parse_formula("Y b0")])
+    c_path, _ = write_c(spec, tmp_path / "src")
+    lib = build_library(spec, [c_path], tmp_path / "src", tmp_path, reset=True, reset_each=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([lib.name, "src"])
+
+
 # ------------------------------------------------------------------ processes, names, linking
 
 
@@ -507,7 +515,8 @@ def assert_hard_real_time_c(spec: MonitorSpec, tmp_path: Path) -> None:
 def test_host_shim_is_strict_c99(tmp_path) -> None:
     spec = make_spec(RICH)
     mon = compile_spec(spec, tmp_path)
-    shim = next(tmp_path.glob("*.build/ss_host.c"))
+    shim = tmp_path / "ss_host.c"  # the build's own copy is removed with its work
+    shim.write_text(host_source(spec, reset=True, reset_each=True))
     r = subprocess.run(
         ["cc", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-fsyntax-only", str(shim)],
         capture_output=True,
