@@ -677,6 +677,10 @@ def _row_file(path: Path, budget: Budget) -> pa.Table | None:
         return read_file(path, BAGS, budget, "bags table")
     except FileNotFoundError:
         raise
+    except PermissionError as e:  # another user's: no sign of a power loss, never removed
+        raise UserError(
+            f"cannot read it: {e.strerror or 'Permission denied'}", file=_shown(path)
+        ) from None
     except (pa.ArrowException, OSError) as e:
         if ours and _cut(path):
             return None

@@ -9,6 +9,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -299,3 +300,35 @@ def test_a_damaged_row_is_removed_through_no_link(tmp_path):
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "robot=zz: a link" in lines[0], run.stderr
     assert kept.read_bytes() == b"not this dataset's"
+
+
+def test_a_row_the_reader_may_not_read_is_not_taken_for_a_power_loss(tmp_path):
+    # An unreadable row (another user's dataset, mode 600) was called "empty or cut
+    # short, as a power loss leaves it", with the hint to run again: that run would
+    # take it for damage. It is one line saying why it cannot be read.
+    root, cfg, ds, row = _one_row_damaged(tmp_path)
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))  # the damaged row replayed again
+    # pytest's own directories are root's alone: the dataset is copied where all may look
+    pub = Path(tempfile.mkdtemp(prefix="ss-fleet-unreadable-"))
+    try:
+        shown = pub / "ds"
+        shutil.copytree(ds, shown)
+        pub.chmod(0o755)
+        row = shown / row.relative_to(ds)
+        for d in shown.rglob("*"):
+            d.chmod(0o755 if d.is_dir() else (0o600 if d == row else 0o644))
+        _report_as_nobody(shown, row)
+    finally:
+        shutil.rmtree(pub)
+
+
+def _report_as_nobody(ds: Path, row: Path) -> None:
+    r = subprocess.run(
+        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", sys.executable, "-m",
+         "supervisor", "fleet", "report", str(ds), "-o", "/dev/null", "--quiet"],
+        capture_output=True, text=True, timeout=300, env={**os.environ, "HOME": "/nonexistent"},
+    )  # fmt: skip
+    assert r.returncode == 1, (r.returncode, r.stderr)
+    said = r.stderr.strip().splitlines()
+    assert len(said) == 1 and str(row) in said[0] and "Permission denied" in said[0], r.stderr
+    assert "power loss" not in said[0], r.stderr
