@@ -192,19 +192,18 @@ class Sqlite(Source):
             if page < 512 or page & (page - 1):
                 raise UserError(f"not an sqlite3 file (page size {size})", file=self.label)
             pages = os.fstat(f.fileno()).st_size // page
-            room = f"copy the damaged {self.path.name}", pages * page
-            with temp_room(*room):
+            with temp_room(f"copy the damaged {self.path.name}", pages * page):
                 fd, name = tempfile.mkstemp(suffix=".db3")
-            self._tmp = Path(name)  # removed by _drop, whole or not
-            with temp_room(*room), os.fdopen(fd, "wb") as out:
-                out.write(head[:28] + struct.pack(">I", pages) + head[32:])
-                left = pages * page - 100
-                while left > 0:
-                    block = f.read(min(left, 1 << 20))
-                    if not block:
-                        break
-                    out.write(block)
-                    left -= len(block)
+                self._tmp = Path(name)  # removed by _drop, whole or not
+                with os.fdopen(fd, "wb") as out:
+                    out.write(head[:28] + struct.pack(">I", pages) + head[32:])
+                    left = pages * page - 100
+                    while left > 0:
+                        block = f.read(min(left, 1 << 20))
+                        if not block:
+                            break
+                        out.write(block)
+                        left -= len(block)
         try:
             # Tables and indexes whose first page is lost make sqlite refuse the whole
             # schema: the copy forgets them, so that what is present reads.

@@ -188,24 +188,24 @@ def inflate_file(path: Path, bounds: Bounds) -> Path:
         limit = int(bounds.ratio * max(size, 1))
         _zstd_whole(f, size)
         f.seek(0)
-        with temp_room(f"inflate {path.name}", limit):
+        with temp_room(f"inflate {path.name}", limit):  # mkstemp and the writes
             fd, name = tempfile.mkstemp(suffix=path.suffixes[-2] if len(path.suffixes) > 1 else "")
-        out_path = Path(name)
-        try:
-            with temp_room(f"inflate {path.name}", limit), os.fdopen(fd, "wb") as out:
-                reader = zstandard.ZstdDecompressor().stream_reader(f, read_across_frames=True)
-                total = 0
-                while block := reader.read(min(_BLOCK, limit + 1 - total)):
-                    total += len(block)
-                    if total > limit:
-                        raise Damage(f"inflates to more than {limit} bytes ({bounds.says()})")
-                    out.write(block)
-        except zstandard.ZstdError as e:
-            out_path.unlink(missing_ok=True)
-            raise Damage(f"damaged: the zstd data does not decompress ({e})") from None
-        except BaseException:
-            out_path.unlink(missing_ok=True)
-            raise
+            out_path = Path(name)
+            try:
+                with os.fdopen(fd, "wb") as out:
+                    reader = zstandard.ZstdDecompressor().stream_reader(f, read_across_frames=True)
+                    total = 0
+                    while block := reader.read(min(_BLOCK, limit + 1 - total)):
+                        total += len(block)
+                        if total > limit:
+                            raise Damage(f"inflates to more than {limit} bytes ({bounds.says()})")
+                        out.write(block)
+            except zstandard.ZstdError as e:
+                out_path.unlink(missing_ok=True)
+                raise Damage(f"damaged: the zstd data does not decompress ({e})") from None
+            except BaseException:
+                out_path.unlink(missing_ok=True)
+                raise
     return out_path
 
 
