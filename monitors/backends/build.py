@@ -336,8 +336,11 @@ def building(where: Path) -> Iterator[None]:
     try:
         yield
     except OSError as e:
+        # mkdir of a path that is a file says "File exists": the user would look for a
+        # file to delete, not for the directory they meant
+        why = "not a directory" if isinstance(e, FileExistsError) else e.strerror or e
         raise UserError(
-            f"cannot build the monitor here: {e.strerror or e}",
+            f"cannot build the monitor here: {why}",
             file=str(where),
             hint="TMPDIR, --build-dir or -o: a directory with room that this user can write",
         ) from None

@@ -138,6 +138,20 @@ def test_compile_writes_sources_library_manifest(tmp_path, cli_main):
     ]
 
 
+@pytest.mark.parametrize("target", ["/dev/null", "a-file"])
+def test_compile_into_a_file_says_it_is_not_a_directory(tmp_path, cli_main, target):
+    """It said "File exists", which sent the user looking for a file to delete."""
+    out = Path(target) if target.startswith("/") else tmp_path / target
+    if not out.exists():
+        out.write_text("")
+    r = cli_main("compile", SROBOT, "-o", out)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert r.stderr.strip().splitlines() == [
+        f"{out}: cannot build the monitor here: not a directory"
+        " (hint: TMPDIR, --build-dir or -o: a directory with room that this user can write)"
+    ]
+
+
 @pytest.mark.parametrize(
     ("edit", "line", "needle"),
     [

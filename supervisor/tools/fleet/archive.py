@@ -132,7 +132,13 @@ def _expanded(arg: str) -> list[tuple[str, str]]:
             head.append(part)
         root = str(Path(*head)) if head else "."
         return [(root, m) for m in sorted(_glob(root, Path(arg).parts[len(head) :]))]
-    return [(arg, arg)] if os.path.exists(arg) else []
+    try:
+        os.stat(arg)
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    except OSError as e:  # there, but not for this user (os.path.exists says "no")
+        raise UserError(f"cannot read it: {e.strerror}", file=printable(arg)) from None
+    return [(arg, arg)]
 
 
 def _glob(root: str, parts: tuple[str, ...]) -> list[str]:

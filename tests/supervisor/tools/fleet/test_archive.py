@@ -158,12 +158,37 @@ def test_a_glob_as_deep_as_the_bound_is_an_error(tmp_path):
         list_archive([str(tmp_path / "fleet" / "**" / "*.mcap")])
 
 
-def test_a_directory_that_cannot_be_listed_is_an_error_not_a_silent_skip():
-    """Run as an unprivileged user (root lists any directory): its bags were missing
-    from the run without a word."""
-    import shutil
+def _listed_as_nobody(archive: Path) -> str:
+    """What ``list_archive([archive])`` says run as an unprivileged user (root reads
+    any directory): the count of bags, or the UserError's line."""
     import subprocess
     import sys
+
+    as_user = (
+        [] if os.geteuid() else ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
+    )
+    code = (
+        "from monitors.errors import UserError\n"
+        "from supervisor.tools.fleet.archive import list_archive\n"
+        "try:\n"
+        f"    print(len(list_archive([{str(archive)!r}])))\n"
+        "except UserError as e:\n"
+        "    print(e)\n"
+    )
+    run = subprocess.run(
+        [*as_user, sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=Path(__file__).parents[4],
+    )
+    assert run.returncode == 0, run.stderr
+    return run.stdout
+
+
+def test_a_directory_that_cannot_be_listed_is_an_error_not_a_silent_skip():
+    """Its bags were missing from the run without a word."""
+    import shutil
     import tempfile
 
     top = Path(tempfile.mkdtemp(dir="/tmp"))  # reachable by the unprivileged user
@@ -175,31 +200,27 @@ def test_a_directory_that_cannot_be_listed_is_an_error_not_a_silent_skip():
             d.chmod(0o755)
         (top / "fleet" / "r2").chmod(0o755)
         (top / "fleet" / "r2" / "closed").chmod(0o000)
-        as_user = (
-            [] if os.geteuid() else ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups"]
-        )
-        code = (
-            "import sys\n"
-            "from monitors.errors import UserError\n"
-            "from supervisor.tools.fleet.archive import list_archive\n"
-            "try:\n"
-            f"    print(len(list_archive([{str(top / 'fleet')!r}])))\n"
-            "except UserError as e:\n"
-            "    print(e)\n"
-        )
-        run = subprocess.run(
-            [*as_user, sys.executable, "-c", code],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            cwd=Path(__file__).parents[4],
-        )
-        assert run.returncode == 0, run.stderr
-        assert "cannot list: Permission denied" in run.stdout and "r2/closed" in run.stdout, (
-            run.stdout
-        )
+        said = _listed_as_nobody(top / "fleet")
+        assert "cannot list: Permission denied" in said and "r2/closed" in said, said
     finally:
         (top / "fleet" / "r2" / "closed").chmod(0o755)
+        shutil.rmtree(top)
+
+
+def test_an_archive_behind_a_closed_directory_is_called_unreadable_not_missing():
+    """It was "no such directory, bag or match": the user looked for a typo in a path
+    that exists."""
+    import shutil
+    import tempfile
+
+    top = Path(tempfile.mkdtemp(dir="/tmp"))
+    try:
+        touch(top / "fleet" / "r1" / "b" / "a.mcap")
+        top.chmod(0o700)  # root's: the unprivileged user cannot look inside
+        said = _listed_as_nobody(top / "fleet" / "r1")
+        assert "r1: cannot read it: Permission denied" in said, said
+        assert "no such" not in said
+    finally:
         shutil.rmtree(top)
 
 
