@@ -14,6 +14,7 @@ import gzip
 import json
 import os
 import re
+import stat
 import sys
 import zlib
 from collections.abc import Iterable, Iterator
@@ -50,16 +51,24 @@ class LogLines:
         self.path = path
         self.damage: str | None = None
         try:
-            self._file: IO[bytes] = (
-                gzip.open(path, "rb") if path.endswith(".gz") else open(path, "rb")  # noqa: SIM115
-            )
+            # O_NONBLOCK: a FIFO opens at once, to be refused, where a plain open waits
+            # for a writer (and a log is opened more than once: its first line, its
+            # chain, its records); on a regular file the flag changes nothing
+            fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
         except OSError as e:
             raise UserError(f"cannot read log: {e.strerror or e}", file=path) from e
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise UserError("cannot read log: not a regular file", file=path)
+        self._raw = os.fdopen(fd, "rb")
+        self._file: IO[bytes] = (
+            gzip.GzipFile(fileobj=self._raw) if path.endswith(".gz") else self._raw
+        )
 
     def __iter__(self) -> Iterator[bytes]:
         total = n = 0
         cap = MAX_INFLATED if self.path.endswith(".gz") else None
-        with self._file as f:
+        with self._raw, self._file as f:  # a GzipFile leaves its file open
             while True:
                 try:
                     line = f.readline(MAX_LINE + 1)

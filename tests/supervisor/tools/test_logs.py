@@ -225,3 +225,29 @@ def test_a_value_just_over_a_threshold_still_reads_over_it() -> None:
     assert number(1.0000000001) == "1.0000000001"  # a double keeps a double's digits
     assert number(0.800000011920929) == "0.8" and number(81.0) == "81.0"
     assert number(float("nan")) == "nan" and number(1e300) == "1e+300"
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["logs"], ["logs", "--verify"], ["logs", "--follow"], ["report", "-o", "page.html"]],
+    ids=["logs", "verify", "follow", "report"],
+)
+def test_a_fifo_is_refused_in_one_line_not_waited_on(tmp_path: Path, argv: list[str]) -> None:
+    """A log is read more than once (its first line, its chain, its records): a FIFO
+    or a device held each reader open for a writer that never came."""
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "v.log"
+    os.mkfifo(fifo)
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", argv[0], str(fifo), *argv[1:]],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert run.returncode == 1, run.stdout + run.stderr
+    said = [s for s in run.stderr.splitlines() if "start-up cache" not in s]
+    assert said == [f"{fifo}: cannot read log: not a regular file"], run.stderr
