@@ -61,8 +61,24 @@ _PRUNED = ".pruned-"
 _SIDES = (".sha256", ".lock")
 
 
+_said: set[str] = set()  # each warning once per process
+_quiet = False
+
+
+def quiet() -> None:
+    """No warning from this process: a fleet replay's workers, whose command says
+    the cache's warnings once for all of them (fleet/command.py)."""
+    global _quiet
+    _quiet = True
+
+
 def _warn(text: str) -> None:
-    print(f"safety-supervisor: WARNING: start-up cache: {text}", file=sys.stderr, flush=True)
+    if _quiet or text in _said:
+        return
+    _said.add(text)
+    # stderr on a full disk: the warning is lost, the command goes on
+    with contextlib.suppress(OSError):
+        print(f"safety-supervisor: WARNING: start-up cache: {text}", file=sys.stderr, flush=True)
 
 
 def _ours(st: os.stat_result, kind: int) -> bool:

@@ -464,12 +464,18 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(sys, name) is None:
             setattr(sys, name, open(os.devnull, mode))  # noqa: SIM115 - for the process
     out = _Stdout(sys.stdout)
+    err = _Stderr(sys.stderr)
     sys.stdout = out  # type: ignore[assignment] - a TextIO in all but name
+    sys.stderr = err  # type: ignore[assignment]
     try:
         return _main(argv, out)
     finally:
         if sys.stdout is out:
             sys.stdout = out.stream
+        if sys.stderr is err:
+            sys.stderr = err.stream
+        if err.failed:  # what it still holds would fail the interpreter's flush at exit
+            os.dup2(os.open(os.devnull, os.O_WRONLY), err.stream.fileno())
 
 
 class _Stdout:
@@ -496,6 +502,25 @@ class _Stdout:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.stream, name)
+
+
+class _Stderr(_Stdout):
+    """sys.stderr, where a write that fails (a full disk under a redirect) is dropped:
+    there is nowhere left to say so, and a warning that cannot be shown must not
+    change what the command did or its exit code."""
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except OSError:
+            self.failed = True
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except OSError:
+            self.failed = True
 
 
 def _main(argv: list[str] | None, out: _Stdout) -> int:

@@ -355,6 +355,26 @@ def test_a_closed_stderr_changes_no_exit_code(command, code) -> None:
 
 
 @pytest.mark.parametrize(
+    ("command", "code"),
+    [(["replay", str(SROBOT), "recorded.jsonl", "--quiet"], 0), (["check", "nothing.yaml"], 1)],
+)
+def test_stderr_on_a_full_disk_changes_no_exit_code(tmp_path, command, code) -> None:
+    # A warning (here the start-up cache's: XDG_CACHE_HOME under a file) or an error line
+    # written to a full stderr raised in the middle of the command: a replay that
+    # succeeded ended in exit 1 or 3.
+    (tmp_path / "a-file").write_text("")
+    (tmp_path / "recorded.jsonl").write_text('{"t_ns": 0, "name": "classifier", "value": 0}\n')
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "a-file" / "cache")}
+    env.pop("STATE_DIRECTORY", None)
+    with open("/dev/full", "w") as full:
+        r = subprocess.run(
+            [sys.executable, "-m", "supervisor", *command], stdout=subprocess.PIPE, stderr=full,
+            text=True, cwd=tmp_path, env=env, timeout=300,
+        )  # fmt: skip
+    assert r.returncode == code, (r.returncode, r.stdout)
+
+
+@pytest.mark.parametrize(
     ("stdin", "says"), [("<&-", "no requirement"), ("</dev/zero", "more than")]
 )
 def test_formalize_reads_a_bounded_stdin(stdin, says) -> None:

@@ -125,6 +125,7 @@ def _fleet(args: argparse.Namespace) -> int:
         from supervisor.tools.fleet.report import cmd_report
 
         return cmd_report(args)
+    from supervisor.cache import Cache
     from supervisor.tools.fleet.dataset import Dataset
     from supervisor.tools.fleet.engine import LocalEngine, RayEngine, import_ray
     from supervisor.tools.replay.command import checked_namespace
@@ -144,6 +145,10 @@ def _fleet(args: argparse.Namespace) -> int:
         else LocalEngine(args.jobs, Path(args.output))
     )
     namespace = checked_namespace(args.namespace, "fleet replay")
+    # the start-up cache the local workers share, its warnings said here once: they keep
+    # quiet (warm.py)
+    if (cache := Cache.open_user()) is not None:
+        cache.close()
     # what an earlier run finished, read (nothing made yet) before the workers start:
     # they take it at their start, while this process compiles the config
     # (a power loss's damaged rows are left out of it: those bags run again)

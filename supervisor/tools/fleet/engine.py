@@ -156,7 +156,9 @@ def _warm(configs: tuple[str, ...] = ()) -> tuple[int, list[str | ConfigError]]:
     loaded), while the parent lists the archive (``LocalEngine.start``): the worker's
     pid and each config's identity or error."""
     import supervisor.tools.replay.session  # noqa: F401 - imported for the tasks
+    from supervisor.cache import quiet
 
+    quiet()  # the command says the cache's warnings once (command.py)
     return os.getpid(), [compile_config(c) for c in configs]
 
 
@@ -483,6 +485,9 @@ def _run_ray(tasks: list[BagTask], done: Collection[str]) -> bytes:
     1.5 ms a bag, a seventh of a small bag's replay (docs/BENCHMARKS.md, "Fleet").
     ``_ray_results`` unpickles them: what Ray would have unpickled, from the same
     workers."""
+    from supervisor.cache import quiet
+
+    quiet()  # a worker Ray started again after a kill runs no ``_warm`` first
     return pickle.dumps([_one(task, done) for task in tasks], protocol=pickle.HIGHEST_PROTOCOL)
 
 

@@ -13,6 +13,7 @@ import contextlib
 # the modules a task runs: engine's ``_run`` and replay's session
 import supervisor.tools.fleet.engine  # noqa: F401
 import supervisor.tools.replay.session  # noqa: F401
+from supervisor.cache import quiet
 
 
 def warm() -> None:
@@ -32,6 +33,8 @@ def warm() -> None:
     parse_formula("H x")
 
 
+# the workers forked from here say nothing of the cache: the command says it once
+quiet()
 # a failure here is not the run's: a worker then does the same itself and says why
 with contextlib.suppress(Exception):
     warm()

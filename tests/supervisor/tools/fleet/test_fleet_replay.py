@@ -644,3 +644,30 @@ def test_two_copies_of_a_bag_in_one_run_are_replayed_once(tmp_path):
     assert shas == 1  # each content read once per config
     again = fleet(cfg, root, "-o", ds, "--jobs", "2", ok=(0,))
     assert "0 bags (0 read, 0 skipped, 0 damaged, 0 failed), 3 done before" in again.stdout
+
+
+def test_a_cache_that_cannot_be_used_is_said_once_and_a_full_stderr_changes_nothing(tmp_path):
+    """Every worker (and the fork server) said the start-up cache's warning, and with
+    stderr on a full disk the first worker's failed write ended the run (exit 3)."""
+    root = tmp_path / "fleet"
+    for i in range(3):
+        write_bag(root / "robot-a" / f"b{i}", messages(i, 300))
+    cfg = config(tmp_path)
+    (tmp_path / "a-file").write_text("")
+    env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "a-file" / "cache")}
+    env.pop("STATE_DIRECTORY", None)
+    argv = [sys.executable, "-m", "supervisor", "fleet", "replay", str(cfg), str(root)]
+    run = subprocess.run(
+        [*argv, "-o", str(tmp_path / "ds1"), "--jobs", "2"],
+        capture_output=True, text=True, timeout=300, env=env,
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    said = [s for s in run.stderr.splitlines() if "start-up cache" in s]
+    assert len(said) == 1 and "a-file" in said[0], run.stderr
+    with open("/dev/full", "w") as full:
+        run = subprocess.run(
+            [*argv, "-o", str(tmp_path / "ds2"), "--jobs", "2"],
+            stdout=subprocess.PIPE, stderr=full, text=True, timeout=300, env=env,
+        )  # fmt: skip
+    assert run.returncode == 0, run.stdout
+    assert "3 bags (3 read" in run.stdout
