@@ -514,17 +514,19 @@ class RayEngine:
     def start(
         self, done: Collection[str], tasks: int | None = None, configs: tuple[str, ...] = ()
     ) -> None:
-        """Join (or start) the cluster now, and have a worker per CPU (at most one per
-        task) compile ``configs`` (``_warm``): the workers start while this process
-        lists the archive, and this process compiles nothing, as with
-        ``LocalEngine.start`` (docs/BENCHMARKS.md, "Fleet").  ``checked`` gives the
-        first worker's verdict."""
+        """Join (or start) the cluster now, and have one worker compile ``configs``
+        (``_warm``) while this process lists the archive: this process compiles
+        nothing, as with ``LocalEngine.start`` (docs/BENCHMARKS.md, "Fleet").
+        ``checked`` gives its verdict.  One task, not one per CPU: the raylet starts a
+        worker for a lease and prestarts more for its backlog, and two leases at once
+        on a node with no idle worker of the job started a worker more than the CPUs,
+        left idle (docs/BENCHMARKS.md, "Fleet"); the other workers start with the
+        first batches."""
         if tasks == 0 or not configs:
             return
         ray = self._connect()
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
         warm = ray.remote(num_cpus=1, max_retries=ATTEMPTS - 1)(_warm)
-        self.warm = [warm.remote(configs) for _ in range(min(cpus, tasks or cpus))]
+        self.warm = [warm.remote(configs)]
 
     def checked(self) -> list[str] | None:
         """The identities of the configs given to ``start``, as a started worker

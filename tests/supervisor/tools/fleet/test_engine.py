@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -130,11 +131,22 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@dataclass(frozen=True)
+class Head:
+    address: str
+    temp: Path  # its sessions' logs are here
+
+
 @pytest.fixture
-def ray_cluster() -> Iterator[str]:
+def ray_cluster(ray_head: Head) -> str:
+    return ray_head.address
+
+
+@pytest.fixture
+def ray_head() -> Iterator[Head]:
     """A one-node Ray cluster of 2 CPUs started as ``ray start --head`` would be on a
-    real head node; its address.  Stopped by its process group (never ``ray stop``,
-    which stops every cluster of this user)."""
+    real head node.  Stopped by its process group (never ``ray stop``, which stops
+    every cluster of this user)."""
     temp = tempfile.mkdtemp(prefix="ss-ray-")  # short: Ray's socket paths sit under it
     ray = Path(sys.executable).with_name("ray")
     proc = subprocess.Popen(
@@ -152,7 +164,7 @@ def ray_cluster() -> Iterator[str]:
                 address = m.group(1)
                 break
         assert address, "".join(said)
-        yield address
+        yield Head(address, Path(temp))
     finally:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=60)
@@ -415,6 +427,28 @@ def test_the_parent_leaves_the_configs_compile_to_the_pools_workers(tmp_path):
 
 @needs_ray
 @pytest.mark.slow
+@needs_ray
+@pytest.mark.slow
+def test_a_run_on_a_running_cluster_starts_no_more_workers_than_it_has_cpus(tmp_path, ray_head):
+    """A warm-up task per CPU, submitted at once to a raylet with no idle worker for the
+    job, started a third worker for every job after the cluster's first: it sat idle and
+    was stopped 1.5 s later, 0.6 s of CPU on a 2-CPU machine (docs/BENCHMARKS.md,
+    "Fleet").  The first job is not asked about: it takes the workers Ray starts for
+    the cluster's first driver."""
+    for i in range(4):
+        write_bag(tmp_path / "fleet" / "robot-a" / f"b{i}", messages(i, 300))
+    cfg = config(tmp_path)
+    for run in range(3):
+        fleet_ray(cfg, tmp_path / "fleet", "-o", tmp_path / f"ds{run}", "--address",
+                  ray_head.address)  # fmt: skip
+    logs = ray_head.temp / "session_latest" / "logs"
+    workers: dict[str, set[str]] = {}
+    for f in logs.glob("worker-*.out"):
+        _, _, job, pid = f.stem.split("-")
+        workers.setdefault(job, set()).add(pid)
+    assert {workers.get(job, set()).__len__() for job in ("02000000", "03000000")} == {2}, workers
+
+
 def test_on_a_ray_cluster_the_parent_leaves_the_configs_compile_to_its_workers(
     tmp_path, ray_cluster
 ):
