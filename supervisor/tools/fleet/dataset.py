@@ -52,7 +52,7 @@ import pyarrow.parquet as pq
 from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.files import sync_filesystem, write_whole
-from supervisor.tools.fleet.task import VIOLATIONS, BagResult
+from supervisor.tools.fleet.task import STATUSES, VIOLATIONS, BagResult
 
 BAGS = pa.schema(
     [
@@ -415,7 +415,8 @@ class Commits:
         dates = sorted(set(v.column("date").to_pylist()))
         for date in dates:
             part = v.filter(pc.equal(v["date"], date)).drop_columns(["date"])
-            _write(ds.violations_dir / f"robot={robot}" / f"date={date}" / f"{key}.parquet", part)
+            where = ds.violations_dir / f"robot={robot}" / f"date={date}"
+            _write(where / f"{key}.parquet", part, ds.root)
         if not dates:
             self._row(result, robot, fingerprint)
             return
@@ -449,7 +450,8 @@ class Commits:
             "finished_ts": time.time_ns(),
         }
         key = self.dataset.key(task.config_sha256, fingerprint)
-        _write(self.dataset.bags_dir / f"{key}.parquet", pa.Table.from_pylist([row], schema=BAGS))
+        row_table = pa.Table.from_pylist([row], schema=BAGS)
+        _write(self.dataset.bags_dir / f"{key}.parquet", row_table, self.dataset.root)
 
 
 def dataset_files(where: Path, levels: tuple[str, ...]) -> list[str]:
@@ -574,15 +576,32 @@ def _write_group(dataset: Dataset, group: list[tuple[BagResult, str, str]]) -> N
     commits.commit()
 
 
-def _write(path: Path, table: pa.Table) -> None:
-    """Whole, not yet durable (``Commits`` syncs)."""
+def _write(path: Path, table: pa.Table, root: Path) -> None:
+    """Whole, not yet durable (``Commits`` syncs), in the dataset ``root``."""
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        _directories(root, path.parent)
         write_whole(path, sink.getvalue().to_pybytes(), mode=0o644)
     except OSError as e:  # a full disk or a directory taken away during the run
         raise UserError(f"cannot write the dataset: {e.strerror or e}", file=str(path)) from None
+
+
+def _directories(root: Path, where: Path) -> None:
+    """``where`` made below ``root`` one directory at a time, none of them a link: a
+    dataset handed over with ``robot=R`` linked elsewhere had a resumed run write its
+    files there (mkdir and the write follow links)."""
+    path = root
+    for part in where.relative_to(root).parts:
+        path = path / part
+        with contextlib.suppress(FileExistsError):
+            os.mkdir(path)
+        mode = path.lstat().st_mode
+        what = _kind(mode)
+        if what is not None:
+            raise UserError(f"{what}, not a directory fleet replay writes", file=_shown(path))
+        if not stat.S_ISDIR(mode):
+            raise UserError("cannot write the dataset: not a directory", file=_shown(path))
 
 
 class Budget:
@@ -651,8 +670,27 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
     for batch in coded.iter_batches(BATCH_ROWS, columns=schema.names, use_threads=False):
         table = pa.Table.from_batches([batch]).select(schema.names)
         budget.take(_decoded(table), path)
+        for name in schema.names:
+            why = _bad_values(table[name])
+            if why is not None:
+                raise wrong(f"column {name} {why}")
         tables.append(table.cast(schema))
     return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def _bad_values(column: pa.ChunkedArray) -> str | None:
+    """What no file fleet replay writes holds: a null (its texts are "" when empty) or
+    text that is not UTF-8 (pyarrow reads a string column's bytes unchecked)."""
+    for chunk in column.chunks:
+        values = chunk.dictionary if pa.types.is_dictionary(chunk.type) else chunk
+        if chunk.null_count or values.null_count:
+            return "has null values"
+        if pa.types.is_string(values.type):
+            try:
+                values.validate(full=True)
+            except pa.ArrowInvalid:
+                return "has text that is not UTF-8"
+    return None
 
 
 def _decoded(table: pa.Table) -> int:
@@ -674,7 +712,11 @@ def _row_file(path: Path, budget: Budget) -> pa.Table | None:
     not a row is one error: not this dataset's."""
     ours = KEY.fullmatch(path.name) is not None
     try:
-        return read_file(path, BAGS, budget, "bags table")
+        table = read_file(path, BAGS, budget, "bags table")
+        why = _not_a_row(table) if table.num_rows else None
+        if why is not None:
+            raise UserError(f"not a fleet dataset's bags table ({why})", file=_shown(path))
+        return table
     except FileNotFoundError:
         raise
     except PermissionError as e:  # another user's: no sign of a power loss, never removed
@@ -687,6 +729,23 @@ def _row_file(path: Path, budget: Budget) -> pa.Table | None:
         raise UserError(
             f"not a fleet dataset's bags table ({one_line(e)})", file=_shown(path)
         ) from None
+
+
+def _not_a_row(table: pa.Table) -> str | None:
+    """What makes a file no row fleet replay writes: more than one row (a bag's row is
+    a file of its own), or values it never writes (a status of its own, a count below
+    zero, seconds not a finite count)."""
+    if table.num_rows != 1:
+        return f"{table.num_rows:,} rows in one bag's row file"
+    row = table.select(["status", "messages", "violations", "seconds"]).to_pylist()[0]
+    if row["status"] not in STATUSES:
+        return f"status {printable(str(row['status']))[:40]!r} is none of {', '.join(STATUSES)}"
+    for name in ("messages", "violations"):
+        if row[name] < 0:
+            return f"{name} is below zero"
+    if not 0 <= row["seconds"] < float("inf"):
+        return "seconds is not a finite count"
+    return None
 
 
 def one_line(e: BaseException) -> str:

@@ -671,3 +671,25 @@ def test_a_cache_that_cannot_be_used_is_said_once_and_a_full_stderr_changes_noth
         )  # fmt: skip
     assert run.returncode == 0, run.stdout
     assert "3 bags (3 read" in run.stdout
+
+
+def test_a_resumed_run_writes_nothing_through_a_link_planted_in_the_dataset(tmp_path):
+    """A dataset handed over with ``violations/robot=R`` linked elsewhere: the resumed
+    run wrote the replayed bags' files into the link's target, without a word."""
+    for i in range(2):
+        write_bag(tmp_path / "fleet" / "robot-a" / f"b{i}", messages(i, 1500))
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2", ok=(0,))
+    robot = ds / "violations" / "robot=robot-a"
+    assert list(robot.rglob("*.parquet"))  # the bags have violations to write again
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.rmtree(robot)
+    robot.symlink_to(elsewhere)
+    for row in (ds / "bags").glob("*.parquet"):
+        row.unlink()  # as a run interrupted before its rows
+    run = fleet(cfg, tmp_path / "fleet", "-o", ds, "--jobs", "2", ok=(1,))
+    assert list(elsewhere.rglob("*")) == [], list(elsewhere.rglob("*"))
+    said = [s for s in run.stderr.splitlines() if s.strip()]
+    assert said == [f"{robot}: a link, not a directory fleet replay writes"], run.stderr
