@@ -10,6 +10,7 @@ import hashlib
 from collections.abc import Callable
 from datetime import UTC, datetime
 
+from monitors.untrusted import printable
 from supervisor.tools.fleet.summary import (
     MAX_DAYS,
     MAX_LISTED,
@@ -43,8 +44,10 @@ Link = Callable[[Violation], "str | None"]
 
 
 def e(x: object) -> str:
-    """Dataset text as HTML text, cut to ``MAX_TEXT`` characters."""
-    s = str(x)
+    """Dataset text as HTML text, its control and bidi characters shown escaped
+    (``\\x1b``, ``\\u202e``: a name written right to left looks like another), cut to
+    ``MAX_TEXT`` characters."""
+    s = printable(str(x))
     return _e(s if len(s) <= MAX_TEXT else s[: MAX_TEXT - 1] + "…")
 
 

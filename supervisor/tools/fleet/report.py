@@ -130,7 +130,10 @@ def _bag_pages(
     its URL relative to the fleet page; and a note for each bag without one."""
     from urllib.request import pathname2url
 
-    from supervisor.tools.fleet.archive import content_hash
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from supervisor.tools.fleet.archive import content_hash, fingerprint
 
     wanted: dict[tuple[str, str], str] = {}
     listed = [v for m in summary.maps for v in m.listed]
@@ -139,6 +142,13 @@ def _bag_pages(
             listed += vs
     for v in listed:
         wanted.setdefault((v.config_sha256, v.bag_sha256), v.bag)
+    # each listed bag's fingerprint as its row recorded it (its path, its files' names,
+    # sizes and times): a path whose files are not those is never read, so a dataset
+    # naming some other path (a disk's worth of bytes, a directory) chooses no reading
+    ids = summary.identities
+    rows = ids.filter(pc.is_in(ids["bag_sha256"], pa.array(sorted({d for _, d in wanted}))))
+    recorded = {(r["config_sha256"], r["bag_sha256"], r["bag"]): r["fingerprint"]
+                for r in rows.to_pylist()}  # fmt: skip
     try:
         where.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -155,9 +165,16 @@ def _bag_pages(
             no_config.add(sha)
             continue
         try:
-            same = content_hash(Path(bag)) == digest
+            known = fingerprint(Path(bag))[1] == recorded.get((sha, digest, bag))
+            same = known and content_hash(Path(bag)) == digest
         except OSError as e:
             notes.append(f"no page for {bag}: {e.strerror or e}")
+            continue
+        if not known:
+            notes.append(
+                f"no page for {bag}: its files are not the ones replayed "
+                "(their names, sizes or times changed, or the dataset has no row for it)"
+            )
             continue
         if not same:
             notes.append(f"no page for {bag}: its content is not the one replayed")

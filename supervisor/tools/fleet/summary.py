@@ -90,6 +90,9 @@ class Summary:
     not_read: list[tuple[str, str, str, str]]  # robot, bag, status, reason
     not_read_left: int
     changes: Changes | None = None
+    # the bags table's identity columns (bag, config_sha256, bag_sha256, fingerprint):
+    # what ``fleet report --bags`` checks a bag on disk against before reading it
+    identities: pa.Table | None = None
 
 
 def check_dataset(root: Path) -> None:
@@ -122,23 +125,25 @@ def summarize(root: Path, baseline: str | None) -> Summary:
     budget = Budget()  # the dataset's and the baseline's, all they decode
     bags = read_bags(root, budget)
     table = read_violations(root, budget)
-    configs = sorted(set(table.column("config_sha256").to_pylist()) | set(_configs(bags)))
+    configs = sorted(set(_configs(table)) | set(_configs(bags)))
     changes = None
     if baseline is not None:
         changes = _changes(root, table, bags, configs, baseline, budget)
     maps = _maps(table)
     statuses = {s: 0 for s in ("read", "skipped", "damaged", "failed")}
     per_robot: dict[str, dict[str, int]] = {}
-    not_read: list[tuple[str, str, str, str]] = []
-    for row in bags.select(["robot", "bag", "status", "reason"]).to_pylist():
-        status = str(row["status"])
-        statuses[status] = statuses.get(status, 0) + 1
-        robot = per_robot.setdefault(str(row["robot"] or ""), {})
-        robot[status] = robot.get(status, 0) + 1
-        if status != "read":
-            not_read.append((row["robot"] or "", row["bag"] or "", status, row["reason"] or ""))
-    not_read.sort()
-    messages = pc.sum(bags["messages"]).as_py() or 0
+    # counted by Arrow, not row by row: a Python object per row of a bags table of
+    # millions of rows took gigabytes past the decoding budget (``Budget``)
+    counts = bags.group_by(["robot", "status"]).aggregate([([], "count_all")])
+    for c in counts.sort_by([("robot", "ascending"), ("status", "ascending")]).to_pylist():
+        statuses[c["status"]] = statuses.get(c["status"], 0) + c["count_all"]
+        per_robot.setdefault(c["robot"], {})[c["status"]] = c["count_all"]
+    columns = ["robot", "bag", "status", "reason"]
+    others = bags.filter(pc.not_equal(bags["status"], "read")).select(columns)
+    order = [(c, "ascending") for c in columns]
+    not_read = [tuple(r.values()) for r in others.sort_by(order)[:MAX_REASONS].to_pylist()]
+    # summed as decimals: an int64 sum wraps past 2**63 without a word
+    messages = int(pc.sum(pc.cast(bags["messages"], pa.decimal128(38, 0))).as_py() or 0)
     return Summary(
         root,
         configs,
@@ -148,14 +153,16 @@ def summarize(root: Path, baseline: str | None) -> Summary:
         statuses,
         messages,
         dict(sorted(per_robot.items())),
-        not_read[:MAX_REASONS],
-        max(0, len(not_read) - MAX_REASONS),
+        not_read,  # type: ignore[arg-type] - four strings each
+        max(0, others.num_rows - MAX_REASONS),
         changes,
+        bags.select(["bag", "config_sha256", "bag_sha256", "fingerprint"]),
     )
 
 
-def _configs(bags: pa.Table) -> list[str]:
-    return [c for c in bags.column("config_sha256").to_pylist() if c]
+def _configs(table: pa.Table) -> list[str]:
+    """The configs' hashes a table names, each once."""
+    return [c for c in pc.unique(table.column("config_sha256")).to_pylist() if c]
 
 
 def _per_bag(table: pa.Table, keys: list[str] | None = None) -> pa.Table:
@@ -347,7 +354,7 @@ def _per_requirement(table: pa.Table) -> dict[str, tuple[int, list[Violation]]]:
 
 
 def _one_config(root: Path, table: pa.Table, bags: pa.Table) -> str:
-    configs = sorted(set(table.column("config_sha256").to_pylist()) | set(_configs(bags)))
+    configs = sorted(set(_configs(table)) | set(_configs(bags)))
     if len(configs) != 1:
         raise UserError(
             f"holds {len(configs)} configs; a dataset compared with --baseline DIR holds one",

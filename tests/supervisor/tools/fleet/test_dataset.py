@@ -332,3 +332,76 @@ def _report_as_nobody(ds: Path, row: Path) -> None:
     said = r.stderr.strip().splitlines()
     assert len(said) == 1 and str(row) in said[0] and "Permission denied" in said[0], r.stderr
     assert "power loss" not in said[0], r.stderr
+
+
+def _tampered(ds: Path, table: str, column: str, value: object) -> Path:
+    """The first file of ``table`` with every value of ``column`` replaced by
+    ``value`` (None: null; bytes: raw bytes in the string column); the file."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    f = sorted(ds.glob("bags/*.parquet" if table == "bags" else "violations/*/*/*.parquet"))[0]
+    t = pq.read_table(f, partitioning=None)
+    at = t.schema.get_field_index(column)
+    if isinstance(value, bytes):  # pyarrow builds no such array checked: view its bytes
+        values = pa.array([value] * t.num_rows, pa.binary()).view(pa.string())
+    else:
+        values = pa.array([value] * t.num_rows, t.schema.field(at).type)
+    pq.write_table(t.set_column(at, column, values), f)
+    return f
+
+
+@pytest.mark.parametrize(
+    "table, column, value, said",
+    [
+        ("violations", "requirement", None, "column requirement has null values"),
+        ("violations", "config_sha256", None, "column config_sha256 has null values"),
+        ("violations", "bag", None, "column bag has null values"),
+        (
+            "violations",
+            "requirement",
+            b"r\xff\xfe",
+            "column requirement has text that is not UTF-8",
+        ),
+        ("bags", "robot", b"\xc3(", "column robot has text that is not UTF-8"),
+        ("bags", "status", None, "column status has null values"),
+        ("bags", "status", "weird", "status 'weird' is none of read, skipped, damaged, failed"),
+        ("bags", "messages", -1, "messages is below zero"),
+    ],
+)
+def test_nulls_and_text_not_utf8_are_one_line_naming_the_column(
+    tmp_path, table, column, value, said
+):
+    """fleet replay writes neither (its empty texts are ""); the page's sorting and
+    decoding of them ended in an internal error (exit 3), as report and as baseline."""
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path, limit=2.0)
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    fleet(cfg, root, "-o", good, "--jobs", "1", ok=(0,))
+    shutil.copytree(good, bad)
+    f = _tampered(bad, table, column, value)
+    for args in ([str(bad)], [str(good), "--baseline", str(bad)]):
+        run = subprocess.run(
+            [sys.executable, "-m", "supervisor", "fleet", "report", *args, "-o",
+             str(tmp_path / "f.html"), "--quiet"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        lines = [line for line in run.stderr.splitlines() if line.strip()]
+        assert run.returncode == 1 and len(lines) == 1, run.stderr
+        assert lines[0].startswith(f"{f}: ") and said in lines[0], lines[0]
+
+
+def test_compares_table_shows_the_datasets_text_escaped_and_cut(tmp_path):
+    """A requirement with a terminal's escapes (a window title, clear screen) and 5,000
+    characters went to the terminal as it was."""
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    a, b = config(tmp_path, "a.yaml", limit=2.0), config(tmp_path, "b.yaml", limit=2.3)
+    ds = tmp_path / "ds"
+    fleet(a, root, "-o", ds, "--compare", b, "--jobs", "1", ok=(0,))
+    _tampered(ds, "violations", "requirement", "\x1b]0;pwned\x07\x1b[2J" + "r" * 5000)
+    run = fleet(a, root, "-o", ds, "--compare", b, "--jobs", "1", ok=(0,))
+    assert "\x1b" not in run.stdout and "\x07" not in run.stdout
+    assert "\\x1b]0;pwned\\x07\\x1b[2J" in run.stdout
+    assert max(len(line) for line in run.stdout.splitlines()) < 300, run.stdout

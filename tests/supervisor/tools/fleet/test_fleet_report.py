@@ -196,7 +196,9 @@ def test_new_and_lost_against_a_baseline_as_duckdb_finds_them(fleet, tmp_path):
 
 HOSTILE_ROBOT = "<b id=pwn1>robot"
 HOSTILE_REQ = "<img src=x onerror=alert(1)>"
-HOSTILE_BAG = "</td><script>alert(2)</script>"
+# a bidi override and a terminal's escape: shown as escapes, never acted on
+HOSTILE_BAG = "</td><script>alert(2)</script>\u202egpj.exe\x1b[2J"
+SHOWN_BAG = "</td><script>alert(2)</script>\\u202egpj.exe\\x1b[2J"
 
 
 def test_hostile_dataset_text_is_shown_as_text(fleet, tmp_path):
@@ -229,7 +231,8 @@ def test_hostile_dataset_text_is_shown_as_text(fleet, tmp_path):
         )
         assert section.get_attribute("data-requirement") == HOSTILE_REQ
         text = section.inner_text()
-        assert HOSTILE_REQ in text and HOSTILE_ROBOT in text and HOSTILE_BAG in text
+        assert HOSTILE_REQ in text and HOSTILE_ROBOT in text and SHOWN_BAG in text
+        assert "\u202e" not in out.read_text() and "\x1b" not in out.read_text()
         assert console == [] and requests == [out.as_uri()], (console, requests)
     finally:
         pw.stop()
@@ -298,12 +301,41 @@ def test_a_bag_changed_since_its_replay_gets_no_page(tmp_path):
     cfg = config(tmp_path)
     fleet_replay(cfg, tmp_path / "fleet", "-o", tmp_path / "ds")
     data = next(bag.glob("*.mcap"))
-    data.write_bytes(os.urandom(data.stat().st_size))
+    st = data.stat()
+    data.write_bytes(os.urandom(st.st_size))
+    os.utime(data, ns=(st.st_atime_ns, st.st_mtime_ns))  # its names, sizes, times as replayed
     out = tmp_path / "f.html"
     report(tmp_path / "ds", "-o", out, "--bags", tmp_path / "pages", "--config", cfg)
     html = out.read_text()
     assert "its content is not the one replayed" in html
     assert not [a for t, a in elements(html) if t == "a"]
+    assert list((tmp_path / "pages").iterdir()) == []
+
+
+def test_a_dataset_naming_another_path_for_a_bag_chooses_no_reading(tmp_path):
+    """The dataset is anybody's file: a bag's path rewritten to name a directory of a
+    terabyte (sparse) had ``--bags`` hash it to the end, the command waiting without
+    end; the path's files are now checked against the row's fingerprint first."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from tests.supervisor.tools.replay.test_replay import config, messages, write_bag
+
+    write_bag(tmp_path / "fleet" / "robot-a" / "b1", messages(1, 600))
+    cfg = config(tmp_path)
+    ds = tmp_path / "ds"
+    fleet_replay(cfg, tmp_path / "fleet", "-o", ds)
+    huge = tmp_path / "huge"
+    huge.mkdir()
+    with open(huge / "b.mcap", "wb") as f:
+        f.truncate(1 << 40)
+    for f in [*ds.glob("bags/*.parquet"), *ds.glob("violations/*/*/*.parquet")]:
+        table = pq.read_table(f, partitioning=None)
+        at = table.schema.get_field_index("bag")
+        pq.write_table(table.set_column(at, "bag", pa.array([str(huge)] * table.num_rows)), f)
+    out = tmp_path / "f.html"
+    report(ds, "-o", out, "--bags", tmp_path / "pages", "--config", cfg)
+    assert "its files are not the ones replayed" in out.read_text()
     assert list((tmp_path / "pages").iterdir()) == []
 
 
