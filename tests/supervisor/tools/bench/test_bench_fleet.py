@@ -50,6 +50,7 @@ def test_a_small_fleet_bench_measures_each_run_and_resumes_without_reading_again
         assert all(_positive(r[k]) for k in ("wall_s", "rate", "cpu_s", "peak_worker_mb"))
     resume = got["resume"]
     assert resume["killed"]["killed"] and 0 < resume["finished_at_kill"] < 50
+    assert 1 <= resume["kills"] <= 3  # a kill after the last bag is tried again, sooner
     assert resume["read_again"] == 0 and resume["all_finished"] == 50
     assert f"{resume['finished_at_kill']} done before" in resume["resumed"]["summary"]
     for part in ("split", "split_mcap", "split_sqlite3"):
