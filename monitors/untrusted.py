@@ -79,6 +79,13 @@ def printable(text: str) -> str:
     return "".join(ch if ch.isprintable() else _escape(ch) for ch in text)
 
 
+def shown(text: str, limit: int) -> str:
+    """``text`` as ``printable`` shows it, cut to at most ``limit`` characters (the last
+    one an ellipsis when cut): untrusted text of a bounded width."""
+    line = printable(text)
+    return line if len(line) <= limit else line[: limit - 1] + "…"
+
+
 def _escape(ch: str) -> str:
     n = ord(ch)
     return f"\\x{n:02x}" if n < 0x100 else f"\\u{n:04x}" if n <= 0xFFFF else f"\\U{n:08x}"

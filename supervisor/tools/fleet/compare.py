@@ -11,7 +11,9 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from monitors.untrusted import printable
+from monitors.untrusted import shown
+
+MAX_CELL = 128  # characters of a table cell: a requirement id's most (config schema)
 
 
 @dataclass
@@ -97,7 +99,10 @@ def compare(violations: pa.Table, sha_a: str, sha_b: str, bags: set[str]) -> lis
 def lines(rows: list[Row]) -> list[str]:
     """The table for a terminal: the dataset's text escaped (a file anyone can hand
     over: docs/reference/faults.md, "Trust") and cut to a requirement id's length."""
-    rows = [replace(r, requirement=_cell(r.requirement), robot=_cell(r.robot)) for r in rows]
+    rows = [
+        replace(r, requirement=shown(r.requirement, MAX_CELL), robot=shown(r.robot, MAX_CELL))
+        for r in rows
+    ]
     width = max([len(r.requirement) for r in rows] + [11])
     rw = max([len(r.robot) for r in rows] + [5])
     out = [
@@ -110,11 +115,3 @@ def lines(rows: list[Row]) -> list[str]:
             f"{r.only_b:>7}  {r.both:>7}  {r.a_first}/{r.b_first}"
         )
     return out
-
-
-MAX_CELL = 128  # characters: a requirement id's most (a C identifier, config schema)
-
-
-def _cell(text: str) -> str:
-    shown = printable(text)
-    return shown if len(shown) <= MAX_CELL else shown[: MAX_CELL - 1] + "…"

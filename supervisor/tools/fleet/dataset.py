@@ -50,7 +50,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from monitors.errors import UserError
-from monitors.untrusted import printable
+from monitors.untrusted import printable, shown
 from supervisor.files import sync_filesystem, write_whole
 from supervisor.tools.fleet.task import STATUSES, VIOLATIONS, BagResult
 
@@ -739,7 +739,7 @@ def _not_a_row(table: pa.Table) -> str | None:
         return f"{table.num_rows:,} rows in one bag's row file"
     row = table.select(["status", "messages", "violations", "seconds"]).to_pylist()[0]
     if row["status"] not in STATUSES:
-        return f"status {printable(str(row['status']))[:40]!r} is none of {', '.join(STATUSES)}"
+        return f"status {shown(str(row['status']), 40)!r} is none of {', '.join(STATUSES)}"
     for name in ("messages", "violations"):
         if row[name] < 0:
             return f"{name} is below zero"

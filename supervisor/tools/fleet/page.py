@@ -10,7 +10,7 @@ import hashlib
 from collections.abc import Callable
 from datetime import UTC, datetime
 
-from monitors.untrusted import printable
+from monitors.untrusted import shown
 from supervisor.tools.fleet.summary import (
     MAX_DAYS,
     MAX_LISTED,
@@ -47,8 +47,7 @@ def e(x: object) -> str:
     """Dataset text as HTML text, its control and bidi characters shown escaped
     (``\\x1b``, ``\\u202e``: a name written right to left looks like another), cut to
     ``MAX_TEXT`` characters."""
-    s = printable(str(x))
-    return _e(s if len(s) <= MAX_TEXT else s[: MAX_TEXT - 1] + "…")
+    return _e(shown(str(x), MAX_TEXT))
 
 
 def render(s: Summary, link: Link, notes: list[str]) -> str:

@@ -20,6 +20,7 @@ from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet.compare import Row, compare
 from supervisor.tools.fleet.dataset import Budget, Dataset
+from supervisor.tools.fleet.task import STATUSES
 
 # What one page shows at most; the rest is counted ("N more").
 MAX_REQUIREMENTS = 60
@@ -130,7 +131,7 @@ def summarize(root: Path, baseline: str | None) -> Summary:
     if baseline is not None:
         changes = _changes(root, table, bags, configs, baseline, budget)
     maps = _maps(table)
-    statuses = {s: 0 for s in ("read", "skipped", "damaged", "failed")}
+    statuses = dict.fromkeys(STATUSES, 0)
     per_robot: dict[str, dict[str, int]] = {}
     # counted by Arrow, not row by row: a Python object per row of a bags table of
     # millions of rows took gigabytes past the decoding budget (``Budget``)

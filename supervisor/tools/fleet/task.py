@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from mitigations.violationlog.discard import DiscardingLog
 from monitors.errors import UserError
-from monitors.untrusted import printable
+from monitors.untrusted import shown
 from supervisor.tools.fleet.archive import content_hash
 
 # One row per violation; robot and date are the dataset's partitions (dataset.py).
@@ -269,5 +269,4 @@ def _json(inputs: Any) -> str:
 
 
 def _reason(text: str) -> str:
-    line = printable(" ".join(text.split()))
-    return line if len(line) <= MAX_REASON else line[: MAX_REASON - 1] + "…"
+    return shown(" ".join(text.split()), MAX_REASON)
