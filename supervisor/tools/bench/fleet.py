@@ -109,28 +109,42 @@ def _children(pid: int) -> dict[int, list[int]]:
 def _workers(pid: int, cluster: int | None = None) -> dict[int, int]:
     """The run's worker processes (a pool's, forked by its fork server; Ray's ``ray::``
     task workers) below ``pid``, or in the session of the running ``cluster`` (its
-    head's pid), each with its peak RSS so far in kB (VmHWM)."""
+    head's pid), each with its peak RSS so far in kB (VmHWM).  A worker's own child (its
+    ``cc --version``, between its fork and its exec) has the worker's command line, and
+    is not counted: a worker's parent is the fork server, or a Ray node's raylet."""
     children = _children(pid)
-    todo: list[tuple[int, bytes]] = [(pid, b"")]
-    found: list[tuple[int, bytes, bytes]] = []  # pid, command line, its parent's
+    parent_of = {c: p for p, cs in children.items() for c in cs}
+    todo = [pid]
+    below: list[int] = []
     while todo:
-        parent, parent_cmd = todo.pop()
-        for c in children.get(parent, []):
-            try:
-                cmd = Path(f"/proc/{c}/cmdline").read_bytes()
-            except OSError:
-                continue
-            todo.append((c, cmd))
-            found.append((c, cmd, parent_cmd))
+        for c in children.get(todo.pop(), []):
+            todo.append(c)
+            below.append(c)
     if cluster is not None:
-        for c in _session(cluster):
-            with contextlib.suppress(OSError):
-                found.append((c, Path(f"/proc/{c}/cmdline").read_bytes(), b""))
+        below += _session(cluster)
+    cmds: dict[int, bytes] = {}
+
+    def cmd(p: int) -> bytes:
+        if p not in cmds:
+            try:
+                cmds[p] = Path(f"/proc/{p}/cmdline").read_bytes()
+            except OSError:
+                cmds[p] = b""  # exited meanwhile
+        return cmds[p]
+
+    def server(p: int) -> bool:  # a fork server, not a process it forked
+        return b"forkserver" in cmd(p) and b"forkserver" not in cmd(parent_of.get(p, 0))
+
     out: dict[int, int] = {}
-    for c, cmd, parent_cmd in found:
-        pool = b"forkserver" in cmd and b"forkserver" in parent_cmd  # not the server
+    for c in below:
+        parent = parent_of.get(c, 0)
+        pool = b"forkserver" in cmd(c) and server(parent)
         # a Ray node's agents (ray::DashboardAgent, ray::RuntimeEnvAgent) run no task
-        ray = cmd.startswith(b"ray::") and b"Agent" not in cmd.split(b"\0")[0]
+        ray = (
+            cmd(c).startswith(b"ray::")
+            and b"Agent" not in cmd(c).split(b"\0")[0]
+            and not cmd(parent).startswith(b"ray::")
+        )
         if not (ray or pool):
             continue
         try:
@@ -535,6 +549,14 @@ def main(argv: list[str] | None = None) -> int:
         parser().error("--bags from 1 to 100000, --robots from 1 to --bags")
     if not 1 <= args.rounds <= 100:
         parser().error("--rounds from 1 to 100")
+    # each path checked before the archive is made: a bad one found after the runs
+    # lost them (a missing --tmp was a traceback)
+    if args.tmp is not None and not Path(args.tmp).is_dir():
+        parser().error(f"--tmp: not a directory: {args.tmp}")
+    if args.json is not None and not Path(args.json).resolve().parent.is_dir():
+        parser().error(f"--json: not a directory: {Path(args.json).parent}")
+    if args.config is not None and not Path(args.config).is_file():
+        parser().error(f"--config: no such file: {args.config}")
     config = Path(args.config) if args.config else data.example("srobot.yaml")
 
     def say(text: str) -> None:

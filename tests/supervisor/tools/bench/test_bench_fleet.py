@@ -155,3 +155,51 @@ def test_a_bench_interrupted_during_the_run_on_its_cluster_leaves_no_process(tmp
     assert "fleet: interrupted" in stderr
     assert not _session(head) and not _session(bench.pid)
     assert not list(tmp_path.glob("fleet-bench-*"))
+
+
+def _fork_and_sleep() -> int:
+    """A task that starts a child, as a worker starts ``cc --version``: between its fork
+    and its exec the child has the worker's command line."""
+    import time
+
+    pid = os.fork()
+    if pid == 0:
+        time.sleep(60)
+        os._exit(0)
+    return pid
+
+
+def test_a_workers_own_child_is_not_counted_as_a_worker():
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from supervisor.tools.bench.fleet import _workers
+
+    context = multiprocessing.get_context("forkserver")
+    with ProcessPoolExecutor(1, mp_context=context) as pool:
+        grandchild = pool.submit(_fork_and_sleep).result()
+        try:
+            found = _workers(os.getpid())
+            assert grandchild not in found
+            assert len(found) == 1, found
+        finally:
+            os.kill(grandchild, signal.SIGKILL)
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "said"),
+    [
+        ("--tmp", "missing", "--tmp: not a directory: "),
+        ("--json", "missing/fleet.json", "--json: not a directory: "),
+        ("--config", "missing.yaml", "--config: no such file: "),
+    ],
+)
+def test_a_bad_path_is_one_line_before_any_work(tmp_path, flag, value, said):
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor.tools.bench.fleet", "--bags", "2", "--robots", "1",
+         flag, str(tmp_path / value)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert run.returncode == 2, run.stderr
+    assert "Traceback" not in run.stderr
+    assert said in run.stderr.strip().splitlines()[-1], run.stderr
