@@ -30,6 +30,7 @@ not finished, and the next run says so in one line and replays it (``done``).
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import os
@@ -636,10 +637,42 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
     what the columns read store (``CODECS``).  A file of other columns, types,
     encodings or codecs: not this dataset's."""
 
+    with _opened(path) as source:
+        return _read(source, path, schema, budget, what)
+
+
+@contextlib.contextmanager
+def _opened(path: Path) -> Iterator[pa.NativeFile]:
+    """``path`` opened once, a regular file or an error: listed as one, a file can be
+    swapped for a FIFO (opening it waited for a writer for ever) or a link before it
+    is opened (``dataset_files`` looked at it by name)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW | os.O_CLOEXEC)
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            raise UserError("a link, not a file fleet replay writes", file=_shown(path)) from None
+        raise
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise UserError(
+                f"{_kind(mode) or 'a directory'}, not a file fleet replay writes",
+                file=_shown(path),
+            )
+        # the file this descriptor holds, whatever the name holds now
+        with pa.OSFile(f"/proc/self/fd/{fd}") as source:
+            yield source
+    finally:
+        os.close(fd)
+
+
+def _read(
+    source: pa.NativeFile, path: Path, schema: pa.Schema, budget: Budget, what: str
+) -> pa.Table:
     def wrong(why: str) -> UserError:
         return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
 
-    footer = pq.ParquetFile(path)
+    footer = pq.ParquetFile(source)
     found = footer.schema_arrow
     for f in schema:
         i = found.get_field_index(f.name)
@@ -663,9 +696,9 @@ def read_file(path: Path, schema: pa.Schema, budget: Budget, what: str) -> pa.Ta
                 raise wrong(f"column {column.path_in_schema} compressed as {column.compression}")
     # A page is read from its column chunk's bytes, which pyarrow keeps within the
     # file: so the chunks' sizes (the footer's word) are bounded by the file's.
-    budget.check(EXPANDS * min(stored, path.stat().st_size), path)
+    budget.check(EXPANDS * min(stored, source.size()), path)
     text = [f.name for f in schema if pa.types.is_string(f.type)]
-    coded = pq.ParquetFile(path, read_dictionary=text, metadata=meta)
+    coded = pq.ParquetFile(source, read_dictionary=text, metadata=meta)
     tables = []
     for batch in coded.iter_batches(BATCH_ROWS, columns=schema.names, use_threads=False):
         table = pa.Table.from_batches([batch]).select(schema.names)
@@ -712,23 +745,25 @@ def _row_file(path: Path, budget: Budget) -> pa.Table | None:
     not a row is one error: not this dataset's."""
     ours = KEY.fullmatch(path.name) is not None
     try:
-        table = read_file(path, BAGS, budget, "bags table")
-        why = _not_a_row(table) if table.num_rows else None
-        if why is not None:
-            raise UserError(f"not a fleet dataset's bags table ({why})", file=_shown(path))
-        return table
+        with _opened(path) as source:
+            try:
+                table = _read(source, path, BAGS, budget, "bags table")
+            except (pa.ArrowException, OSError) as e:
+                if ours and _cut(source):
+                    return None
+                raise UserError(
+                    f"not a fleet dataset's bags table ({one_line(e)})", file=_shown(path)
+                ) from None
     except FileNotFoundError:
         raise
     except PermissionError as e:  # another user's: no sign of a power loss, never removed
         raise UserError(
             f"cannot read it: {e.strerror or 'Permission denied'}", file=_shown(path)
         ) from None
-    except (pa.ArrowException, OSError) as e:
-        if ours and _cut(path):
-            return None
-        raise UserError(
-            f"not a fleet dataset's bags table ({one_line(e)})", file=_shown(path)
-        ) from None
+    why = _not_a_row(table) if table.num_rows else None
+    if why is not None:
+        raise UserError(f"not a fleet dataset's bags table ({why})", file=_shown(path))
+    return table
 
 
 def _not_a_row(table: pa.Table) -> str | None:
@@ -753,14 +788,14 @@ def one_line(e: BaseException) -> str:
     return printable(" ".join(str(e).split()))[:MAX_ERROR]
 
 
-def _cut(path: Path) -> bool:
+def _cut(source: pa.NativeFile) -> bool:
     """Whether a file that is no row has the signs of a write a power loss cut short:
     empty, or not Parquet to its end (no footer), or a footer whose columns are the
-    row's (its data pages lost)."""
+    row's (its data pages lost).  ``source``: the file as opened for the read."""
     try:
-        if path.stat().st_size == 0:
+        if source.size() == 0:
             return True
-        schema = pq.read_schema(path)
+        schema = pq.read_schema(source)
     except (pa.ArrowException, OSError):
         return True
     return schema.names == BAGS.names

@@ -405,3 +405,55 @@ def test_compares_table_shows_the_datasets_text_escaped_and_cut(tmp_path):
     assert "\x1b" not in run.stdout and "\x07" not in run.stdout
     assert "\\x1b]0;pwned\\x07\\x1b[2J" in run.stdout
     assert max(len(line) for line in run.stdout.splitlines()) < 300, run.stdout
+
+
+# A file listed as a regular one (``dataset_files``), then swapped before it is read:
+# the reader is handed the stale listing, as a swap in that window would leave it.
+SWAPPED = """
+import os, sys
+from pathlib import Path
+from monitors.errors import UserError
+from supervisor.tools.fleet import dataset
+ds, table, make = Path(sys.argv[1]), sys.argv[2], sys.argv[3]
+where = ds / table
+levels = () if table == "bags" else ("robot", "date")
+listed = dataset.dataset_files(where, levels)
+victim = Path(listed[0])
+victim.unlink()
+if make == "fifo":
+    os.mkfifo(victim)
+else:
+    victim.symlink_to(sys.argv[4])
+dataset.dataset_files = lambda *_: listed
+try:
+    if table == "bags":
+        dataset.Dataset(ds, make=False).done()
+    else:
+        dataset.Dataset(ds, make=False).violations()
+except UserError as e:
+    print(e)
+    sys.exit(1)
+"""
+
+
+@pytest.mark.parametrize("table", ["bags", "violations"])
+@pytest.mark.parametrize("make", ["fifo", "link"])
+def test_a_file_swapped_after_the_listing_is_one_line_not_a_wait(tmp_path, table, make):
+    root = tmp_path / "fleet"
+    for i in range(2):
+        write_bag(root / f"robot-{i}" / f"b{i}", messages(300 + i, 1500))
+    ds, other = tmp_path / "ds", tmp_path / "other"
+    cfg = config(tmp_path)
+    fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    fleet(cfg, root, "-o", other, "--jobs", "1", ok=(0,))
+    # the link: to the same file of another dataset, which reads as a good one
+    twin = next((other / table).rglob("*.parquet"))
+    assert list((ds / "violations").rglob("*.parquet")), "the bags must violate"
+    run = subprocess.run(
+        [sys.executable, "-c", SWAPPED, ds, table, make, twin],
+        capture_output=True, text=True, timeout=60,  # a FIFO's open waited for ever
+    )  # fmt: skip
+    assert run.returncode == 1, (run.stdout, run.stderr)
+    said = "a FIFO" if make == "fifo" else "a link"
+    assert f"{said}, not a file fleet replay writes" in run.stdout, run.stdout
+    assert "Traceback" not in run.stderr
