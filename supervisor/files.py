@@ -18,10 +18,14 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
+import fcntl
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
+from typing import BinaryIO
 
 
 def write_atomic(path: Path, data: bytes, mode: int = 0o600) -> None:
@@ -87,3 +91,19 @@ def remove_whole(path: Path, aside: Path) -> None:
     deleted (the start-up cache's pruning)."""
     os.rename(path, aside)
     shutil.rmtree(aside, ignore_errors=True)
+
+
+class NotRegularFile(OSError):
+    """What ``open_regular`` found at a path: a FIFO, a device, a directory."""
+
+
+def open_regular(path: Path) -> BinaryIO:
+    """``path`` opened for reading if it is a regular file: never waits on a FIFO for a
+    writer or reads a device, whatever an input names (a bag's files, listed as regular
+    ones, can be swapped before they are opened).  ``NotRegularFile`` otherwise."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise NotRegularFile(errno.EINVAL, "not a regular file", str(path))
+    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+    return os.fdopen(fd, "rb")

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from monitors.errors import UserError
 from monitors.untrusted import printable
+from supervisor.files import open_regular
 
 # a storage file, plain or compressed per file as rosbag2's zstd compressor writes it
 BAG_FILES = (".mcap", ".db3", ".mcap.zstd", ".db3.zstd")
@@ -202,9 +203,11 @@ def _too_deep(path: str | Path) -> UserError:
 
 
 def _is_bag_dir(p: Path) -> bool:
+    """A storage file of any kind but a directory makes a bag: a FIFO or a device in a
+    bag's place is that bag's row (its task says what it is), not a bag left out."""
     try:
         return (p / "metadata.yaml").is_file() or any(
-            c.name.endswith(BAG_FILES) and c.is_file() for c in p.iterdir()
+            c.name.endswith(BAG_FILES) and not c.is_dir() for c in p.iterdir()
         )
     except OSError:
         return False
@@ -217,12 +220,23 @@ def _bags(path: str) -> list[Path]:
     if not p.is_dir():  # a FIFO, a device: no bag (list_archive says so)
         return []
     out: list[Path] = []
-    todo = [(p, 0)]
+    # each directory with the bag above it, if any: a bag's directory is still walked,
+    # as a storage file dropped beside a robot's bag directories made that robot's
+    # directory one bag, and its bags were left out without a word
+    todo: list[tuple[Path, int, Path | None]] = [(p, 0, None)]
     while todo:
-        d, depth = todo.pop()
+        d, depth, above = todo.pop()
         if _is_bag_dir(d):
+            if above is not None:
+                raise UserError(
+                    f"a bag inside the bag {printable(str(above))}: its storage files make "
+                    "that directory one bag, and the bags below it would be left out",
+                    file=printable(str(d)),
+                    hint="move the .mcap/.db3 files (or metadata.yaml) beside the bags' "
+                    "directories into a directory of their own",
+                )
             out.append(d)
-            continue
+            above = d
         try:
             children = sorted(d.iterdir())
         except OSError as e:  # its bags would be missing without a word
@@ -233,7 +247,7 @@ def _bags(path: str) -> list[Path]:
             if c.is_dir():  # a storage file makes its directory a bag (_is_bag_dir)
                 if depth >= MAX_DEPTH:
                     raise _too_deep(c)
-                todo.append((c, depth + 1))
+                todo.append((c, depth + 1, above))
     return out
 
 
@@ -400,7 +414,7 @@ def content_hash(bag: Path) -> str:
     h = hashlib.sha256()
     for f in bag_files(bag):
         h.update(os.fsencode(f.name) + b"\0")
-        with f.open("rb") as fh:
+        with open_regular(f) as fh:  # a FIFO put in its place since the listing
             while chunk := fh.read(1 << 20):
                 h.update(chunk)
         h.update(b"\0")

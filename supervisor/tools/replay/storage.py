@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import os
-import stat
 import struct
 import tempfile
 from collections.abc import Callable, Iterator
@@ -22,6 +20,7 @@ from rosbags.typesys.store import Typestore
 from mitigations.rosmsg import normalise_type as normalise_type
 from monitors.errors import UserError
 from monitors.untrusted import Untrusted, inflate, printable
+from supervisor import files
 from supervisor.names import RECORDS_TOPIC, VIOLATIONS_TOPIC
 
 # The daemon's JSON records on ROS: the full record stream (with markers) and the
@@ -118,17 +117,14 @@ DEFAULT_BOUNDS = Bounds()
 
 
 def open_regular(path: Path) -> BinaryIO:
-    """``path`` opened for reading if it is a regular file: never waits on a FIFO or
-    reads a device, whatever a bag names; ``Damage`` otherwise."""
+    """``path`` opened for reading if it is a regular file (``files.open_regular``);
+    ``Damage`` otherwise."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+        return files.open_regular(path)
+    except files.NotRegularFile:
+        raise Damage("not a regular file") from None
     except OSError as e:
         raise Damage(f"cannot open: {e.strerror}") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise Damage("not a regular file")
-    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
-    return os.fdopen(fd, "rb")
 
 
 def refuse_serialization(topic: str, fmt: str, label: str) -> None:

@@ -262,3 +262,55 @@ def test_one_bag_by_two_paths_in_one_run_is_listed_once(tmp_path):
         ]
     )
     assert [os.path.relpath(b.path, tmp_path) for b in got] == ["fleet/r1/b", "fleet/r2"]
+
+
+def test_a_storage_file_beside_bag_directories_is_an_error_not_their_loss(tmp_path):
+    # a stray .mcap dropped in a robot's directory made it one bag, and its 100 bag
+    # directories were left out without a word
+    root = tmp_path / "fleet"
+    for i in range(3):
+        touch(root / "robot-00" / f"bag-{i}" / f"bag-{i}_0.mcap")
+    touch(root / "robot-00" / "stray.mcap")
+    with pytest.raises(UserError) as e:
+        list_archive([str(root)])
+    assert "a bag inside the bag" in str(e.value)
+    assert "robot-00/bag-" in e.value.file and "robot-00" in str(e.value)
+
+
+def test_a_bag_directory_with_a_plain_subdirectory_is_still_one_bag(tmp_path):
+    root = tmp_path / "fleet"
+    touch(root / "r1" / "bag-a" / "metadata.yaml")
+    touch(root / "r1" / "bag-a" / "bag-a_0.mcap")
+    touch(root / "r1" / "bag-a" / "plots" / "speed.png")
+    bags = [os.path.relpath(b.path, root) for b in list_archive([str(root)])]
+    assert bags == ["r1/bag-a"]
+
+
+def test_a_fifo_named_as_a_storage_file_is_a_bag_not_left_out(tmp_path):
+    root = tmp_path / "fleet"
+    touch(root / "r1" / "good" / "good.mcap")
+    (root / "r1" / "odd").mkdir()
+    os.mkfifo(root / "r1" / "odd" / "odd.mcap")
+    bags = sorted(os.path.relpath(b.path, root) for b in list_archive([str(root)]))
+    assert bags == ["r1/good", "r1/odd"]
+
+
+def test_the_content_hash_of_a_fifo_is_an_error_not_a_wait(tmp_path):
+    # a bag's file swapped for a FIFO after the listing: the hash waited for a writer
+    import subprocess
+    import sys
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    os.mkfifo(bag / "bag_0.mcap")
+    code = (  # the listing taken while the file was a regular one
+        "import sys; from pathlib import Path\n"
+        "from supervisor.tools.fleet import archive\n"
+        "archive.bag_files = lambda bag: [bag / 'bag_0.mcap']\n"
+        "try:\n    archive.content_hash(Path(sys.argv[1]))\n"
+        "except OSError as e:\n    print(e.strerror); sys.exit(1)\n"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code, str(bag)], capture_output=True, text=True, timeout=30
+    )
+    assert run.returncode == 1 and run.stdout.strip() == "not a regular file", run
