@@ -24,7 +24,7 @@ import pyarrow as pa
 from mitigations.violationlog.discard import DiscardingLog
 from monitors.errors import UserError
 from monitors.untrusted import shown
-from supervisor.tools.fleet.archive import content_hash
+from supervisor.tools.fleet.archive import content_hash, fingerprint
 
 # One row per violation; robot and date are the dataset's partitions (dataset.py).
 VIOLATIONS = pa.schema(
@@ -160,6 +160,7 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
 
     t0 = time.perf_counter()
     try:
+        before = fingerprint(Path(task.bag))[1]  # what _changed compares with
         digest = content_hash(Path(task.bag))
     except OSError as e:
         return BagResult(task, "failed", _reason(f"{task.bag}: {e.strerror or e}"))
@@ -185,6 +186,8 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
         return BagResult(task, "skipped", _reason(str(e)), digest, seconds=time.perf_counter() - t0)
     except UserError as e:
         return BagResult(task, "failed", _reason(str(e)), digest, seconds=time.perf_counter() - t0)
+    if (changed := _changed(task, before)) is not None:
+        return BagResult(task, "failed", _reason(changed), digest, seconds=time.perf_counter() - t0)
     outcome = run.outcome
     status, reason = "read", ""
     if isinstance(outcome.error, NothingToJudge):
@@ -200,6 +203,20 @@ def run_task(task: BagTask, done: Collection[str] = ()) -> BagResult:
         time.perf_counter() - t0,
         _table(task, digest, records.rows),
     )
+
+
+def _changed(task: BagTask, before: str) -> str | None:
+    """Why the bag's files are no longer those hashed (their names, sizes and times:
+    ``fingerprint``, taken ``before`` the hash), or None.  Changed between the hash and
+    the replay's reading, the row paired one content's hash with another's results: a
+    damaged verdict on an intact bag's hash, which a later run skipped as replayed."""
+    try:
+        now = fingerprint(Path(task.bag))[1]
+    except OSError as e:
+        return f"{task.bag}: {e.strerror or e}"
+    if now != before:
+        return f"{task.bag}: its files changed while it was replayed: run again"
+    return None
 
 
 def copy_of(task: BagTask, first: str, digest: str) -> BagResult:

@@ -149,3 +149,27 @@ def test_a_config_edited_during_the_run_is_a_failed_bag_not_rows_under_the_old_i
     assert "changed during the run" in result.reason
     again = run_task(BagTask(str(bag), "r", str(cfg), _sha(cfg)))  # the next run's
     assert again.status == "read" and _per_requirement(again) == _replayed(cfg, bag)
+
+
+def test_a_bag_changed_between_its_hash_and_its_replay_is_failed_not_a_verdict(
+    tmp_path, monkeypatch
+):
+    """Cut short right after its content was hashed, a bag's row said ``damaged``
+    under the intact content's hash, and a later run skipped that content as
+    replayed.  Its files are no longer those hashed: failed, and replayed next run."""
+    bag = write_bag(tmp_path / "b", messages(20, 3000))
+    cfg = config(tmp_path, limit=2.0)
+    storage = bag if bag.is_file() else max(bag.iterdir(), key=lambda f: f.stat().st_size)
+    hashed = task.content_hash
+
+    def hash_then_cut(path: Path) -> str:
+        digest = hashed(path)
+        data = storage.read_bytes()
+        storage.write_bytes(data[: len(data) // 2])
+        return digest
+
+    monkeypatch.setattr(task, "content_hash", hash_then_cut)
+    result = run_task(BagTask(str(bag), "r", str(cfg), _sha(cfg)))
+    assert result.status == "failed", (result.status, result.reason)
+    assert "its files changed while it was replayed" in result.reason
+    assert result.violations.num_rows == 0
