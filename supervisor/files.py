@@ -94,16 +94,23 @@ def remove_whole(path: Path, aside: Path) -> None:
 
 
 class NotRegularFile(OSError):
-    """What ``open_regular`` found at a path: a FIFO, a device, a directory."""
+    """What ``open_regular`` found at a path: a FIFO, a device, a directory (``mode``)."""
+
+    def __init__(self, path: Path, mode: int) -> None:
+        super().__init__(errno.EINVAL, "not a regular file", str(path))
+        self.mode = mode
 
 
-def open_regular(path: Path) -> BinaryIO:
+def open_regular(path: Path, *, follow: bool = True) -> BinaryIO:
     """``path`` opened for reading if it is a regular file: never waits on a FIFO for a
-    writer or reads a device, whatever an input names (a bag's files, listed as regular
-    ones, can be swapped before they are opened).  ``NotRegularFile`` otherwise."""
-    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
+    writer or reads a device, whatever an input names (a file listed as a regular one
+    can be swapped before it is opened).  ``NotRegularFile`` otherwise; ``follow``
+    False: a link is ``OSError`` ELOOP, not its target."""
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | (0 if follow else os.O_NOFOLLOW)
+    fd = os.open(path, flags)
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
         os.close(fd)
-        raise NotRegularFile(errno.EINVAL, "not a regular file", str(path))
+        raise NotRegularFile(path, mode)
     fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
     return os.fdopen(fd, "rb")

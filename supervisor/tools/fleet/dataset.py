@@ -52,7 +52,7 @@ import pyarrow.parquet as pq
 
 from monitors.errors import UserError
 from monitors.untrusted import printable, shown
-from supervisor.files import sync_filesystem, write_whole
+from supervisor.files import NotRegularFile, open_regular, sync_filesystem, write_whole
 from supervisor.tools.fleet.task import STATUSES, VIOLATIONS, BagResult
 
 BAGS = pa.schema(
@@ -647,23 +647,17 @@ def _opened(path: Path) -> Iterator[pa.NativeFile]:
     swapped for a FIFO (opening it waited for a writer for ever) or a link before it
     is opened (``dataset_files`` looked at it by name)."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW | os.O_CLOEXEC)
+        f = open_regular(path, follow=False)
+    except NotRegularFile as e:
+        what = _kind(e.mode) or "a directory"
+        raise UserError(f"{what}, not a file fleet replay writes", file=_shown(path)) from None
     except OSError as e:
         if e.errno == errno.ELOOP:
             raise UserError("a link, not a file fleet replay writes", file=_shown(path)) from None
         raise
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            raise UserError(
-                f"{_kind(mode) or 'a directory'}, not a file fleet replay writes",
-                file=_shown(path),
-            )
-        # the file this descriptor holds, whatever the name holds now
-        with pa.OSFile(f"/proc/self/fd/{fd}") as source:
-            yield source
-    finally:
-        os.close(fd)
+    # the file this descriptor holds, whatever the name holds now
+    with f, pa.OSFile(f"/proc/self/fd/{f.fileno()}") as source:
+        yield source
 
 
 def _read(
