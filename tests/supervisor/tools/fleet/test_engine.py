@@ -558,7 +558,7 @@ def _held_in_mkdir(root: int) -> int | None:
     other mkdir stops at strace too, for as long as strace takes to let it go (under
     load, long enough to be seen): a thread is held only if it is still there half a
     second later."""
-    seen = [t for t in Path("/proc").glob("[0-9]*/task/[0-9]*") if _in_mkdir(t)]
+    seen = [t for t in _threads() if _in_mkdir(t)]
     if not seen:
         return None
     time.sleep(0.5)
@@ -566,6 +566,19 @@ def _held_in_mkdir(root: int) -> int | None:
         if _in_mkdir(task) and _below(int(task.parent.parent.name), root):
             return int(task.name)
     return None
+
+
+def _threads() -> list[Path]:
+    """Every thread on the machine (/proc/PID/task/TID).  A process may exit between
+    the listing of /proc and that of its threads (pathlib's glob does not allow for it:
+    CI once failed on a vanished /proc/PID/task)."""
+    out = []
+    for d in Path("/proc").glob("[0-9]*"):
+        try:
+            out.extend((d / "task").iterdir())
+        except OSError:
+            continue  # exited meanwhile
+    return out
 
 
 def _in_mkdir(task: Path) -> bool:
