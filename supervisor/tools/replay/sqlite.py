@@ -140,6 +140,8 @@ class Sqlite(Source):
         try:
             con = self._connect()
             rows = con.execute("SELECT id, name, type FROM topics").fetchall()
+        except Damage as e:
+            raise UserError(str(e), file=self.label) from None
         except apsw.Error:
             # A truncated file: its header still counts the lost pages, which makes
             # sqlite refuse it whole. A copy that counts only the pages present reads
@@ -161,15 +163,15 @@ class Sqlite(Source):
         return con, rows
 
     def _connect(self) -> apsw.Connection:
-        path = self._patched() if self._cut else self.path
-        # rosbag2 writes WAL mode, where even a read-only open creates -shm and -wal
-        # files beside the bag (and fails in a read-only directory): immutable reads
-        # the file alone, unless a -wal of a recorder killed holds messages.
-        wal = Path(f"{path}-wal")
-        if wal.exists() and wal.stat().st_size > 0:
-            return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
-        uri = f"file:{quote(str(path))}?immutable=1"
-        return apsw.Connection(uri, flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
+        """The database, read-only; ``Damage`` if the bag's file is not a regular file
+        now (an archive's file can change between two looks at it)."""
+        if self._cut:
+            return _open_db(self._patched(), wal=False)  # a copy made whole
+        # sqlite opens the very file opened and checked here (/proc/self/fd/N, which it
+        # resolves to that file's current name), not whatever has its name by then:
+        # opening a FIFO would wait for a writer for ever.
+        with open_regular(self.path) as f:
+            return _open_db(Path(f"/proc/self/fd/{f.fileno()}"), _wal_of(self.path))
 
     def _drop(self) -> None:
         if self._tmp is not None:
@@ -231,6 +233,9 @@ class Sqlite(Source):
         self._given = np.empty(0, np.int64)  # the last chunk's times, to count those at last
         try:
             con = self._connect()
+        except Damage:
+            self._drop()
+            raise
         except (apsw.Error, UserError) as e:
             self._drop()
             raise Damage(f"damaged database ({e})") from None
@@ -389,11 +394,26 @@ def _columns(tparts: list[tuple[object, ...]], dparts: list[tuple[object, ...]],
     )
 
 
+def _wal_of(path: Path) -> bool:
+    """Whether a killed recorder's write-ahead log beside ``path`` holds pages."""
+    wal = Path(f"{path}-wal")
+    return wal.exists() and wal.stat().st_size > 0
+
+
+def _open_db(path: Path, wal: bool) -> apsw.Connection:
+    # rosbag2 writes WAL mode, where even a read-only open creates -shm and -wal files
+    # beside the bag (and fails in a read-only directory): immutable reads the file
+    # alone, unless a -wal of a recorder killed holds messages.
+    if wal:
+        return apsw.Connection(str(path), flags=apsw.SQLITE_OPEN_READONLY)
+    uri = f"file:{quote(str(path))}?immutable=1"
+    return apsw.Connection(uri, flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI)
+
+
 def _cut_short(path: Path) -> int | None:
     """The file's size if it ends before the pages its header counts, or inside a page
     (sqlite's file format, "The database header"); None if whole or not known."""
-    wal = Path(f"{path}-wal")
-    if wal.exists() and wal.stat().st_size > 0:
+    if _wal_of(path):
         return None  # the pages may be in the write-ahead log
     try:
         with open_regular(path) as f:

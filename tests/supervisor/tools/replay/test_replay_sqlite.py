@@ -5,8 +5,10 @@ columns, with no Python code run per row, and give exactly what a row-by-row rea
 from __future__ import annotations
 
 import gc
+import os
 import sqlite3
 import sys
+import threading
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -145,3 +147,34 @@ def test_a_bad_row_deep_in_a_chunk_ends_the_read_right_before_it(
     )
     t = np.concatenate([r.t_ns for r in raws]) if raws else np.empty(0)
     assert bool((np.diff(t) >= 0).all())
+
+
+def test_a_db3_swapped_for_a_fifo_after_its_topics_were_read_is_refused_not_waited_on(
+    tmp_path: Path,
+) -> None:
+    # The archive is anybody's input: a bag's file can become a FIFO between the
+    # reader's first look (its topics) and its reading of the rows.  Opening a FIFO
+    # waits for a writer, for ever; the reader opens the file itself, checks it is a
+    # regular file, and has sqlite open that same file.
+    db = bag(tmp_path, 10)
+    source = Sqlite(db)
+    db.rename(db.with_suffix(".old"))
+    os.mkfifo(db)
+    outcome: list[object] = []
+
+    def rows() -> None:
+        try:
+            outcome.append(sum(len(r) for r in source.chunks({"/a": 0, "/b": 1}, CHUNK)))
+        except Damage as e:
+            outcome.append(e)
+
+    reader = threading.Thread(target=rows, daemon=True)
+    reader.start()
+    reader.join(10)
+    if reader.is_alive():
+        # let the waiting open go (a writer's open ends it), so the thread ends
+        os.close(os.open(db, os.O_WRONLY | os.O_NONBLOCK))
+        reader.join(10)
+        pytest.fail("the reader waited on the FIFO")
+    (got,) = outcome
+    assert isinstance(got, Damage) and "not a regular file" in str(got), got

@@ -289,8 +289,11 @@ def test_a_metadata_yaml_of_the_wrong_shape_is_one_located_line(
     assert rc == 1 and words in line, line
 
 
-def test_a_fifo_named_like_a_bag_is_refused_not_waited_on(tmp_path: Path, cfg: Path) -> None:
-    fifo = tmp_path / "x.mcap"
+@pytest.mark.parametrize("name", ["x.mcap", "x.db3"])
+def test_a_fifo_named_like_a_bag_is_refused_not_waited_on(
+    tmp_path: Path, cfg: Path, name: str
+) -> None:
+    fifo = tmp_path / name
     os.mkfifo(fifo)
     r = cli("replay", str(cfg), str(fifo), "--quiet", timeout=60)
     assert r["rc"] == 1 and "regular file" in assert_one_located_line(r["err"], str(fifo))
