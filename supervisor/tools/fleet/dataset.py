@@ -663,8 +663,21 @@ def _opened(path: Path) -> Iterator[pa.NativeFile]:
 def _read(
     source: pa.NativeFile, path: Path, schema: pa.Schema, budget: Budget, what: str
 ) -> pa.Table:
+    try:
+        return _read_checked(source, path, schema, budget, what)
+    except UnicodeDecodeError:  # pyarrow decodes the footer's names as it gives them
+        raise _wrong(path, what, "its footer has a name that is not UTF-8") from None
+
+
+def _wrong(path: Path, what: str, why: str) -> UserError:
+    return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
+
+
+def _read_checked(
+    source: pa.NativeFile, path: Path, schema: pa.Schema, budget: Budget, what: str
+) -> pa.Table:
     def wrong(why: str) -> UserError:
-        return UserError(f"not a fleet dataset's {what} ({why})", file=_shown(path))
+        return _wrong(path, what, why)
 
     footer = pq.ParquetFile(source)
     found = footer.schema_arrow
@@ -790,6 +803,8 @@ def _cut(source: pa.NativeFile) -> bool:
         if source.size() == 0:
             return True
         schema = pq.read_schema(source)
+    except UnicodeDecodeError:
+        return False  # a footer there, damaged: not a write cut short
     except (pa.ArrowException, OSError):
         return True
     return schema.names == BAGS.names

@@ -392,6 +392,38 @@ def test_nulls_and_text_not_utf8_are_one_line_naming_the_column(
         assert lines[0].startswith(f"{f}: ") and said in lines[0], lines[0]
 
 
+@pytest.mark.parametrize("table, column", [("bags", "status"), ("violations", "requirement")])
+def test_a_column_name_not_utf8_in_a_footer_is_one_line(tmp_path, table, column):
+    """The footer's names are decoded as pyarrow reads them: one byte flipped in one
+    ended fleet report, and the resume, in an internal error (exit 3)."""
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path, limit=2.0)
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    fleet(cfg, root, "-o", good, "--jobs", "1", ok=(0,))
+    shutil.copytree(good, bad)
+    f = sorted(bad.glob("bags/*.parquet" if table == "bags" else "violations/*/*/*.parquet"))[0]
+    data = bytearray(f.read_bytes())
+    data[data.rfind(column.encode()) + 1] = 0xF3  # the last: the footer's
+    f.write_bytes(bytes(data))
+    said = "its footer has a name that is not UTF-8"
+    for args in (
+        ["report", str(bad)],
+        ["report", str(good), "--baseline", str(bad)],
+        ["replay", str(cfg), str(root), "-o", str(bad), "--jobs", "1"],
+    ):
+        if args[0] == "replay" and table != "bags":
+            continue  # the resume reads the bags' rows alone
+        run = subprocess.run(
+            [sys.executable, "-m", "supervisor", "fleet", *args, "--quiet"]
+            + (["-o", str(tmp_path / "f.html")] if args[0] == "report" else []),
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        lines = [line for line in run.stderr.splitlines() if line.strip()]
+        assert run.returncode == 1 and len(lines) == 1, (args, run.stderr)
+        assert lines[0].startswith(f"{f}: ") and said in lines[0], lines[0]
+
+
 def test_compares_table_shows_the_datasets_text_escaped_and_cut(tmp_path):
     """A requirement with a terminal's escapes (a window title, clear screen) and 5,000
     characters went to the terminal as it was."""
