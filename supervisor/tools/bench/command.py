@@ -57,15 +57,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from supervisor import data
 from supervisor.tools.bench.errors import BenchError
+from supervisor.tools.stopping import sigterm_as_interrupt
 
 DEFAULT_CONFIG = data.example("srobot.yaml")
 DEFAULT_RATES = "5000,10000,12500,15000,17500,20000"
@@ -365,27 +364,24 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from supervisor.tools.bench.startup import format_startup, run_startup
 
     resolve(args)
-    restore = None
-    if threading.current_thread() is threading.main_thread():
-        # SIGTERM unwinds like Ctrl-C, so the finally blocks kill the children.
-        restore = signal.signal(signal.SIGTERM, _raise_interrupt)
     progress = None if args.json else _progress
-    try:
-        if args.predict:
-            results = run_predict(args, progress)
-        elif args.startup:
-            results = run_startup(Path(args.config), args.startup_runs, args.domain_id, progress)
-        else:
-            results = run(args, progress=progress)
-    except BenchError as e:
-        print(f"safety-supervisor bench: {e}", file=sys.stderr, flush=True)
-        return 1
-    except KeyboardInterrupt:
-        print("safety-supervisor bench: interrupted", file=sys.stderr, flush=True)
-        return 130
-    finally:
-        if restore is not None:
-            signal.signal(signal.SIGTERM, restore)
+    # SIGTERM unwinds like Ctrl-C, so the finally blocks kill the children.
+    with sigterm_as_interrupt():
+        try:
+            if args.predict:
+                results = run_predict(args, progress)
+            elif args.startup:
+                results = run_startup(
+                    Path(args.config), args.startup_runs, args.domain_id, progress
+                )
+            else:
+                results = run(args, progress=progress)
+        except BenchError as e:
+            print(f"safety-supervisor bench: {e}", file=sys.stderr, flush=True)
+            return 1
+        except KeyboardInterrupt:
+            print("safety-supervisor bench: interrupted", file=sys.stderr, flush=True)
+            return 130
     if args.json:
         print(json.dumps(results, indent=2), flush=True)
     elif args.predict:
@@ -437,10 +433,6 @@ def write_json(out: Path, name: str, results: dict[str, Any]) -> list[Path]:
     js = out / name
     js.write_text(json.dumps(results, indent=2) + "\n")
     return [js]
-
-
-def _raise_interrupt(_signum: int, _frame: Any) -> None:
-    raise KeyboardInterrupt
 
 
 def _progress(text: str) -> None:

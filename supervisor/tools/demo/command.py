@@ -32,6 +32,7 @@ from supervisor.tools.demo.config import (
 )
 from supervisor.tools.demo.errors import DemoError
 from supervisor.tools.demo.state import DemoState
+from supervisor.tools.stopping import sigterm_as_interrupt
 
 if TYPE_CHECKING:
     from supervisor.tools.demo.session import Run
@@ -163,11 +164,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     failed: str | None = None
     walked = 0.0
 
-    def on_term(_sig: int, _frame: Any) -> None:
-        raise KeyboardInterrupt  # SIGTERM: the same orderly stop as Ctrl-C
-
-    old_term = signal.signal(signal.SIGTERM, on_term)
-    try:
+    with sigterm_as_interrupt():  # SIGTERM: the same orderly stop as Ctrl-C
         try:
             log.parent.mkdir(parents=True, exist_ok=True)
             domain = pick_domain()
@@ -200,8 +197,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
                     run.notify.close()
             finally:
                 signal.signal(signal.SIGINT, old_int)
-    finally:
-        signal.signal(signal.SIGTERM, old_term)
     if run is not None and live:
         out.write("\x1b[H\x1b[2J" + example.screen(run.st, True) + "\n\n")
     elif run is not None:

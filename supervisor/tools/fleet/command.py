@@ -19,7 +19,7 @@ from supervisor.tools.fleet.report import add_parser as add_report_parser
 if TYPE_CHECKING:  # the engines import pyarrow: only once a command needs them
     from supervisor.tools.fleet.engine import Engine
 
-EXIT_OK, EXIT_FAIL = 0, 1
+EXIT_OK, EXIT_FAIL, EXIT_INTERRUPTED = 0, 1, 130
 MAX_JOBS = 512
 
 
@@ -99,20 +99,39 @@ def _jobs(text: str) -> int:
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
-    if not (args.fleet_command == "replay" and args.engine == "local"):
+    if args.fleet_command != "replay":
         return _fleet(args)
+    from supervisor.tools.stopping import sigterm_as_interrupt
+
+    # what an interrupted run did, said once its processes are all stopped (a second
+    # signal during the stop is raised again after it, ``uninterrupted``)
+    said: list[str] = []
+    with sigterm_as_interrupt():
+        try:
+            rc = _fleet_replay(args, said)
+        except KeyboardInterrupt:
+            rc = EXIT_INTERRUPTED
+    if rc == EXIT_INTERRUPTED:
+        line = said[0] if said else "fleet replay: interrupted before any bag was replayed"
+        print(line, file=sys.stderr, flush=True)
+    return rc
+
+
+def _fleet_replay(args: argparse.Namespace, said: list[str]) -> int:
+    if args.engine != "local":
+        return _fleet(args, said)
     from supervisor.tools.fleet import server
-    from supervisor.tools.fleet.stopping import uninterrupted
+    from supervisor.tools.stopping import uninterrupted
 
     server.serve()  # first: its imports beside this process's (server.py)
     try:
-        return _fleet(args)
+        return _fleet(args, said)
     finally:
         with uninterrupted():
             server.stop()  # whatever stopped the run: nothing outlives it
 
 
-def _fleet(args: argparse.Namespace) -> int:
+def _fleet(args: argparse.Namespace, said: list[str] | None = None) -> int:
     try:
         import pyarrow  # noqa: F401 - only to say what is missing, once
     except ImportError:
@@ -157,7 +176,7 @@ def _fleet(args: argparse.Namespace) -> int:
     # (a task's key is its config's hash and its content: other configs' never match)
     done_contents = {f"{s}:{h}" for s, h in done.contents}
     try:
-        return _replay(args, engine, namespace, done, done_contents, out)
+        return _replay(args, engine, namespace, done, done_contents, out, said)
     finally:
         engine.close()  # started, and not taken by a run stopped by an error
 
@@ -169,6 +188,7 @@ def _replay(
     done: Any,
     done_contents: set[str],
     out: TextIO,
+    said: list[str] | None = None,
 ) -> int:
     from supervisor.tools.fleet.archive import copies, list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers, only_writer
@@ -236,6 +256,7 @@ def _replay(
     progress = Progress(total, sum(where[t.bag][2] for t in tasks), line)
     counts = {"read": 0, "skipped": 0, "damaged": 0, "failed": 0}
     results = engine.results(tasks, done_contents)
+    interrupted = False
     try:
         with Writers(dataset) as writers:
 
@@ -260,10 +281,29 @@ def _replay(
         # every bag's files durable, the pool's (a dead worker's too) and the writers':
         # the groups' syncs leave the last rows to this one (dataset.py)
         dataset.sync()
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cmd_fleet): the pool is stopped below
+        interrupted = True
     finally:
         results.close()  # an error stops the pool too (engine.py)
         progress.end()
         held.close()
+    if interrupted:
+        # The rows written stay, and the next run takes them as done.  They are counted
+        # in the dataset: a pool's worker writes each bag's row as it ends, and its
+        # results reach this process only once its call's bags are all done.
+        written = sum(
+            dataset.row_id(sha, fp) is not None
+            for _robot, fp, _size in where.values()
+            for sha in shas
+            if (sha, fp) not in done.fingerprints
+        )
+        if said is not None:
+            said.append(
+                f"fleet replay: interrupted: {written:,} of {total:,} bags done, "
+                f"{already:,} done before; their rows in {output}: the same command "
+                "replays the rest"
+            )
+        return EXIT_INTERRUPTED
     print(progress.summary(counts, already, Path(args.output)), file=out, flush=True)
     if args.compare:
         _compare(dataset, shas, {fp for _, fp, _ in where.values()}, out)

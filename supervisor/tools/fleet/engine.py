@@ -45,7 +45,6 @@ from monitors.errors import UserError
 from monitors.untrusted import printable
 from supervisor.tools.fleet import server
 from supervisor.tools.fleet.dataset import Commits, Dataset
-from supervisor.tools.fleet.stopping import uninterrupted
 from supervisor.tools.fleet.task import (
     BagResult,
     BagTask,
@@ -54,6 +53,7 @@ from supervisor.tools.fleet.task import (
     config_error,
     run_task,
 )
+from supervisor.tools.stopping import uninterrupted
 
 ATTEMPTS = 2  # a task whose worker dies this many times is failed, not tried again
 WINDOW_PER_JOB = 4  # calls in flight per worker: the next one is queued as one ends
@@ -620,6 +620,17 @@ class RayEngine:
             self.close()
 
     def _init(self, ray: Any, temp: str | None) -> None:
+        # ray.init makes SIGTERM the driver's sys.exit: the command's own handler
+        # (stopping.py) is put back, so that SIGTERM stops a run as Ctrl-C does
+        main = threading.current_thread() is threading.main_thread()
+        term = signal.getsignal(signal.SIGTERM) if main else None
+        try:
+            self._join(ray, temp)
+        finally:
+            if term is not None:
+                signal.signal(signal.SIGTERM, term)
+
+    def _join(self, ray: Any, temp: str | None) -> None:
         quiet = {"logging_level": logging.ERROR, "log_to_driver": False}
         if self.address:
             try:

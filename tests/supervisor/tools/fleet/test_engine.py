@@ -308,6 +308,50 @@ def _killed_once(
         proc.wait()
 
 
+@needs_ray
+@pytest.mark.slow
+def test_sigterm_stops_a_run_on_ray_as_ctrl_c_does(tmp_path):
+    # ray.init makes SIGTERM the driver's sys.exit(15): the command's own handler is
+    # put back, so SIGTERM (systemd, a CI job's time limit) stops the run as Ctrl-C
+    # does: its local cluster stopped, one line on what the dataset holds, exit 130.
+    from rosutil import wait_until
+
+    root = tmp_path / "fleet"
+    _twelve_bags(root)
+    cfg, ds = config(tmp_path), tmp_path / "ds"
+    proc = _ray_fleet(cfg, root, ds)
+    try:
+        wait_until("a Ray worker reading a bag", lambda: _ray_worker_reading(proc.pid), 120)
+        cluster = _descendants(proc.pid)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130 and "Traceback" not in err, err
+    written = len(list((ds / "bags").glob("*.parquet")))
+    assert err.splitlines()[-1] == (
+        f"fleet replay: interrupted: {written} of 12 bags done, 0 done before; "
+        f"their rows in {ds}: the same command replays the rest"
+    ), err
+    assert out == "", out  # no summary: the run did not end
+    wait_until(
+        "the local cluster's processes gone",
+        lambda: not any(Path(f"/proc/{p}").exists() and not _zombie(p) for p in cluster),
+        60,
+    )
+    run = fleet_ray(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
+    assert f"{12 - written} bags (" in run.stdout and f"{written} done before" in run.stdout
+    assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (12, 12)
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True  # gone
+
+
 def _twelve_bags(root: Path) -> list[Path]:
     """b00..b11 of one robot, 40,000 messages each: in a window of 4 Ray tasks on one
     CPU, the first task is b00-b02."""
@@ -909,11 +953,13 @@ def _group(pgid: int) -> list[int]:
     return out
 
 
-def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
-    # Ctrl-C (SIGINT to the command) mid-run: the pool's workers are stopped at once,
-    # not left to finish the calls they hold (8 bags each); a second Ctrl-C during
-    # the shutdown leaves no worker and no fork server behind; a rerun finishes the
-    # rest, each bag once.
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_or_sigterm_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path, sig):
+    # Ctrl-C (SIGINT to the command) mid-run, or SIGTERM (systemd, a CI job's time
+    # limit, timeout(1)): the pool's workers are stopped at once, not left to finish
+    # the calls they hold (8 bags each); a second signal during the shutdown leaves no
+    # worker and no fork server behind; one line says what was done and that the same
+    # command resumes; a rerun finishes the rest, each bag once.
     from rosutil import wait_until
 
     from tests.supervisor.tools.fleet.test_fleet_replay import _workers
@@ -938,14 +984,14 @@ def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
             120,
         )
         at_stop = len(list(rows.glob("*.parquet")))
-        os.kill(proc.pid, signal.SIGINT)
+        os.kill(proc.pid, sig)
         wait_until(
             "the workers stopped",
             lambda: not any(Path(f"/proc/{w}").exists() for w in workers),
             60,
         )
         if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGINT)
+            os.kill(proc.pid, sig)
         _, err = proc.communicate(timeout=60)
         wait_until("no process of the command's left", lambda: not _group(proc.pid), 30)
     finally:
@@ -954,7 +1000,14 @@ def test_ctrl_c_twice_stops_the_workers_at_once_and_leaves_no_process(tmp_path):
         proc.communicate()
     assert proc.returncode == 130 and "Traceback" not in err, err
     # at most the bag whose row was being written as the signal came
-    assert len(list(rows.glob("*.parquet"))) <= at_stop + 1
+    written = len(list(rows.glob("*.parquet")))
+    assert written <= at_stop + 1
+    # one line, what the dataset holds, and nothing else (not multiprocessing's
+    # "leaked semaphore" of a process killed)
+    assert err.splitlines() == [
+        f"fleet replay: interrupted: {written} of {CALLS_OF_8} bags done, 0 done before; "
+        f"their rows in {ds}: the same command replays the rest"
+    ], err
     run = fleet(cfg, root, "-o", ds, "--jobs", "1", ok=(0,))
     assert f"{CALLS_OF_8} bags" not in run.stdout and "0 failed" in run.stdout, run.stdout
     assert query(f"SELECT count(*), count(DISTINCT bag) FROM {BAGS.format(ds)}")[0] == (
