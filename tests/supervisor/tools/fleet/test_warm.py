@@ -19,6 +19,9 @@ PROBE = (
 
 
 def test_a_forked_worker_starts_with_the_parsers_and_types_built() -> None:
+    # a fork server an earlier test of this process left running is stopped first:
+    # serve() would take it as it is, with its own preload (CI failed on it once)
+    server.stop()
     try:
         with ProcessPoolExecutor(1, mp_context=server.serve()) as pool:
             # eval: a builtin, sent by name, so the probe needs no module of the tests
