@@ -53,6 +53,7 @@ import pyarrow.parquet as pq
 from monitors.errors import UserError
 from monitors.untrusted import printable, shown
 from supervisor.files import NotRegularFile, open_regular, sync_filesystem, write_whole
+from supervisor.tools.fleet import footer
 from supervisor.tools.fleet.task import STATUSES, VIOLATIONS, BagResult
 
 BAGS = pa.schema(
@@ -679,15 +680,17 @@ def _read_checked(
     def wrong(why: str) -> UserError:
         return _wrong(path, what, why)
 
-    footer = pq.ParquetFile(source)
-    found = footer.schema_arrow
+    if (bad := _bad_footer(source)) is not None:
+        raise wrong(bad)
+    parquet = pq.ParquetFile(source)
+    found = parquet.schema_arrow
     for f in schema:
         i = found.get_field_index(f.name)
         if i < 0:
             raise wrong(f"no column {f.name}")
         if found.field(i).type != f.type:
             raise wrong(f"column {f.name} is {found.field(i).type}, not {f.type}")
-    meta = footer.metadata
+    meta = parquet.metadata
     names = set(schema.names)
     stored = 0  # the most a row group's columns read hold, compressed
     for g in range(meta.num_row_groups):
@@ -716,6 +719,25 @@ def _read_checked(
                 raise wrong(f"column {name} {why}")
         tables.append(table.cast(schema))
     return pa.concat_tables(tables) if tables else schema.empty_table()
+
+
+def _bad_footer(source: pa.NativeFile) -> str | None:
+    """Why the file's footer is none pyarrow may be given (footer.py), or None."""
+    size = source.size()
+    if size < 12:
+        return None
+    source.seek(size - 8)
+    n = footer.footer_length(size, source.read(8))
+    if n is None:
+        return None
+    source.seek(size - 8 - n)
+    try:
+        footer.check(source.read(n))
+    except footer.BadFooter as e:
+        return str(e)
+    finally:
+        source.seek(0)
+    return None
 
 
 def _bad_values(column: pa.ChunkedArray) -> str | None:
@@ -802,6 +824,8 @@ def _cut(source: pa.NativeFile) -> bool:
     try:
         if source.size() == 0:
             return True
+        if _bad_footer(source) is not None:
+            return False  # a footer there, damaged: not a write cut short
         schema = pq.read_schema(source)
     except UnicodeDecodeError:
         return False  # a footer there, damaged: not a write cut short
