@@ -1,12 +1,13 @@
 """A Parquet file's footer checked before pyarrow is given it: pyarrow's metadata
 calls have no C++ exception handling, so an enum value out of its range (a codec, an
 encoding, a type) ends the whole process (``std::terminate``, SIGABRT) where it should
-raise.  A dataset's file is anybody's input (docs/reference/fleet.md, "Trust"): its
-footer is walked here first, in Thrift's compact protocol as the Parquet format
-defines it (github.com/apache/parquet-format, ``parquet.thrift``), and each enum pyarrow
-converts is checked against the values the format knows.  Fields it does not know are
-skipped, as a reader of a newer writer's file must; encryption is refused, as fleet
-replay never writes it.
+raise.  A dataset's file is anybody's input (docs/reference/fleet.md, "fleet report",
+its bounds): its footer is walked here first, in Thrift's compact protocol as the
+Parquet format defines it (github.com/apache/parquet-format, ``parquet.thrift``), and
+each enum pyarrow converts is checked against the values the format knows, and each
+column's level histograms against its schema.  Fields it does not know are skipped,
+as a reader of a newer writer's file must; encryption is refused, as fleet replay
+never writes it.
 """
 
 from __future__ import annotations
@@ -116,6 +117,8 @@ class _Walker:
             raise BadFooter("its footer's schema is not a table of plain columns")
         if any(n != len(leaves) for n in self.groups):
             raise BadFooter("its footer's row groups do not hold each column once")
+        if len(self.chunks) != sum(self.groups):
+            raise BadFooter("its footer has a column chunk without its metadata")
         for i, chunk in enumerate(self.chunks):
             repetition = leaves[i % len(leaves)].get(3)
             if repetition is None:

@@ -334,6 +334,17 @@ def _report_as_nobody(ds: Path, row: Path) -> None:
     assert "power loss" not in said[0], r.stderr
 
 
+def _good_and_bad(tmp_path: Path) -> tuple[Path, Path, Path, Path]:
+    """A small fleet's archive, config, dataset, and a copy of it to damage."""
+    root = tmp_path / "fleet"
+    _small_fleet(root, 2)
+    cfg = config(tmp_path, limit=2.0)
+    good, bad = tmp_path / "good", tmp_path / "bad"
+    fleet(cfg, root, "-o", good, "--jobs", "1", ok=(0,))
+    shutil.copytree(good, bad)
+    return root, cfg, good, bad
+
+
 def _tampered(ds: Path, table: str, column: str, value: object) -> Path:
     """The first file of ``table`` with every value of ``column`` replaced by
     ``value`` (None: null; bytes: raw bytes in the string column); the file."""
@@ -374,12 +385,7 @@ def test_nulls_and_text_not_utf8_are_one_line_naming_the_column(
 ):
     """fleet replay writes neither (its empty texts are ""); the page's sorting and
     decoding of them ended in an internal error (exit 3), as report and as baseline."""
-    root = tmp_path / "fleet"
-    _small_fleet(root, 2)
-    cfg = config(tmp_path, limit=2.0)
-    good, bad = tmp_path / "good", tmp_path / "bad"
-    fleet(cfg, root, "-o", good, "--jobs", "1", ok=(0,))
-    shutil.copytree(good, bad)
+    _, _, good, bad = _good_and_bad(tmp_path)
     f = _tampered(bad, table, column, value)
     for args in ([str(bad)], [str(good), "--baseline", str(bad)]):
         run = subprocess.run(
@@ -396,12 +402,7 @@ def test_nulls_and_text_not_utf8_are_one_line_naming_the_column(
 def test_a_column_name_not_utf8_in_a_footer_is_one_line(tmp_path, table, column):
     """The footer's names are decoded as pyarrow reads them: one byte flipped in one
     ended fleet report, and the resume, in an internal error (exit 3)."""
-    root = tmp_path / "fleet"
-    _small_fleet(root, 2)
-    cfg = config(tmp_path, limit=2.0)
-    good, bad = tmp_path / "good", tmp_path / "bad"
-    fleet(cfg, root, "-o", good, "--jobs", "1", ok=(0,))
-    shutil.copytree(good, bad)
+    root, cfg, good, bad = _good_and_bad(tmp_path)
     f = sorted(bad.glob("bags/*.parquet" if table == "bags" else "violations/*/*/*.parquet"))[0]
     data = bytearray(f.read_bytes())
     data[data.rfind(column.encode()) + 1] = 0xF3  # the last: the footer's

@@ -4,9 +4,11 @@ out of its range in a footer; the dataset's reader says which file, in one line.
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -39,6 +41,18 @@ def test_the_footers_fleet_replay_writes_pass(dataset: tuple[Path, Path]) -> Non
         footer.check(_footer(f.read_bytes()))
 
 
+def _report_fails(ds: Path, tmp_path: Path) -> str:
+    """``fleet report`` of ``ds``: exit 1 and its one line (not a signal's death)."""
+    run = subprocess.run(
+        [sys.executable, "-m", "supervisor", "fleet", "report", str(ds), "-o",
+         str(tmp_path / "f.html"), "--quiet"],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert run.returncode == 1 and len(lines) == 1, (run.returncode, run.stderr)
+    return lines[0]
+
+
 def _with_codec(data: bytes, column: str, codec: int) -> bytes:
     """``data`` with ``column``'s compression codec set to ``codec``: in the compact
     protocol, its path's last string (length, bytes) is followed by the codec's field
@@ -48,46 +62,35 @@ def _with_codec(data: bytes, column: str, codec: int) -> bytes:
     return data[:at] + bytes([codec << 1]) + data[at + 1 :]
 
 
-def test_a_codec_out_of_range_is_one_line_not_an_abort(
-    dataset: tuple[Path, Path], tmp_path: Path
-) -> None:
-    bad = tmp_path / "ds"
-    shutil.copytree(dataset[1], bad)
-    row = sorted(bad.glob("bags/*.parquet"))[0]
-    row.write_bytes(_with_codec(row.read_bytes(), "status", 9))
-    with pytest.raises(footer.BadFooter, match=r"unknown compression codec \(9\)"):
-        footer.check(_footer(row.read_bytes()))
-    run = subprocess.run(
-        [sys.executable, "-m", "supervisor", "fleet", "report", str(bad), "-o",
-         str(tmp_path / "f.html"), "--quiet"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert run.returncode == 1 and len(lines) == 1, (run.returncode, run.stderr)
-    assert lines[0].startswith(f"{row}: ") and "unknown compression codec (9)" in lines[0]
-
-
-def test_a_column_made_required_is_one_line_not_an_abort(
-    dataset: tuple[Path, Path], tmp_path: Path
-) -> None:
-    # A schema element's repetition (field 3, an i32: 0x25 after field 1) then its name
-    # (field 4, a string: 0x18): OPTIONAL (zigzag 2) made REQUIRED (0).  Its chunks'
-    # definition-level histograms (two levels) no longer fit it: pyarrow aborted.
-    bad = tmp_path / "ds"
-    shutil.copytree(dataset[1], bad)
-    row = sorted(bad.glob("bags/*.parquet"))[0]
-    data = row.read_bytes()
-    needle = b"\x25\x02\x18\x06status"
+def _made_required(data: bytes, column: str) -> bytes:
+    """``data`` with ``column`` made REQUIRED: a schema element's repetition (field 3,
+    an i32: 0x25 after field 1) then its name (field 4, a string: 0x18), OPTIONAL
+    (zigzag 2) made REQUIRED (0).  Its chunks' definition-level histograms (two
+    levels) no longer fit it."""
+    needle = b"\x25\x02\x18" + bytes([len(column)]) + column.encode()
     at = data.rindex(needle)
-    row.write_bytes(data[:at] + b"\x25\x00" + data[at + 2 :])
-    run = subprocess.run(
-        [sys.executable, "-m", "supervisor", "fleet", "report", str(bad), "-o",
-         str(tmp_path / "f.html"), "--quiet"],
-        capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    lines = [line for line in run.stderr.splitlines() if line.strip()]
-    assert run.returncode == 1 and len(lines) == 1, (run.returncode, run.stderr)
-    assert lines[0].startswith(f"{row}: ") and "level histograms" in lines[0], lines[0]
+    return data[:at] + b"\x25\x00" + data[at + 2 :]
+
+
+@pytest.mark.parametrize(
+    "damage, said",
+    [
+        (lambda data: _with_codec(data, "status", 9), "unknown compression codec (9)"),
+        (lambda data: _made_required(data, "status"), "level histograms of the wrong length"),
+    ],
+    ids=["codec 9", "a column made required"],
+)
+def test_what_pyarrow_aborts_on_is_one_line(
+    dataset: tuple[Path, Path], tmp_path: Path, damage: Callable[[bytes], bytes], said: str
+) -> None:
+    bad = tmp_path / "ds"
+    shutil.copytree(dataset[1], bad)
+    row = sorted(bad.glob("bags/*.parquet"))[0]
+    row.write_bytes(damage(row.read_bytes()))
+    with pytest.raises(footer.BadFooter, match=re.escape(said)):
+        footer.check(_footer(row.read_bytes()))
+    line = _report_fails(bad, tmp_path)
+    assert line.startswith(f"{row}: ") and said in line, line
 
 
 @pytest.mark.parametrize(
