@@ -1,7 +1,7 @@
 """Stopping a command's processes whole: SIGTERM (systemd, a CI job's time limit,
 ``timeout``) stops a long command as Ctrl-C does, and a signal that comes while its
 workers are being stopped waits for the stop to end, then interrupts as usual
-(docs/reference/commands.md, "Exit codes")."""
+(docs/reference/commands.md, "Exit codes and errors")."""
 
 from __future__ import annotations
 
