@@ -726,12 +726,12 @@ def _bad_footer(source: pa.NativeFile) -> str | None:
     size = source.size()
     if size < 12:
         return None
-    source.seek(size - 8)
-    n = footer.footer_length(size, source.read(8))
-    if n is None:
-        return None
-    source.seek(size - 8 - n)
     try:
+        source.seek(size - 8)
+        n = footer.footer_length(size, source.read(8))
+        if n is None:
+            return None
+        source.seek(size - 8 - n)
         footer.check(source.read(n))
     except footer.BadFooter as e:
         return str(e)

@@ -83,11 +83,15 @@ class BadFooter(Exception):
 def footer_length(size: int, tail: bytes) -> int | None:
     """The length of the footer of a file of ``size`` bytes whose last 8 are ``tail``
     (the footer's length, then ``PAR1``); None where there is none to read (pyarrow
-    then says why)."""
+    then says why); ``BadFooter`` for one too large to walk, never given unwalked."""
     if size < 12 or len(tail) != 8 or tail[4:] != MAGIC:
         return None
     n = int.from_bytes(tail[:4], "little")
-    return n if n <= min(MAX_FOOTER, size - 12) else None
+    if n > size - 12:
+        return None
+    if n > MAX_FOOTER:
+        raise BadFooter(f"its footer is over {MAX_FOOTER >> 20} MB")
+    return n
 
 
 def check(footer: bytes) -> None:

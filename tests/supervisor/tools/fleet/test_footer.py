@@ -106,3 +106,13 @@ def test_nesting_past_the_bound_is_a_bad_footer() -> None:
     # a struct field (0x1c: field 1, a struct) in each struct, deeper than any footer
     with pytest.raises(footer.BadFooter, match="nests too deep"):
         footer.check(b"\x1c" * (footer.MAX_DEPTH + 2))
+
+
+def test_a_footer_too_large_to_walk_is_refused_not_given_unwalked() -> None:
+    size = footer.MAX_FOOTER + 100
+    tail = (footer.MAX_FOOTER + 1).to_bytes(4, "little") + footer.MAGIC
+    with pytest.raises(footer.BadFooter, match="over 16 MB"):
+        footer.footer_length(size, tail)
+    # one longer than the file is no footer: pyarrow says so itself
+    assert footer.footer_length(100, (89).to_bytes(4, "little") + footer.MAGIC) is None
+    assert footer.footer_length(100, (88).to_bytes(4, "little") + footer.MAGIC) == 88
