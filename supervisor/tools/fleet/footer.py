@@ -192,30 +192,30 @@ class _Walker:
                 # a thrift reader skips a field of another kind: left unset, it is
                 # what pyarrow aborts on
                 raise BadFooter(f"its footer has a {_NAMES.get(where, kind)} of another kind")
-            start = self.at
-            self.value(kind_, _STRUCTS.get(where, OTHER), _ENUMS.get(where), depth, where)
+            got = self.value(kind_, _STRUCTS.get(where, OTHER), _ENUMS.get(where), depth, where)
             if kind == SCHEMA and field in (3, 5):
-                self.elements[-1][field] = _zigzag_at(self.data, start)
+                self.elements[-1][field] = got
             elif kind == SIZE_STATS and field in (2, 3):
-                self.chunks[-1][field] = _list_size(self.data, start)
+                self.chunks[-1][field] = got
         if kind in _MEMBERS and members != 1:
             raise BadFooter(f"its footer has a {kind} of {members} types")
 
     def value(
         self, kind: int, struct: str, enum: range | None, depth: int, where: tuple[str, int]
-    ) -> None:
+    ) -> int:
+        """Reads one value; an integer's value, a list's or set's size, else 0."""
         if kind in (_TRUE, _FALSE):
-            return
+            return 0
         if kind == _BYTE:
             b = self.byte()
             if where == (INT_TYPE, 1) and b not in _INT_WIDTHS:
                 raise BadFooter(f"its footer has an integer of {b} bits")
-            return
+            return b
         if kind in (_I16, _I32, _I64):
             n = self.zigzag()
             if enum is not None and n not in enum:
                 raise BadFooter(f"its footer has an unknown {_NAMES[where]} ({n})")
-            return
+            return n
         if kind == _DOUBLE:
             self.skip(8)
         elif kind == _BINARY:
@@ -233,6 +233,7 @@ class _Walker:
                     self.byte()  # a list's bool is a byte of its own
                 else:
                     self.value(item, struct, enum, depth + 1, where)
+            return size
         elif kind == _MAP:
             size = self.varint()
             if size:
@@ -246,19 +247,7 @@ class _Walker:
             self.struct(struct, depth + 1)
         else:
             raise BadFooter(f"its footer has a value of unknown kind {kind}")
-
-
-def _zigzag_at(data: bytes, at: int) -> int:
-    w = _Walker(data)
-    w.at = at
-    return w.zigzag()
-
-
-def _list_size(data: bytes, at: int) -> int:
-    w = _Walker(data)
-    w.at = at
-    size = w.byte() >> 4
-    return w.varint() if size == 15 else size
+        return 0
 
 
 _NAMES = {
