@@ -483,23 +483,35 @@ def test_the_ui_with_the_real_daemon(tmp_path: Path, robot_node: Any) -> None:
 
         # a violation: from the daemon's log to the screen.  The log is written before
         # the record is published, so the time since the log last had no violation
-        # bounds the latency from above (with this loop's own reads and waits in it).
-        clean = seen_page = None
-        deadline = time.monotonic() + 20
-        while seen_page is None and time.monotonic() < deadline:
-            if not any(r["event"] == "violation" for r in d.records()):
-                clean = time.monotonic()
-            robot.publish(VIOLATING, gap_before_trigger=0.005)
-            try:  # the page's feed item, awaited (a DOM change), for one burst's worth
-                page.wait_for_selector("#feed li[data-event='violation']", timeout=45)
-                seen_page = time.monotonic()
-            except PageTimeout:
-                pass
-        assert seen_page is not None and clean is not None, d.explain()
+        # bounds the latency from above.  The robot publishes on a thread while the
+        # page is awaited: a short wait per publish timed out on a busy page even with
+        # the item on it (each wait is several round trips to the page's main thread).
+        clean: list[float] = []
+        stop = threading.Event()
+
+        def violate() -> None:
+            while not stop.is_set():
+                if not any(r["event"] == "violation" for r in d.records()):
+                    clean.append(time.monotonic())
+                robot.publish(VIOLATING, gap_before_trigger=0.005)
+                stop.wait(0.05)
+
+        publisher = threading.Thread(target=violate, name="violate", daemon=True)
+        publisher.start()
+        try:
+            page.wait_for_selector("#feed li[data-event='violation']", timeout=20_000)
+            seen_page: float | None = time.monotonic()
+        except PageTimeout:
+            seen_page = None
+        finally:
+            stop.set()
+            publisher.join(5)
+        assert seen_page is not None and clean, d.explain()
+        clean = [t for t in clean if t <= seen_page]
         # pushed, not polled: well within the next status period would do; the bound
         # is a sanity deadline (it was 1 s, and took 1.14 s once on a loaded machine:
         # a time is bench's to measure, not a test's to assert)
-        assert seen_page - clean < SCREEN_S, seen_page - clean
+        assert seen_page - clean[-1] < SCREEN_S, seen_page - clean[-1]
         assert console == [], console
         assert all(u.startswith(ui.url) for u in requests), requests
         # the daemon's own documents pass the UI's schema check, and it is the one publisher
