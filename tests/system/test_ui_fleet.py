@@ -318,6 +318,48 @@ def test_the_fleet_page_shows_a_silent_robot_as_lost(fleet_served: Any) -> None:
         pw.stop()
 
 
+FLEET_SIZE = 100
+FLEET_RATE = 400  # status documents a second: 100 robots at 4 Hz (ros.status_ms 250)
+FLEET_BURST_S = 3.0
+CURRENT_S = 2.0  # a document sent after the burst is on the page this soon
+
+
+@pytest.mark.slow
+def test_the_fleet_page_stays_current_with_many_robots(tmp_path: Path) -> None:
+    """A hundred robots' documents: the page redraws once per burst, not once per
+    document, so a row shows its robot's latest document within CURRENT_S."""
+    control = FakeControl(tmp_path / "ctl.sock")
+    sock = str(control.path)
+    specs = [RobotSpec(f"r{i:03d}", f"/robot{i:03d}", 0, socket=sock) for i in range(FLEET_SIZE)]
+    fleet = Fleet(specs, lambda doc, s: local_reset_availability(doc, s, TOKEN, reset_availability))
+    server = UiServer(("127.0.0.1", 0), None, TOKEN, lambda: None, fleet=fleet)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    robots = [robot(fleet, spec.name) for spec in specs]
+    pw, page, console, requests = open_page(server.url())
+    try:
+        page.wait_for_selector(f"tr.robot[data-robot='r{FLEET_SIZE - 1:03d}']")
+        sent = 0
+        start = time.monotonic()
+        while (elapsed := time.monotonic() - start) < FLEET_BURST_S:
+            while sent < elapsed * FLEET_RATE:
+                i = sent % FLEET_SIZE
+                fleet.on_status(robots[i], doc_of(f"robot{i:03d}", sock, f"{sent}",
+                                                  component=f"c{sent}"))  # fmt: skip
+                sent += 1
+            time.sleep(0.005)
+        fleet.on_status(robots[50], doc_of("robot050", sock, "last", component="marker"))
+        t0 = time.monotonic()
+        page.wait_for_selector("tr.robot[data-robot='r050'] >> text=marker", timeout=60_000)
+        lag = time.monotonic() - t0
+        assert lag < CURRENT_S, f"the page was {lag:.1f} s behind after {sent} documents"
+        assert console == [], console
+        assert all(u.startswith(server.url()) for u in requests), requests
+    finally:
+        pw.stop()
+        server.stop()
+        control.close()
+
+
 def held_click(page: Any, selector: str, hold_ms: int, during: Any = None) -> None:
     """A person's click: pressed, held ``hold_ms`` (longer than the page's redraws,
     during which ``during()`` may send documents), released on the same spot."""

@@ -492,3 +492,42 @@ def test_the_tests_read_a_redrawing_page_in_one_task() -> None:
         assert console == [], console
     finally:
         pw.stop()
+
+
+# ---------------------------------------------------------------- a burst
+
+
+BURST_RATE = 400  # violation records a second: 20 requirements violated at every 50 ms tick
+BURST_S = 3.0
+CURRENT_S = 2.0  # the page shows a record this soon after the burst (it was 38 s behind)
+
+
+@pytest.mark.slow
+def test_the_page_stays_current_through_a_burst_of_violations(tmp_path: Path) -> None:
+    """An incident floods the violations topic: the page redraws once per burst, not
+    once per record, so what it shows is the present: a record sent after the burst is
+    on the page within CURRENT_S, first in the feed, the burst's last records under it."""
+    reqs = [requirement(f"r{i:02d}") for i in range(20)]
+    sock = str(tmp_path / "ctl.sock")
+    doc = status_doc(sock, now=iso(datetime.now(UTC)), requirements=reqs, events=[])
+    with page_of(tmp_path, doc, feed=reqs) as (hub, page, _c, _r, _sock):
+        sent = 0
+        start = time.monotonic()
+        while (elapsed := time.monotonic() - start) < BURST_S:
+            while sent < elapsed * BURST_RATE:
+                hub.on_violation({"event": "violation", "requirement": f"r{sent % 20:02d}",
+                                  "tick": sent // 20, "ts": iso(datetime.now(UTC)),
+                                  "inputs": {"x": sent}})  # fmt: skip
+                sent += 1
+            time.sleep(0.005)
+        hub.on_violation({"event": "violation", "requirement": "r07", "tick": 10**6,
+                          "ts": iso(datetime.now(UTC)), "inputs": {"x": -1}})  # fmt: skip
+        t0 = time.monotonic()
+        page.wait_for_selector("#feed li[data-event='violation'] >> text=x=-1", timeout=60_000)
+        lag = time.monotonic() - t0
+        assert lag < CURRENT_S, f"the page was {lag:.1f} s behind after {sent} records"
+        # the newest first, and the burst's last records under it, in order
+        feed = eval_all(page, "#feed li[data-event='violation']",
+                        "es => es.slice(0, 3).map(e => e.textContent)")  # fmt: skip
+        assert "x=-1" in feed[0], feed
+        assert f"x={sent - 1}" in feed[1] and f"x={sent - 2}" in feed[2], (sent, feed)
