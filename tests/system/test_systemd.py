@@ -302,6 +302,23 @@ def _stop_nspawn(nspawn: subprocess.Popen[bytes]) -> None:
             nspawn.wait(timeout=30)
 
 
+def _container_init(nspawn_pid: int) -> int:
+    """The container's PID 1 among systemd-nspawn's children, 0 if not there yet.
+    nspawn first forks a child in our own PID namespace, which clones PID 1 into the
+    new one and exits; that first child is not the container (nsenter into it fails
+    once it is gone), so a child counts only if its NSpid says 1 in a namespace below."""
+    for pid in _children(nspawn_pid):
+        try:
+            status = Path(f"/proc/{pid}/status").read_text()
+        except OSError:
+            continue
+        for line in status.splitlines():
+            ids = line.split()[1:] if line.startswith("NSpid:") else []
+            if len(ids) > 1 and ids[-1] == "1":
+                return pid
+    return 0
+
+
 def _wait_booted(nspawn: subprocess.Popen[bytes], log: Path) -> Machine:
     pid1 = 0
 
@@ -309,8 +326,7 @@ def _wait_booted(nspawn: subprocess.Popen[bytes], log: Path) -> Machine:
         nonlocal pid1
         if nspawn.poll() is not None:
             pytest.fail(f"systemd-nspawn exited {nspawn.returncode}: {log.read_text()[-2000:]}")
-        kids = _children(nspawn.pid)
-        pid1 = kids[0] if kids else 0
+        pid1 = _container_init(nspawn.pid)
         return pid1 != 0
 
     _poll("the container's PID 1", 30, found)
