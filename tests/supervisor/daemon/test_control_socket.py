@@ -31,7 +31,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from supervisor.config.model import ControlConfig
-from supervisor.daemon.control import MAX_REQUEST, ControlServer, open_control
+from supervisor.daemon.control import CLIENT_DEADLINE_S, MAX_REQUEST, ControlServer, open_control
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -82,8 +82,6 @@ def test_an_over_long_line_gets_an_answer(served: ControlServer, newline: bool) 
 
 
 def test_a_slow_writer_is_dropped_without_delaying_others(served: ControlServer) -> None:
-    from supervisor.daemon.control import CLIENT_DEADLINE_S
-
     slow = connect(served.path)
     try:
         slow.sendall(b'{"comm')
@@ -136,7 +134,9 @@ def test_any_bytes_then_a_reset_is_answered(
         except (BrokenPipeError, ConnectionResetError):
             pass  # answered (a bound broken) and closed while we were still writing
     took, answer = timed_reset(served.path)
-    assert answer["ok"] is True and took < 1.0, took
+    # The bad client is gone: a server still held by it would answer only at its
+    # deadline.  1 s was too close to a loaded CI machine's 1.004 s.
+    assert answer["ok"] is True and took < CLIENT_DEADLINE_S, took
     assert served.alive()
 
 
