@@ -156,8 +156,10 @@ def test_stop_loop_under_flood_no_crash_no_ghost(
 def test_restarted_daemon_beside_its_predecessor(
     tmp_path: Path, flood: Child, robot_node: Any
 ) -> None:
-    """B starts right after A stopped: B is the only daemon in the graph and the only
-    subscriber of each input topic, not A's ghost beside it."""
+    """B starts right after A stopped: B's are the only daemon endpoints in the graph,
+    one reader of each input topic and one heartbeat writer, not A's ghost beside
+    them.  Judged by endpoints, as ``_writers`` says why: A's node name was seen to
+    stay listed in CI 40 s after its endpoints were gone."""
     config = _config(tmp_path)
     robot = Robot(robot_node)  # this process's publishers see whose readers match
     topics = [p.topic_name for p in robot.pubs.values()]
@@ -197,15 +199,16 @@ def test_restarted_daemon_beside_its_predecessor(
             # bounded by the stop loop above) leaves them until A's lease ends.
             mine = [readers(t) for t in topics] + [writers(HEARTBEAT_TOPIC)]
             ghosts = a_gids & {g for gids in mine for g in gids}
-            return not ghosts and all(len(gids) == 1 for gids in mine) and _daemons(robot_node) == 1
+            return not ghosts and all(len(gids) == 1 for gids in mine)
 
         wait_until(
-            "B to be the one daemon in the graph, matched once on each topic",
+            "B's to be the one daemon's endpoints in the graph, matched once on each topic",
             alone,
             GHOST_S,  # a lost goodbye's lease, checked late on a loaded machine
             lambda: (
                 f"nodes: {robot_node.get_node_names_and_namespaces()}\n"
                 + "\n".join(f"{t}: {len(readers(t))} readers" for t in topics)
+                + f"\n{HEARTBEAT_TOPIC}: {len(writers(HEARTBEAT_TOPIC))} writers"
             ),
         )
         robot.warm_up(b, S0)  # and B monitors what it is matched to
