@@ -2,8 +2,9 @@
 
 Without DDS: the fleet file's errors, the rows (lost, never removed; discovered
 ones), each robot's own page, stream and resets, served in this process.  In
-headless Chromium: the fleet page going LOST.  Over real DDS: supervisors in two
-namespaces and on a second domain, one listed, one discovered, one stopped.
+headless Chromium: the fleet page going LOST, and keeping up with a hundred robots.
+Over real DDS: supervisors in two namespaces and on a second domain, one listed, one
+discovered, one stopped.
 """
 
 from __future__ import annotations
