@@ -193,6 +193,7 @@ def _replay(
     from supervisor.tools.fleet.archive import copies, list_archive
     from supervisor.tools.fleet.dataset import Dataset, Writers, only_writer
     from supervisor.tools.fleet.task import BagResult, BagTask, copy_of, vouched
+    from supervisor.tools.stopping import uninterrupted
 
     configs = [Path(args.config).absolute()]
     if args.compare:
@@ -290,19 +291,21 @@ def _replay(
     if interrupted:
         # The rows written stay, and the next run takes them as done.  They are counted
         # in the dataset: a pool's worker writes each bag's row as it ends, and its
-        # results reach this process only once its call's bags are all done.
-        written = sum(
-            dataset.row_id(sha, fp) is not None
-            for _robot, fp, _size in where.values()
-            for sha in shas
-            if (sha, fp) not in done.fingerprints
-        )
-        if said is not None:
-            said.append(
-                f"fleet replay: interrupted: {written:,} of {total:,} bags done, "
-                f"{already:,} done before; their rows in {output}: the same command "
-                "replays the rest"
+        # results reach this process only once its call's bags are all done.  A second
+        # signal during the count waits for the line (else it would say none was done).
+        with uninterrupted():
+            written = sum(
+                dataset.row_id(sha, fp) is not None
+                for _robot, fp, _size in where.values()
+                for sha in shas
+                if (sha, fp) not in done.fingerprints
             )
+            if said is not None:
+                said.append(
+                    f"fleet replay: interrupted: {written:,} of {total:,} bags done, "
+                    f"{already:,} done before; their rows in {output}: the same command "
+                    "replays the rest"
+                )
         return EXIT_INTERRUPTED
     print(progress.summary(counts, already, Path(args.output)), file=out, flush=True)
     if args.compare:
