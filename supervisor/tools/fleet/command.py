@@ -285,33 +285,45 @@ def _replay(
     except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (cmd_fleet): the pool is stopped below
         interrupted = True
     finally:
-        results.close()  # an error stops the pool too (engine.py)
-        progress.end()
-        held.close()
-    if interrupted:
-        # The rows written stay, and the next run takes them as done.  They are counted
-        # in the dataset: a pool's worker writes each bag's row as it ends, and its
-        # results reach this process only once its call's bags are all done.  A second
-        # signal during the count waits for the line (else it would say none was done).
+        # A second signal during the stop and the count waits for the line (it cut
+        # them short, and the command said no bag was done with rows in the dataset).
         with uninterrupted():
-            written = sum(
-                dataset.row_id(sha, fp) is not None
-                for _robot, fp, _size in where.values()
-                for sha in shas
-                if (sha, fp) not in done.fingerprints
-            )
-            if said is not None:
-                said.append(
-                    f"fleet replay: interrupted: {written:,} of {total:,} bags done, "
-                    f"{already:,} done before; their rows in {output}: the same command "
-                    "replays the rest"
-                )
+            results.close()  # an error stops the pool too (engine.py)
+            progress.end()
+            held.close()
+            if interrupted and said is not None:
+                said.append(_interrupted_line(dataset, where, shas, done, total, already))
+    if interrupted:
         return EXIT_INTERRUPTED
     print(progress.summary(counts, already, Path(args.output)), file=out, flush=True)
     if args.compare:
         _compare(dataset, shas, {fp for _, fp, _ in where.values()}, out)
     # a damaged bag was judged only up to its damage: as replay, that is not a success
     return EXIT_FAIL if counts["failed"] or counts["damaged"] else EXIT_OK
+
+
+def _interrupted_line(
+    dataset: Any,
+    where: dict[str, tuple[str, str, int]],
+    shas: list[str],
+    done: Any,
+    total: int,
+    already: int,
+) -> str:
+    """What an interrupted run leaves.  The rows written stay, and the next run takes
+    them as done.  They are counted in the dataset: a pool's worker writes each bag's
+    row as it ends, and its results reach this process only once its call's bags are
+    all done."""
+    written = sum(
+        dataset.row_id(sha, fp) is not None
+        for _robot, fp, _size in where.values()
+        for sha in shas
+        if (sha, fp) not in done.fingerprints
+    )
+    return (
+        f"fleet replay: interrupted: {written:,} of {total:,} bags done, {already:,} done "
+        f"before; their rows in {dataset.root}: the same command replays the rest"
+    )
 
 
 def _config_shas(configs: list[Path], engine: Engine) -> list[str]:
