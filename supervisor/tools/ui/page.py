@@ -24,7 +24,6 @@ function patch(el, html) {
   t.innerHTML = html;
   patchChildren(el, t.content);
 }
-
 function keyOf(n) { return n.nodeType === 1 ? n.getAttribute("data-key") : null; }
 function patchNode(old, neu) {
   if (old.nodeType !== 1) { if (old.nodeValue !== neu.nodeValue) old.nodeValue = neu.nodeValue; return; }
